@@ -1,0 +1,57 @@
+"""sss_jax: differentiable real-time subsurface scattering in image space.
+
+The public face; the implementation lives in private modules (``_profiles``, ``_kernels``, ``_scene``,
+``_materials``, ``_techniques``, ...).
+"""
+
+__version__ = "0.1.0"
+
+from ._units import mm_to_px as mm_to_px, px_per_mm as px_per_mm
+from ._profiles import (
+    AbstractProfile as AbstractProfile,
+    BurleyProfile as BurleyProfile,
+    GaussianSumProfile as GaussianSumProfile,
+    TabulatedProfile as TabulatedProfile,
+    burley_R as burley_R,
+    burley_cdf as burley_cdf,
+    burley_inverse_cdf as burley_inverse_cdf,
+    burley_inverse_ccdf as burley_inverse_ccdf,
+    scaling_searchlight as scaling_searchlight,
+    scaling_diffuse_transmission as scaling_diffuse_transmission,
+    scaling_diffuse_mfp as scaling_diffuse_mfp,
+    d_from_mfp as d_from_mfp,
+    preintegrate as preintegrate,
+    marginal_cdf as marginal_cdf,
+)
+from ._kernels import (
+    SeparableKernel as SeparableKernel,
+    SpiralSamples as SpiralSamples,
+    separable_kernel_from_profile as separable_kernel_from_profile,
+    spiral_samples as spiral_samples,
+    tap_offsets as tap_offsets,
+    two_gaussian_kernel as two_gaussian_kernel,
+)
+from ._materials import (
+    BurleyMaterial as BurleyMaterial,
+    DirectionalLight as DirectionalLight,
+    ProfileMaterial as ProfileMaterial,
+    STAParams as STAParams,
+    TwoGaussianMaterial as TwoGaussianMaterial,
+)
+from ._scene import (
+    Buffers as Buffers,
+    Camera as Camera,
+    demo_scene as demo_scene,
+    normals_from_depth as normals_from_depth,
+    validate_buffers as validate_buffers,
+)
+from ._techniques import (
+    ENERGY_CONSERVING as ENERGY_CONSERVING,
+    TECHNIQUES as TECHNIQUES,
+    burley as burley,
+    get_technique as get_technique,
+    reference as reference,
+    reference_radius_px as reference_radius_px,
+    separable as separable,
+    translucency as translucency,
+)

@@ -1,0 +1,175 @@
+"""Turning profiles into taps: 1D separable kernels and golden-angle spiral samples (construction only;
+application lives in ``_techniques``).
+
+Offsets are in millimetres on the surface; the passes project them to pixels per pixel with ``_units.mm_to_px``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float
+
+from ._profiles import AbstractProfile, BurleyProfile, burley_inverse_ccdf, marginal_cdf
+
+__all__ = [
+    "SeparableKernel",
+    "tap_offsets",
+    "separable_kernel_from_profile",
+    "two_gaussian_kernel",
+    "SpiralSamples",
+    "spiral_samples",
+    "GOLDEN_ANGLE",
+]
+
+GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))  # radians, ~137.5 degrees
+
+
+class SeparableKernel(eqx.Module):
+    """A 1D kernel applied once horizontally and once vertically.
+
+    ``offsets_mm (n,)`` are shared by all channels (one fetch per tap serves R, G and B, as in Jimenez's shader);
+    ``weights (n, C)`` sum to 1 per channel. Tap 0 is the centre (offset 0).
+    """
+
+    offsets_mm: Float[Array, " n"]
+    weights: Float[Array, "n C"]
+
+    @property
+    def taps(self) -> int:
+        return int(self.offsets_mm.shape[0])
+
+    def __check_init__(self):
+        if self.offsets_mm.ndim != 1 or self.weights.ndim != 2 or self.weights.shape[0] != self.offsets_mm.shape[0]:
+            raise ValueError(
+                f"SeparableKernel needs offsets_mm (n,) and weights (n, C); got {self.offsets_mm.shape} and "
+                f"{self.weights.shape}"
+            )
+
+
+def _check_taps(taps: int) -> None:
+    if not isinstance(taps, int) or taps < 1 or taps % 2 == 0:
+        raise ValueError(f"taps must be an odd positive integer (a centre tap plus symmetric pairs), got {taps!r}")
+
+
+def tap_offsets(taps: int, range_mm: ArrayLike, *, exponent: float = 2.0) -> tuple[Array, Array, Array]:
+    """Tap positions in [-range, range], densest near the centre, and the interval each tap stands for.
+
+    Following Jimenez's ``SeparableSSS::calculateKernel``: ``o_i`` evenly spaced in [-1, 1], offset
+    ``range * sign(o) |o|^exponent``. Returns (offsets, lower, upper) with the centre tap first; the intervals tile
+    [-range, range] with boundaries half way between neighbouring taps, the outer ones extended to +-infinity so
+    the taps together hold all of the kernel's energy before normalisation.
+    """
+    _check_taps(taps)
+    range_mm = jnp.asarray(range_mm)
+    dtype = jnp.result_type(range_mm.dtype, jnp.float32)
+    o = jnp.linspace(-1.0, 1.0, taps, dtype=dtype) if taps > 1 else jnp.zeros((1,), dtype)
+    sorted_offsets = range_mm * jnp.sign(o) * jnp.abs(o) ** exponent
+    mids = 0.5 * (sorted_offsets[1:] + sorted_offsets[:-1])
+    inf = jnp.full((1,), jnp.inf, dtype)
+    lower = jnp.concatenate([-inf, mids])
+    upper = jnp.concatenate([mids, inf])
+    # centre first (the shader reads the centre once and the taps around it)
+    order = jnp.asarray([taps // 2] + [i for i in range(taps) if i != taps // 2])
+    return sorted_offsets[order], lower[order], upper[order]
+
+
+def _normalise(weights: Array) -> Array:
+    total = jnp.sum(weights, axis=0, keepdims=True)
+    return weights / jnp.where(total > 0, total, 1.0)
+
+
+def separable_kernel_from_profile(
+    profile: AbstractProfile, *, taps: int = 25, range_mm: ArrayLike | None = None, exponent: float = 2.0
+) -> SeparableKernel:
+    """The pre-integrated SSSS kernel of a profile: tap i gets the energy of ``a_p`` over its interval.
+
+    The weights are differences of the 1D marginal CDF (``_profiles.marginal_cdf``), so the 1/r peak of a Burley
+    profile is integrated, not point-sampled, and ``sum_i w_i = ||a_p||_1 / ||R||_1 = 1`` (Eq. 2).
+    ``range_mm`` defaults to the radius holding 99% of the widest channel's energy.
+    """
+    if range_mm is None:
+        range_mm = jnp.max(profile.radius_for_energy(0.99))
+    offsets, lower, upper = tap_offsets(taps, range_mm, exponent=exponent)
+    # marginal_cdf at +-inf is exactly 0/1 by construction; clip for the arithmetic
+    big = jnp.asarray(jnp.finfo(offsets.dtype).max / 4, offsets.dtype)
+    weights = marginal_cdf(profile, jnp.clip(upper, -big, big)) - marginal_cdf(profile, jnp.clip(lower, -big, big))
+    return SeparableKernel(offsets_mm=offsets, weights=_normalise(weights))
+
+
+def _gauss_cdf(x: Array, sigma: Array) -> Array:
+    """Normal CDF with standard deviation sigma; sigma = 0 is a step at 0 (the identity kernel)."""
+    ok = sigma > 0
+    z = x / jnp.where(ok, sigma, 1.0)
+    return jnp.where(ok, 0.5 * (1 + jax.scipy.special.erf(z / math.sqrt(2))), jnp.where(x >= 0, 1.0, 0.0))
+
+
+def two_gaussian_kernel(
+    w: ArrayLike,
+    sigma_near_mm: ArrayLike,
+    sigma_far_mm: ArrayLike,
+    *,
+    taps: int = 25,
+    range_mm: ArrayLike | None = None,
+    exponent: float = 2.0,
+) -> SeparableKernel:
+    """Jimenez et al.'s artist-friendly kernel ``a_m(x) = w G(x, s_near) + (1 - w) G(x, s_far)``, per channel.
+
+    ``w``, ``sigma_near_mm``, ``sigma_far_mm`` have shape (C,). Each tap gets the exact (erf) mass of ``a_m`` over
+    its interval. ``range_mm`` defaults to 3 times the largest sigma (Jimenez's RANGE of 3 standard deviations).
+    """
+    w = jnp.asarray(w)
+    dtype = jnp.result_type(w.dtype, jnp.float32)
+    w = w.astype(dtype)
+    s_near = jnp.asarray(sigma_near_mm, dtype)
+    s_far = jnp.asarray(sigma_far_mm, dtype)
+    if not (w.shape == s_near.shape == s_far.shape) or w.ndim != 1:
+        raise ValueError(
+            f"w, sigma_near_mm and sigma_far_mm must all have shape (C,); got {w.shape}, {s_near.shape}, {s_far.shape}"
+        )
+    if range_mm is None:
+        range_mm = 3 * jnp.max(jnp.maximum(s_near, s_far))
+    offsets, lower, upper = tap_offsets(taps, jnp.asarray(range_mm, dtype), exponent=exponent)
+    lo, hi = lower[:, None], upper[:, None]
+    mass_near = _gauss_cdf(hi, s_near[None, :]) - _gauss_cdf(lo, s_near[None, :])
+    mass_far = _gauss_cdf(hi, s_far[None, :]) - _gauss_cdf(lo, s_far[None, :])
+    weights = w[None, :] * mass_near + (1 - w[None, :]) * mass_far
+    return SeparableKernel(offsets_mm=offsets, weights=_normalise(weights))
+
+
+class SpiralSamples(eqx.Module):
+    """Golden-angle spiral samples of the normalised Burley profile for ``d = 1``.
+
+    ``ccdf (n,)`` are stratified complementary-CDF values ``(i + 1/2) / n``; ``angles (n,)`` the golden-angle spiral.
+    The pass turns them into radii per pixel (``burley_inverse_ccdf(c * ccdf, d_pixel)``, with ``c`` the fraction of
+    the profile inside the image so huge radii clamp to it) and projects them with the pixel's depth.
+    """
+
+    ccdf: Float[Array, " n"]
+    angles: Float[Array, " n"]
+
+    @property
+    def count(self) -> int:
+        return int(self.ccdf.shape[0])
+
+    def unit_radii(self) -> Array:
+        """Radii for ``d = 1`` (in units of d)."""
+        return burley_inverse_ccdf(self.ccdf, jnp.ones_like(self.ccdf))
+
+
+def spiral_samples(n: int, *, dtype=jnp.float32) -> SpiralSamples:
+    """``n`` samples: radius by stratified inverse-CDF sampling of the Burley profile, angle ``i * golden angle``."""
+    if not isinstance(n, int) or n < 1:
+        raise ValueError(f"samples must be a positive integer, got {n!r}")
+    i = jnp.arange(n, dtype=dtype)
+    # i = 0 takes the largest CCDF (the smallest radius) so the first samples hug the centre
+    ccdf = 1 - (i + 0.5) / n
+    return SpiralSamples(ccdf=ccdf, angles=jnp.mod(i * GOLDEN_ANGLE, 2 * math.pi))
+
+
+def burley_kernel_for(profile: BurleyProfile, *, taps: int = 25, range_mm: ArrayLike | None = None) -> SeparableKernel:
+    """Shorthand: the pre-integrated separable kernel of a Burley profile."""
+    return separable_kernel_from_profile(profile, taps=taps, range_mm=range_mm)

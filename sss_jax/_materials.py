@@ -1,0 +1,205 @@
+"""Parameter pytrees of the techniques: small frozen equinox Modules, one row per material.
+
+A material table holds ``M`` materials as arrays with a leading axis ``(M, 3)``; a frame's ``material_id`` buffer
+selects row ``id - 1`` (id 0 means "no subsurface scattering here"). With ``M = 1`` every non-zero id uses the one
+material. Constructors accept ``(3,)`` for a single material. Lengths are in millimetres.
+
+Value checks run in ``__check_init__`` when the values are concrete (outside ``jit``); inside ``jit`` the techniques
+check with ``eqx.error_if`` so a NaN or negative parameter is an error, not a NaN image.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+from ._profiles import AbstractProfile, d_from_mfp
+
+__all__ = ["BurleyMaterial", "TwoGaussianMaterial", "ProfileMaterial", "STAParams", "DirectionalLight"]
+
+
+def _table(name: str, value: ArrayLike, dtype=None) -> Array:
+    x = jnp.asarray(value, dtype=dtype)
+    if not jnp.issubdtype(x.dtype, jnp.floating):
+        x = x.astype(jnp.float32)
+    if x.ndim == 0:
+        x = jnp.broadcast_to(x, (1, 3))
+    elif x.ndim == 1:
+        if x.shape[0] != 3:
+            raise ValueError(f"{name} must have 3 values (R, G, B), got shape {x.shape}")
+        x = x[None, :]
+    if x.ndim != 2 or x.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (3,) or (M, 3), got {x.shape}")
+    return x
+
+
+def _is_concrete(x) -> bool:
+    return not isinstance(x, jax.core.Tracer)
+
+
+def _check_range(name: str, x: Array, lo: float, hi: float | None = None, *, lo_open: bool = False) -> None:
+    """Raise a ValueError naming the parameter when concrete values fall outside [lo, hi] (NaN always fails)."""
+    if not _is_concrete(x):
+        return
+    v = np.asarray(x, dtype=np.float64)
+    ok = (v > lo) if lo_open else (v >= lo)
+    if hi is not None:
+        ok &= v <= hi
+    if not np.all(ok):  # NaN fails both comparisons
+        bad = v[~ok].ravel()[:3]
+        bound = f"({lo}, {hi}]" if lo_open else f"[{lo}, {'inf' if hi is None else hi}]"
+        raise ValueError(f"{name} must lie in {bound} (and not be NaN); got {bad.tolist()}")
+
+
+def _same_rows(*named: tuple[str, Array]) -> None:
+    rows = {n: a.shape[0] for n, a in named}
+    if len(set(rows.values())) > 1:
+        raise ValueError(f"material parameters must have the same number of materials (rows): {rows}")
+
+
+class BurleyMaterial(eqx.Module):
+    """Christensen–Burley material: surface albedo ``A`` in [0, 1] and scattering distance ``d_mm`` >= 0 (mm)."""
+
+    albedo: Float[Array, "M 3"]
+    d_mm: Float[Array, "M 3"]
+
+    def __init__(self, albedo: ArrayLike, d_mm: ArrayLike):
+        self.d_mm = _table("d_mm", d_mm)
+        self.albedo = _table("albedo", albedo, self.d_mm.dtype)
+        if self.albedo.shape[0] == 1 and self.d_mm.shape[0] > 1:
+            self.albedo = jnp.broadcast_to(self.albedo, self.d_mm.shape)
+
+    def __check_init__(self):
+        _same_rows(("albedo", self.albedo), ("d_mm", self.d_mm))
+        _check_range("albedo", self.albedo, 0.0, 1.0)
+        _check_range("d_mm", self.d_mm, 0.0)
+        if _is_concrete(self.d_mm) and not np.all(np.isfinite(np.asarray(self.d_mm))):
+            raise ValueError("d_mm must be finite")
+
+    @classmethod
+    def from_mfp(cls, albedo: ArrayLike, mfp_mm: ArrayLike, *, fit: str = "diffuse_transmission") -> "BurleyMaterial":
+        """From albedo and mean free path (mm) through the memo's ``s(A)`` fit (``d = mfp / s(A)``)."""
+        a = _table("albedo", albedo)
+        l = _table("mfp_mm", mfp_mm, a.dtype)
+        _check_range("mfp_mm", l, 0.0)
+        return cls(a, d_from_mfp(a, l, fit=fit))
+
+    @property
+    def count(self) -> int:
+        return int(self.d_mm.shape[0])
+
+
+class TwoGaussianMaterial(eqx.Module):
+    """Jimenez et al.'s artist-friendly separable kernel per channel: ``w G(sigma_near) + (1 - w) G(sigma_far)``.
+
+    ``w`` in [0, 1]; ``sigma_near_mm``, ``sigma_far_mm`` >= 0 in mm (0 is the identity kernel).
+    """
+
+    albedo: Float[Array, "M 3"]
+    w: Float[Array, "M 3"]
+    sigma_near_mm: Float[Array, "M 3"]
+    sigma_far_mm: Float[Array, "M 3"]
+
+    def __init__(self, albedo: ArrayLike, w: ArrayLike, sigma_near_mm: ArrayLike, sigma_far_mm: ArrayLike):
+        self.w = _table("w", w)
+        dtype = self.w.dtype
+        self.sigma_near_mm = _table("sigma_near_mm", sigma_near_mm, dtype)
+        self.sigma_far_mm = _table("sigma_far_mm", sigma_far_mm, dtype)
+        albedo = _table("albedo", albedo, dtype)
+        if albedo.shape[0] == 1 and self.w.shape[0] > 1:
+            albedo = jnp.broadcast_to(albedo, self.w.shape)
+        self.albedo = albedo
+
+    def __check_init__(self):
+        _same_rows(("albedo", self.albedo), ("w", self.w), ("sigma_near_mm", self.sigma_near_mm),
+                   ("sigma_far_mm", self.sigma_far_mm))
+        _check_range("albedo", self.albedo, 0.0, 1.0)
+        _check_range("w", self.w, 0.0, 1.0)
+        _check_range("sigma_near_mm", self.sigma_near_mm, 0.0)
+        _check_range("sigma_far_mm", self.sigma_far_mm, 0.0)
+
+    @property
+    def count(self) -> int:
+        return int(self.w.shape[0])
+
+
+class ProfileMaterial(eqx.Module):
+    """Any radial profile (Gaussian sum, tabulated Monte Carlo) with a surface albedo: one material.
+
+    Used by ``separable`` (pre-integrated kernel) and ``reference``.
+    """
+
+    albedo: Float[Array, "1 3"]
+    profile: AbstractProfile
+
+    def __init__(self, profile: AbstractProfile, albedo: ArrayLike | None = None):
+        if profile.num_channels != 3:
+            raise ValueError(f"ProfileMaterial needs a 3-channel profile, got {profile.num_channels} channels")
+        self.profile = profile
+        self.albedo = _table("albedo", profile.albedo if albedo is None else albedo)
+
+    def __check_init__(self):
+        _check_range("albedo", self.albedo, 0.0, 1.0)
+
+    @property
+    def count(self) -> int:
+        return 1
+
+
+class STAParams(eqx.Module):
+    """The simple translucency approximation (Barré-Brisebois & Bouchard, GDC 2011; the paper's Sec. 3.1).
+
+    - ``distortion`` d_T (unitless, >= 0): how far the normal bends the light vector, ``L_T = norm(L + d_T N)``.
+    - ``power`` p_T (>= 0) and ``scale`` s_T (3,) (>= 0): ``T_dir = s_T max(0, V . -L_T)^p_T``.
+    - ``ambient`` a_T (3,) (>= 0): view-independent back-light.
+    - ``thickness_mm`` (3,) (> 0): the mapping from thickness to attenuation, ``t(x) = exp(-thickness / thickness_mm)``
+      per channel (1 for a paper-thin sheet, 0 for a thick body); thickness comes from the buffer (scene units).
+
+    STA adds light: ``out = diffuse + albedo * light * A_L * t * (T_dir + a_T)``; it does not conserve energy.
+    """
+
+    distortion: Float[Array, ""]
+    power: Float[Array, ""]
+    scale: Float[Array, " 3"]
+    ambient: Float[Array, " 3"]
+    thickness_mm: Float[Array, " 3"]
+
+    def __init__(self, *, distortion=0.2, power=4.0, scale=1.0, ambient=0.0, thickness_mm=1.0, dtype=None):
+        self.distortion = jnp.asarray(distortion, dtype=dtype if dtype else jnp.float32)
+        dtype = self.distortion.dtype
+        self.power = jnp.asarray(power, dtype=dtype)
+        self.scale = jnp.broadcast_to(jnp.asarray(scale, dtype=dtype), (3,))
+        self.ambient = jnp.broadcast_to(jnp.asarray(ambient, dtype=dtype), (3,))
+        self.thickness_mm = jnp.broadcast_to(jnp.asarray(thickness_mm, dtype=dtype), (3,))
+
+    def __check_init__(self):
+        _check_range("distortion", self.distortion, 0.0)
+        _check_range("power", self.power, 0.0)
+        _check_range("scale", self.scale, 0.0)
+        _check_range("ambient", self.ambient, 0.0)
+        _check_range("thickness_mm", self.thickness_mm, 0.0, lo_open=True)
+
+
+class DirectionalLight(eqx.Module):
+    """A directional light in camera space (x right, y down, z forward): ``direction`` points from the surface
+    towards the light; ``colour`` is its irradiance at normal incidence (linear RGB)."""
+
+    direction: Float[Array, " 3"]
+    colour: Float[Array, " 3"]
+
+    def __init__(self, direction: ArrayLike, colour: ArrayLike = (1.0, 1.0, 1.0)):
+        direction = jnp.asarray(direction, dtype=jnp.result_type(jnp.asarray(direction).dtype, jnp.float32))
+        if direction.shape != (3,):
+            raise ValueError(f"light direction must have shape (3,), got {direction.shape}")
+        if _is_concrete(direction):
+            n = float(np.linalg.norm(np.asarray(direction)))
+            if not np.isfinite(n) or n == 0:
+                raise ValueError(f"light direction must be a finite non-zero vector, got {np.asarray(direction)}")
+        self.direction = direction / jnp.linalg.norm(direction)
+        self.colour = jnp.broadcast_to(jnp.asarray(colour, dtype=direction.dtype), (3,))
+
+    def __check_init__(self):
+        _check_range("light colour", self.colour, 0.0)

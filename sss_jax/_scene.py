@@ -1,0 +1,297 @@
+"""The buffers a screen-space pass reads, the pinhole camera, and the procedural demo scene.
+
+Conventions (DESIGN.md): images ``(H, W, 3)`` linear scene-referred RGB; depth ``(H, W)`` planar view depth in
+scene units, ``inf`` (or any non-finite or non-positive value) where there is no surface; camera space is
+x right, y down, z forward; ``Camera.mm_per_unit`` says how many millimetres one scene unit is.
+"""
+
+from __future__ import annotations
+
+import math
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float, Int
+
+from ._materials import DirectionalLight
+
+__all__ = ["Camera", "Buffers", "validate_buffers", "surface_mask", "camera_positions", "normals_from_depth",
+           "demo_scene", "DemoScene"]
+
+
+class Camera(eqx.Module):
+    """Pinhole camera: focal length in pixels, scene unit in millimetres, principal point in pixels.
+
+    ``principal_point`` defaults to the image centre when None (static: it decides no shapes, but is host data).
+    """
+
+    focal_px: Float[Array, ""]
+    mm_per_unit: Float[Array, ""]
+    principal_point: tuple[float, float] | None = eqx.field(static=True, default=None)
+
+    def __init__(self, focal_px: ArrayLike, mm_per_unit: ArrayLike = 1.0, principal_point=None):
+        self.focal_px = jnp.asarray(focal_px, dtype=jnp.result_type(jnp.asarray(focal_px).dtype, jnp.float32))
+        self.mm_per_unit = jnp.asarray(mm_per_unit, dtype=self.focal_px.dtype)
+        self.principal_point = None if principal_point is None else (float(principal_point[0]), float(principal_point[1]))
+        for name, v in (("focal_px", self.focal_px), ("mm_per_unit", self.mm_per_unit)):
+            if not isinstance(v, jnp.ndarray) or v.shape != ():
+                raise ValueError(f"camera {name} must be a scalar, got shape {getattr(v, 'shape', None)}")
+            try:
+                value = float(v)
+            except Exception:  # traced: checked by the caller outside jit
+                continue
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"camera {name} must be a finite positive number, got {value}")
+
+
+class Buffers(eqx.Module):
+    """What a screen-space pass reads for one frame (a batch adds a leading axis and is vmapped).
+
+    - ``irradiance (H, W, 3)``: linear RGB irradiance (diffuse light before albedo).
+    - ``depth (H, W)``: planar view depth in scene units; ``inf`` where there is no surface.
+    - ``albedo (H, W, 3)`` optional: surface colour in [0, 1]; when absent the material's albedo is used.
+    - ``normal (H, W, 3)`` optional: unit normals in camera space (STA); derived from depth when absent.
+    - ``thickness (H, W)`` optional: object thickness along the light in scene units (STA, transmission).
+    - ``material_id (H, W)`` optional int: 0 = no SSS (passes through untouched), k >= 1 selects material k.
+    """
+
+    irradiance: Float[Array, "H W 3"]
+    depth: Float[Array, "H W"]
+    albedo: Float[Array, "H W 3"] | None = None
+    normal: Float[Array, "H W 3"] | None = None
+    thickness: Float[Array, "H W"] | None = None
+    material_id: Int[Array, "H W"] | None = None
+
+    def __check_init__(self):
+        e, z = self.irradiance, self.depth
+        if e.ndim != 3 or e.shape[-1] != 3:
+            raise ValueError(f"irradiance must have shape (H, W, 3), got {e.shape}")
+        if z.shape != e.shape[:2]:
+            raise ValueError(f"depth shape {z.shape} does not match irradiance shape {e.shape} (expected {e.shape[:2]})")
+        for name, shape in (("albedo", e.shape), ("normal", e.shape), ("thickness", z.shape), ("material_id", z.shape)):
+            buf = getattr(self, name)
+            if buf is not None and buf.shape != shape:
+                raise ValueError(f"{name} shape {buf.shape} does not match irradiance {e.shape} (expected {shape})")
+        for name in ("irradiance", "depth", "albedo", "normal", "thickness"):
+            buf = getattr(self, name)
+            if buf is not None and not jnp.issubdtype(buf.dtype, jnp.floating):
+                raise ValueError(f"{name} must be a floating-point array, got dtype {buf.dtype}")
+        if self.material_id is not None and not jnp.issubdtype(self.material_id.dtype, jnp.integer):
+            raise ValueError(f"material_id must be an integer array, got dtype {self.material_id.dtype}")
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return tuple(self.depth.shape[-2:])
+
+
+def validate_buffers(buffers: Buffers, *, materials: int | None = None) -> None:
+    """Host-side value checks (outside jit) with messages that name the buffer and the offending values."""
+    e = np.asarray(buffers.irradiance)
+    if not np.all(np.isfinite(e)):
+        n = int(np.sum(~np.isfinite(e)))
+        raise ValueError(f"irradiance has {n} non-finite values (NaN or inf); irradiance must be finite")
+    if np.any(e < 0):
+        raise ValueError(f"irradiance has negative values (min {float(e.min()):.3g}); irradiance must be >= 0")
+    if buffers.albedo is not None:
+        a = np.asarray(buffers.albedo)
+        if not np.all(np.isfinite(a)) or np.any(a < 0) or np.any(a > 1):
+            raise ValueError("albedo buffer must be finite and within [0, 1]")
+    if buffers.thickness is not None:
+        t = np.asarray(buffers.thickness)
+        if np.any(np.isnan(t)) or np.any(t < 0):
+            raise ValueError("thickness buffer must be >= 0 and not NaN (inf means infinitely thick)")
+    if buffers.normal is not None and not np.all(np.isfinite(np.asarray(buffers.normal))):
+        raise ValueError("normal buffer has non-finite values")
+    if buffers.material_id is not None:
+        ids = np.asarray(buffers.material_id)
+        if np.any(ids < 0):
+            raise ValueError(f"material_id has negative ids (min {int(ids.min())}); ids must be >= 0")
+        if materials is not None and materials > 1 and ids.max(initial=0) > materials:
+            raise ValueError(
+                f"material_id uses id {int(ids.max())} but only {materials} materials were given (ids 1..{materials})"
+            )
+
+
+def surface_mask(depth: Array) -> Array:
+    """Pixels with a surface: finite, positive depth."""
+    return jnp.isfinite(depth) & (depth > 0)
+
+
+def _principal_point(camera: Camera, shape: tuple[int, int]) -> tuple[float, float]:
+    h, w = shape
+    return camera.principal_point if camera.principal_point is not None else (w / 2, h / 2)
+
+
+def camera_positions(depth: Array, camera: Camera) -> Array:
+    """Camera-space position ``(H, W, 3)`` of each pixel centre at its planar depth (scene units)."""
+    h, w = depth.shape
+    cx, cy = _principal_point(camera, (h, w))
+    dtype = depth.dtype
+    xs = (jnp.arange(w, dtype=dtype) + 0.5 - cx) / camera.focal_px.astype(dtype)
+    ys = (jnp.arange(h, dtype=dtype) + 0.5 - cy) / camera.focal_px.astype(dtype)
+    z = jnp.where(surface_mask(depth), depth, jnp.ones_like(depth))
+    return jnp.stack([xs[None, :] * z, ys[:, None] * z, z], axis=-1)
+
+
+def normals_from_depth(depth: Array, camera: Camera) -> Array:
+    """Unit camera-space normals from central differences of the reconstructed positions (one-sided at edges and
+    next to pixels without a surface); facing the camera where nothing can be derived."""
+    p = camera_positions(depth, camera)
+    valid = surface_mask(depth)
+
+    def diff(axis):
+        fwd = jnp.roll(p, -1, axis=axis) - p
+        bwd = p - jnp.roll(p, 1, axis=axis)
+        v_f = valid & jnp.roll(valid, -1, axis=axis)
+        v_b = valid & jnp.roll(valid, 1, axis=axis)
+        n = depth.shape[axis]
+        idx = jnp.arange(n)
+        shape = [1, 1]
+        shape[axis] = n
+        idx = idx.reshape(shape)
+        v_f = v_f & (idx < n - 1)
+        v_b = v_b & (idx > 0)
+        # prefer the side whose depth changes least (do not differentiate across a silhouette)
+        use_f = v_f & (~v_b | (jnp.abs(fwd[..., 2]) <= jnp.abs(bwd[..., 2])))
+        use_b = v_b & ~use_f
+        return jnp.where(use_f[..., None], fwd, jnp.where(use_b[..., None], bwd, 0.0))
+
+    dx, dy = diff(1), diff(0)
+    n = jnp.cross(dy, dx)  # x right, y down, z forward: dy x dx points towards the camera (-z)
+    norm = jnp.linalg.norm(n, axis=-1, keepdims=True)
+    ok = norm > 0
+    facing = jnp.zeros_like(n).at[..., 2].set(-1.0)
+    return jnp.where(ok, n / jnp.where(ok, norm, 1.0), facing)
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# The built-in demo scene
+# ------------------------------------------------------------------------------------------------------------------
+
+
+class DemoScene(eqx.Module):
+    buffers: Buffers
+    camera: Camera
+    light: DirectionalLight
+    back_light: DirectionalLight
+    material_names: tuple[str, ...] = eqx.field(static=True)
+
+
+def _ray_sphere(dirs: np.ndarray, origin: np.ndarray, centre: np.ndarray, radius: float) -> np.ndarray:
+    oc = origin - centre
+    b = dirs @ oc
+    c = oc @ oc - radius * radius
+    disc = b * b - c
+    t = -b - np.sqrt(np.maximum(disc, 0))
+    return np.where((disc > 0) & (t > 0), t, np.inf)
+
+
+def demo_scene(height: int = 192, width: int = 256, *, dtype=np.float32) -> DemoScene:
+    """A procedural test scene in centimetres (``mm_per_unit = 10``), analytically ray cast on the host:
+
+    a ground plane (id 0, no SSS), a large sphere (id 1, skin-like), a smaller sphere (id 2, marble-like), and a
+    thin ear-like slab (id 3, 3 mm thick, wax-like) standing upright; a directional key light from the upper left
+    casts a hard shadow edge across the large sphere and the ground; a second directional light behind the
+    objects (``back_light``) lights them only through their thickness (the translucency pass uses it). Irradiance is ``max(0, N.L) * visibility * light + ambient``.
+    """
+    if height < 1 or width < 1:
+        raise ValueError(f"demo scene size must be positive, got {height}x{width}")
+    focal = 1.1 * width
+    cam = np.zeros(3)
+    ys, xs = np.meshgrid(np.arange(height) + 0.5, np.arange(width) + 0.5, indexing="ij")
+    dirs = np.stack([(xs - width / 2) / focal, (ys - height / 2) / focal, np.ones_like(xs)], -1)
+    dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
+    d = dirs.reshape(-1, 3)
+
+    spheres = [  # centre (cm), radius (cm), id
+        (np.array([-4.0, 1.0, 40.0]), 6.0, 1),
+        (np.array([6.5, 3.5, 44.0]), 3.5, 2),
+    ]
+    ground_y = 7.0  # plane y = 7 (y down), normal (0, -1, 0)
+    t_ground = np.where(d[:, 1] > 1e-6, (ground_y - cam[1]) / np.where(d[:, 1] > 1e-6, d[:, 1], 1), np.inf)
+    t_ground = np.where(cam[2] + t_ground * d[:, 2] < 80.0, t_ground, np.inf)  # the plane ends 80 cm away
+
+    # ear-like slab: an upright thin elliptical disc at z = 34 cm facing the camera, 0.3 cm thick
+    slab_c, slab_axes, slab_thick = np.array([4.0, -3.0, 34.0]), (2.2, 3.2), 0.3
+    t_slab = (slab_c[2] - slab_thick / 2) / d[:, 2]
+    hit = cam + t_slab[:, None] * d
+    inside = ((hit[:, 0] - slab_c[0]) / slab_axes[0]) ** 2 + ((hit[:, 1] - slab_c[1]) / slab_axes[1]) ** 2 <= 1
+    t_slab = np.where(inside, t_slab, np.inf)
+
+    ts = [t_ground, t_slab] + [_ray_sphere(d, cam, c, r) for c, r, _ in spheres]
+    ids = [0, 3] + [i for _, _, i in spheres]
+    t_all = np.stack(ts, -1)
+    k = np.argmin(t_all, -1)
+    t = t_all[np.arange(len(k)), k]
+    hit_any = np.isfinite(t)
+    pos = cam + np.where(hit_any, t, 0)[:, None] * d
+    normal = np.zeros_like(pos)
+    normal[:] = (0, 0, -1)
+    normal[k == 0] = (0, -1, 0)
+    normal[k == 1] = (0, 0, -1)
+    for j, (c, r, _) in enumerate(spheres):
+        sel = k == 2 + j
+        normal[sel] = (pos[sel] - c) / r
+    material = np.where(hit_any, np.asarray(ids)[k], 0)
+
+    light_dir = np.array([-0.55, -0.75, -0.35])
+    light_dir /= np.linalg.norm(light_dir)
+    # shadow rays towards the light (hard edge: a point light at infinity)
+    origin = pos + 1e-3 * normal
+    shadow = np.zeros(len(pos), bool)
+    for c, r, _ in spheres:
+        oc = origin - c
+        b = oc @ light_dir
+        cc = np.sum(oc * oc, -1) - r * r
+        disc = b * b - cc
+        tt = -b - np.sqrt(np.maximum(disc, 0))
+        shadow |= (disc > 0) & (tt > 1e-4)
+    ndotl = np.clip(normal @ light_dir, 0, None)
+    light_rgb = np.array([3.0, 2.9, 2.7])
+    ambient = np.array([0.08, 0.09, 0.11])
+    irr = ndotl[:, None] * (~shadow)[:, None] * light_rgb + ambient
+    irr[~hit_any] = 0
+
+    # a back light behind the objects (upper right) for the translucency pass: it lights no visible surface
+    # directly, only through the objects' thickness
+    back_dir = np.array([0.35, -0.45, 0.82])
+    back_dir /= np.linalg.norm(back_dir)
+    back_rgb = np.array([1.6, 1.45, 1.3])
+
+    # thickness along the back light, through each object (scene units)
+    thickness = np.full(len(pos), np.inf)
+    thickness[k == 1] = slab_thick / abs(back_dir[2])
+    for j, (c, r, _) in enumerate(spheres):
+        sel = k == 2 + j
+        # chord through the sphere along the back light's direction from the hit point
+        oc = pos[sel] - c
+        b = oc @ back_dir
+        thickness[sel] = np.maximum(2 * np.sqrt(np.maximum(b * b - (np.sum(oc * oc, -1) - r * r), 0)), 1e-3)
+    albedo = np.full((len(pos), 3), 0.5)
+    albedo[k == 0] = (0.45, 0.45, 0.42)
+    # a checker texture on the ground so screen-space blur of the wrong pixels would show
+    gx, gz = np.floor(pos[:, 0] / 2.0), np.floor(pos[:, 2] / 2.0)
+    albedo[(k == 0) & ((gx + gz) % 2 == 0)] = (0.25, 0.25, 0.23)
+    albedo[k == 2] = (0.80, 0.55, 0.45)  # skin-like
+    albedo[k == 3] = (0.83, 0.79, 0.75)  # marble-like
+    albedo[k == 1] = (0.85, 0.70, 0.45)  # wax-like slab
+
+    depth = np.where(hit_any, pos[:, 2], np.inf)
+    normal[~hit_any] = (0, 0, -1)
+    shape = (height, width)
+    buffers = Buffers(
+        irradiance=jnp.asarray(irr.reshape(shape + (3,)), dtype=dtype),
+        depth=jnp.asarray(depth.reshape(shape), dtype=dtype),
+        albedo=jnp.asarray(albedo.reshape(shape + (3,)), dtype=dtype),
+        normal=jnp.asarray(normal.reshape(shape + (3,)), dtype=dtype),
+        thickness=jnp.asarray(thickness.reshape(shape), dtype=dtype),
+        material_id=jnp.asarray(material.reshape(shape), dtype=jnp.int32),
+    )
+    return DemoScene(
+        buffers=buffers,
+        camera=Camera(focal, mm_per_unit=10.0),
+        light=DirectionalLight(jnp.asarray(light_dir, dtype=dtype), jnp.asarray(light_rgb, dtype=dtype)),
+        back_light=DirectionalLight(jnp.asarray(back_dir, dtype=dtype), jnp.asarray(back_rgb, dtype=dtype)),
+        material_names=("skin", "marble", "wax"),
+    )

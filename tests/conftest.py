@@ -1,0 +1,26 @@
+"""Strict test configuration (house style): x64 available for gradient checks, no silent rank promotion."""
+
+import os
+
+# Several tests shard frames over devices; the host platform must be split before jax initialises.
+os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=4")
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+jax.config.update("jax_numpy_rank_promotion", "raise")
+
+import pathlib
+
+import pytest
+
+SHARED = pathlib.Path(__file__).resolve().parents[2] / "shared"
+if not SHARED.exists():  # CI clones the repo with shared/ beside it; a developer checkout may nest differently
+    SHARED = pathlib.Path(__file__).resolve().parents[1].parent / "shared"
+
+
+@pytest.fixture(scope="session")
+def shared_dir() -> pathlib.Path:
+    if not SHARED.exists():
+        pytest.skip("../shared is not beside the checkout")
+    return SHARED

@@ -1,0 +1,122 @@
+"""Profiles: reference values from closed forms and independent SciPy quadrature."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.integrate as si
+import scipy.special as sp
+from jax.test_util import check_grads
+
+import sss_jax as sj
+
+
+@pytest.mark.parametrize("d_mm", [1e-3, 1e-2, 0.1, 1.0, 10.0, 100.0, 1e3])
+def test_burley_normalised(d_mm):
+    # Christensen & Burley 2015: integral_0^inf R(r) 2 pi r dr = 1 for every d > 0. Independent check: SciPy quad of
+    # the profile in the scaled variable x = r/d (the 1/r peak cancels against 2 pi r).
+    f = lambda x: float(sj.burley_R(jnp.float64(x * d_mm), jnp.float64(d_mm))) * 2 * math.pi * x * d_mm * d_mm
+    total = si.quad(f, 0, 10)[0] + si.quad(f, 10, 200)[0]
+    assert abs(total - 1.0) < 1e-6
+
+
+def test_burley_closed_form_values():
+    # R(r) = (exp(-r/d) + exp(-r/3d)) / (8 pi d r), evaluated by hand in NumPy
+    r, d = np.array([0.1, 1.0, 5.0]), 2.0
+    expected = (np.exp(-r / d) + np.exp(-r / (3 * d))) / (8 * np.pi * d * r)
+    np.testing.assert_allclose(np.asarray(sj.burley_R(jnp.asarray(r), d)), expected, rtol=1e-12)
+
+
+@pytest.mark.parametrize("d_mm", [0.01, 1.0, 300.0])
+def test_cdf_matches_quadrature_and_inverts(d_mm):
+    for r in [0.3 * d_mm, 2 * d_mm, 9 * d_mm]:
+        f = lambda s: float(sj.burley_R(jnp.float64(s), jnp.float64(d_mm))) * 2 * math.pi * s
+        expected = si.quad(f, 0, r, limit=200)[0]
+        assert float(sj.burley_cdf(jnp.float64(r), d_mm)) == pytest.approx(expected, rel=1e-7)
+    u = jnp.asarray([1e-6, 0.01, 0.3, 0.5, 0.9, 0.999, 1 - 1e-9])
+    r = sj.burley_inverse_cdf(u, d_mm)
+    np.testing.assert_allclose(np.asarray(sj.burley_cdf(r, d_mm)), np.asarray(u), rtol=1e-9, atol=1e-12)
+
+
+def test_inverse_ccdf_is_stable_in_the_tail():
+    # CCDF(r) = (y^3 + 3y)/4 with y = exp(-r/3d); for tiny v the root is y ~ 4v/3, so r ~ -3 d log(4v/3)
+    v = jnp.asarray([1e-30, 1e-200])
+    r = sj.burley_inverse_ccdf(v, 1.0)
+    np.testing.assert_allclose(np.asarray(r), -3 * np.log(4 * np.asarray(v) / 3), rtol=1e-12)
+
+
+def test_scaling_fits_by_hand():
+    # Christensen & Burley 2015, Sec. 3: the three fits, at A = 0.5
+    assert float(sj.scaling_searchlight(0.5)) == pytest.approx(1.85 - 0.5 + 7 * 0.3**3)
+    assert float(sj.scaling_diffuse_transmission(0.5)) == pytest.approx(1.9 - 0.5 + 3.5 * 0.09)
+    assert float(sj.scaling_diffuse_mfp(0.5)) == pytest.approx(3.5 + 100 * 0.17**4)
+    assert float(sj.d_from_mfp(0.5, 2.0)) == pytest.approx(2.0 / (1.9 - 0.5 + 3.5 * 0.09))
+    with pytest.raises(ValueError, match="fit='nope' is not one of"):
+        sj.d_from_mfp(0.5, 1.0, fit="nope")
+
+
+def test_preintegrated_kernel_is_bessel_k0():
+    # integral R(sqrt(x^2+y^2)) dy of exp(-r/d)/r is 2 K0(|x|/d): a_p(x) = (K0(|x|/d) + K0(|x|/3d)) / (4 pi d)
+    d = np.array([0.5, 1.0, 2.0])
+    p = sj.BurleyProfile(jnp.asarray(d))
+    x = np.array([0.01, 0.1, 1.0, 3.0, 10.0])
+    expected = (sp.k0(x[:, None] / d) + sp.k0(x[:, None] / (3 * d))) / (4 * np.pi * d)
+    np.testing.assert_allclose(np.asarray(sj.preintegrate(p, jnp.asarray(x))), expected, rtol=1e-6)
+
+
+@pytest.mark.parametrize("profile", ["burley", "deon"])
+def test_eq2_energy_identity(profile):
+    # The paper's Eq. 2: ||a_p||_1 = ||R||_1 (= 1 for normalised profiles). Independent: SciPy quad of a_p over x.
+    p = sj.BurleyProfile(jnp.asarray([0.7, 1.3, 2.1])) if profile == "burley" else sj.GaussianSumProfile.deon_skin(jnp.float64)
+    pre = jax.jit(lambda x: sj.preintegrate(p, x))
+    for c in range(3):
+        f = lambda x: float(pre(jnp.asarray([x]))[0, c])
+        scale = float(p.radius_for_energy(0.5)[c])
+        total = 2 * (si.quad(f, 0, scale, limit=200)[0] + si.quad(f, scale, 80 * scale, limit=200)[0])
+        assert total == pytest.approx(1.0, abs=2e-4)
+
+
+def test_gaussian_sum_against_formula():
+    # d'Eon 2007 six-Gaussian skin: R(r) = sum w_k exp(-r^2/2v_k)/(2 pi v_k), normalised by sum w_k
+    p = sj.GaussianSumProfile.deon_skin(jnp.float64)
+    v = np.array([0.0064, 0.0484, 0.187, 0.567, 1.99, 7.41])
+    w = np.array([[0.233, 0.455, 0.649], [0.100, 0.336, 0.344], [0.118, 0.198, 0.0],
+                  [0.113, 0.007, 0.007], [0.358, 0.004, 0.0], [0.078, 0.0, 0.0]])
+    r = 0.8
+    expected = (w * (np.exp(-r * r / (2 * v)) / (2 * np.pi * v))[:, None]).sum(0) / w.sum(0)
+    np.testing.assert_allclose(np.asarray(p.radial(jnp.asarray([r])))[0], expected, rtol=1e-10)
+    u = jnp.asarray([0.25, 0.5, 0.9])
+    r = p.inverse_cdf(u)
+    got = np.stack([np.asarray(p.cdf(r[:, c]))[:, c] for c in range(3)], -1)
+    np.testing.assert_allclose(got, np.repeat(np.asarray(u)[:, None], 3, 1), atol=1e-9)
+
+
+def test_tabulated_profile_reproduces_burley():
+    d = jnp.asarray([1.0, 2.0, 3.0])
+    burley = sj.BurleyProfile(d, jnp.asarray([0.6, 0.7, 0.8]))
+    r = np.linspace(0.05, 60.0, 3000)
+    table = sj.TabulatedProfile(r, np.asarray(burley.physical(jnp.asarray(r))))
+    # the total reflectance of the table is A up to the 1/r peak below the first bin (~R(r0) pi r0^2 vs CDF(r0))
+    np.testing.assert_allclose(np.asarray(table.albedo), [0.6, 0.7, 0.8], rtol=0.02)
+    # its normalised CDF matches Burley's away from the peak
+    q = jnp.asarray([2.0, 6.0, 15.0])
+    np.testing.assert_allclose(np.asarray(table.cdf(q)), np.asarray(burley.cdf(q)), atol=0.01)
+    mid = table.inverse_cdf(jnp.asarray([0.5]))
+    np.testing.assert_allclose(np.asarray(mid)[0], np.asarray(burley.inverse_cdf(jnp.asarray([0.5])))[0], rtol=0.06)
+
+
+def test_tabulated_rejects_bad_tables():
+    with pytest.raises(ValueError, match="strictly increasing"):
+        sj.TabulatedProfile([0.0, 2.0, 1.0], [1.0, 1.0, 1.0])
+    with pytest.raises(ValueError, match="non-negative"):
+        sj.TabulatedProfile([0.0, 1.0], [1.0, -1.0])
+
+
+def test_profile_gradients_finite_at_limits():
+    check_grads(lambda d: sj.burley_cdf(jnp.float64(1.3), d), (jnp.float64(0.7),), order=2, modes=["rev"])
+    g = jax.grad(lambda d: jnp.sum(sj.burley_R(jnp.asarray([0.0, 1.0, 1e9]), d)))(jnp.float64(0.0))
+    assert np.isfinite(float(g))
+    g = jax.grad(lambda d: sj.burley_inverse_ccdf(jnp.float64(1e-20), d))(jnp.float64(2.0))
+    assert np.isfinite(float(g))
