@@ -101,10 +101,12 @@ def separable_kernel_from_profile(
 
 
 def _gauss_cdf(x: Array, sigma: Array) -> Array:
-    """Normal CDF with standard deviation sigma; sigma = 0 is a step at 0 (the identity kernel)."""
-    ok = sigma > 0
-    z = x / jnp.where(ok, sigma, 1.0)
-    return jnp.where(ok, 0.5 * (1 + jax.scipy.special.erf(z / math.sqrt(2))), jnp.where(x >= 0, 1.0, 0.0))
+    """Normal CDF with standard deviation sigma; sigma = 0 is a step at 0 (the identity kernel); x = +-inf gives
+    exactly 1 / 0 with a zero (not NaN) gradient in sigma."""
+    ok = (sigma > 0) & jnp.isfinite(x)
+    z = jnp.where(ok, x, 0.0) / jnp.where(ok, sigma, 1.0)
+    step = jnp.where(x >= 0, 1.0, 0.0)
+    return jnp.where(ok, 0.5 * (1 + jax.scipy.special.erf(z / math.sqrt(2))), step)
 
 
 def two_gaussian_kernel(

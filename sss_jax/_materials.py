@@ -168,8 +168,10 @@ class STAParams(eqx.Module):
     thickness_mm: Float[Array, " 3"]
 
     def __init__(self, *, distortion=0.2, power=4.0, scale=1.0, ambient=0.0, thickness_mm=1.0, dtype=None):
-        self.distortion = jnp.asarray(distortion, dtype=dtype if dtype else jnp.float32)
-        dtype = self.distortion.dtype
+        if dtype is None:  # follow the inputs (float64 under x64), at least float32
+            dtype = jnp.result_type(*(jnp.asarray(v).dtype for v in (distortion, power, scale, ambient, thickness_mm)),
+                                    jnp.float32)
+        self.distortion = jnp.asarray(distortion, dtype=dtype)
         self.power = jnp.asarray(power, dtype=dtype)
         self.scale = jnp.broadcast_to(jnp.asarray(scale, dtype=dtype), (3,))
         self.ambient = jnp.broadcast_to(jnp.asarray(ambient, dtype=dtype), (3,))

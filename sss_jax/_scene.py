@@ -64,11 +64,12 @@ class Buffers(eqx.Module):
     material_id: Int[Array, "H W"] | None = None
 
     def __check_init__(self):
+        # a batch adds leading axes: check the trailing (H, W[, 3]) dimensions
         e, z = self.irradiance, self.depth
-        if e.ndim != 3 or e.shape[-1] != 3:
+        if e.ndim < 3 or e.shape[-1] != 3:
             raise ValueError(f"irradiance must have shape (H, W, 3), got {e.shape}")
-        if z.shape != e.shape[:2]:
-            raise ValueError(f"depth shape {z.shape} does not match irradiance shape {e.shape} (expected {e.shape[:2]})")
+        if z.shape != e.shape[:-1]:
+            raise ValueError(f"depth shape {z.shape} does not match irradiance shape {e.shape} (expected {e.shape[:-1]})")
         for name, shape in (("albedo", e.shape), ("normal", e.shape), ("thickness", z.shape), ("material_id", z.shape)):
             buf = getattr(self, name)
             if buf is not None and buf.shape != shape:

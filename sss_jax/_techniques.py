@@ -86,11 +86,13 @@ def _prepare(buffers: Buffers, material_albedo: Array, albedo_mode: str, dtype) 
     rows = _material_rows(buffers, material_albedo.shape[0])
     albedo = buffers.albedo if buffers.albedo is not None else material_albedo.astype(dtype)[rows]
     albedo = jnp.clip(albedo.astype(dtype), 0.0, 1.0)
-    e = buffers.irradiance.astype(dtype)
+    # pixels that take no part hold nothing a neighbour could read: no NaN or inf depth, no stray irradiance
+    e = jnp.where(valid[..., None], buffers.irradiance.astype(dtype), 0.0)
+    depth = jnp.where(valid, buffers.depth.astype(dtype), 0.0)
     if albedo_mode == "pre_post":
         root = jnp.sqrt(albedo)
         e, albedo = e * root, root
-    return _Prepared(irradiance=e, depth=buffers.depth.astype(dtype), valid=valid, rows=rows, albedo_out=albedo)
+    return _Prepared(irradiance=e, depth=depth, valid=valid, rows=rows, albedo_out=albedo)
 
 
 def _finish(buffers: Buffers, prep: _Prepared, scattered: Array) -> Array:
@@ -99,9 +101,9 @@ def _finish(buffers: Buffers, prep: _Prepared, scattered: Array) -> Array:
     return out.astype(buffers.irradiance.dtype)
 
 
-def _gather(flat: Array, height: int, width: int, y: Array, x: Array, *, interpolation: str) -> Array:
-    """Fetch ``flat (H*W, K)`` at fractional pixel coordinates (pixel centres at integers); outside the image counts
-    as nothing (zero, so a validity channel in ``flat`` says how much of the fetch landed on valid pixels)."""
+def _corners(flat: Array, height: int, width: int, y: Array, x: Array, *, interpolation: str):
+    """The pixels a fetch at fractional coordinates (pixel centres at integers) reads from ``flat (H*W, K)``, with
+    their interpolation weights; pixels outside the image get weight 0."""
     # clip first: huge or NaN offsets must not overflow the integer cast
     x = jnp.clip(jnp.nan_to_num(x, nan=-4.0), -4.0, width + 3.0)
     y = jnp.clip(jnp.nan_to_num(y, nan=-4.0), -4.0, height + 3.0)
@@ -116,21 +118,28 @@ def _gather(flat: Array, height: int, width: int, y: Array, x: Array, *, interpo
             (y0 + 1, x0, fy * (1 - fx)),
             (y0 + 1, x0 + 1, fy * fx),
         ]
-    out = None
+    out = []
     for yi, xi, wgt in corners:
         inside = (xi >= 0) & (xi <= width - 1) & (yi >= 0) & (yi <= height - 1)
         idx = jnp.clip(yi, 0, height - 1).astype(jnp.int32) * width + jnp.clip(xi, 0, width - 1).astype(jnp.int32)
         w = inside.astype(flat.dtype) if wgt is None else jnp.where(inside, wgt, 0.0)
-        val = jnp.take(flat, idx, axis=0) * w[..., None]
-        out = val if out is None else out + val
+        out.append((jnp.take(flat, idx, axis=0), w))
     return out
+
+
+def _gather(flat: Array, height: int, width: int, y: Array, x: Array, *, interpolation: str) -> Array:
+    """Interpolated fetch; outside the image counts as nothing (zero, so a validity channel in ``flat`` says how
+    much of the fetch landed on valid pixels)."""
+    parts = _corners(flat, height, width, y, x, interpolation=interpolation)
+    return sum(val * w[..., None] for val, w in parts)
 
 
 def _pack(e: Array, depth: Array, valid: Array) -> Array:
     """(H*W, 5): irradiance and depth zeroed where invalid (no inf * 0), and the validity itself."""
     v = valid.astype(e.dtype)
     z = jnp.where(valid, depth, 0.0)
-    return jnp.concatenate([e * v[..., None], (z * v)[..., None], v[..., None]], axis=-1).reshape(-1, 5)
+    e = jnp.where(valid[..., None], e, 0.0)
+    return jnp.concatenate([e, z[..., None], v[..., None]], axis=-1).reshape(-1, 5)
 
 
 def _unpack(fetched: Array) -> tuple[Array, Array, Array]:
@@ -144,6 +153,12 @@ def _unpack(fetched: Array) -> tuple[Array, Array, Array]:
 # ------------------------------------------------------------------------------------------------------------------
 # Christensen–Burley: one pass of golden-angle spiral samples
 # ------------------------------------------------------------------------------------------------------------------
+
+
+def _safe_sqrt(x: Array) -> Array:
+    """sqrt with a finite gradient at 0 (double where)."""
+    pos = x > 0
+    return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1.0)), 0.0)
 
 
 def _burley_weight_kernel(x: Array) -> Array:
@@ -185,17 +200,22 @@ def _burley_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, sam
         r_mm = rho * d_max
         off = r_mm * ppm
         theta = fi * GOLDEN_ANGLE
-        fetched = _gather(flat, h, w, rows_i + off * jnp.sin(theta), cols_i + off * jnp.cos(theta),
-                          interpolation=interpolation)
-        e_q, z_q, v_q = _unpack(fetched)
-        dz_mm = jnp.where(v_q > 0, (z_q - z) * mm_per_unit, 0.0)
-        r3 = jnp.sqrt(r_mm * r_mm + dz_mm * dz_mm)
         # 1 / pdf of this sample (area density of the d_max profile at r), up to the per-pixel factor 8 pi d_max^2
         inv_pdf = rho / (jnp.exp(-rho) + jnp.exp(-rho / 3))
         ok_d = d_pix > 0
-        x = jnp.where(ok_d, r3[..., None] / jnp.where(ok_d, d_pix, 1.0), jnp.inf)
-        wgt = (v_q * inv_pdf)[..., None] * _burley_weight_kernel(x)
-        return num + wgt * e_q, den + wgt
+        inv_d = jnp.where(ok_d, 1.0 / jnp.where(ok_d, d_pix, 1.0), 0.0)
+        # each pixel the fetch reads is its own point on the surface, with its own depth: weighting the corners
+        # separately keeps light from leaking across a depth step through the interpolation
+        for val, bw in _corners(flat, h, w, rows_i + off * jnp.sin(theta), cols_i + off * jnp.cos(theta),
+                                interpolation=interpolation):
+            v_q = val[..., 4] * bw
+            dz_mm = jnp.where(v_q > 0, (val[..., 3] - z) * mm_per_unit, 0.0)
+            r3 = _safe_sqrt(r_mm * r_mm + dz_mm * dz_mm)
+            x = jnp.where(ok_d, r3[..., None] * inv_d, jnp.inf)
+            wgt = (v_q * inv_pdf)[..., None] * _burley_weight_kernel(x)
+            num = num + wgt * val[..., :3]
+            den = den + wgt
+        return num, den
 
     zeros = jnp.zeros_like(prep.irradiance)
     num, den = jax.lax.fori_loop(0, samples, body, (zeros, zeros))
@@ -403,7 +423,7 @@ def _reference_impl(buffers: Buffers, material, camera: Camera, radius_px: int, 
                 oy = dy + (sy + 0.5) / sub - 0.5
                 ox = dx + (sx + 0.5) / sub - 0.5
                 r2 = (oy * oy + ox * ox) * pixel_mm * pixel_mm + dz_mm * dz_mm
-                mass = mass + radial(jnp.sqrt(r2))
+                mass = mass + radial(_safe_sqrt(r2))
         mass = mass * (pixel_mm * pixel_mm / (sub * sub))[..., None]
         wgt = jnp.where((v_q > 0)[..., None], mass, 0.0)
         return wgt, e_q
