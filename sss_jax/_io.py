@@ -1,0 +1,482 @@
+"""Image input/output on OpenImageIO (host side, NumPy in and out), with atomic writes.
+
+Reading understands three namings of the channels a screen-space pass needs:
+- generic: ``R,G,B`` irradiance, ``Z`` (or ``depth.Z``) planar depth, optional ``albedo.R/G/B``, ``N.X/Y/Z``,
+  ``thickness``, ``id``;
+- Blender multi-layer: ``<ViewLayer>.<pass>.<channel>``: irradiance = ``DiffDir + DiffInd`` (Blender stores diffuse
+  light divided by the diffuse colour), albedo = ``DiffCol``, depth = ``Depth.Z`` (background 1e10 -> inf),
+  normal = ``Normal``, material id = ``IndexOB`` (or ``IndexMA``);
+- a user channel map (dict, or a JSON/TOML file) from our buffer names to channel names.
+
+Depth is planar view depth in scene units; ``depth_kind="distance"`` converts distance-to-camera to planar with the
+focal length. Camera intrinsics come from explicit arguments, else the EXR header (``sss_jax:focal_px``,
+``sss_jax:mm_per_unit``), else a sidecar ``<stem>.json`` (``camera.focal_px``, ``scene_unit_mm``).
+
+Every write goes to a temporary file in the target directory and is renamed into place: an interrupted run never
+leaves a half-written file under the final name.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import json
+import os
+import pathlib
+import tempfile
+from typing import Any, Iterator, Mapping
+
+import numpy as np
+
+__all__ = ["Frame", "SSSInputError", "read_frame", "read_channels", "write_exr", "write_png_preview",
+           "write_json_atomic", "write_bytes_atomic", "atomic_path", "display_transform", "load_channel_map"]
+
+BUFFER_NAMES = ("irradiance", "depth", "albedo", "normal", "thickness", "id")
+_BACKGROUND_DEPTH = 1e9  # Blender writes 1e10 where there is no surface
+
+
+class SSSInputError(ValueError):
+    """Bad input from a user: the message names the input and what is wrong."""
+
+
+def _oiio():
+    try:
+        import OpenImageIO as oiio
+    except ImportError as exc:  # pragma: no cover - a dependency of the package
+        raise ImportError("sss_jax needs OpenImageIO for image files: pip install OpenImageIO") from exc
+    return oiio
+
+
+@dataclasses.dataclass(frozen=True)
+class Frame:
+    """One frame's buffers as NumPy arrays (see ``sss_jax.Buffers`` for the conventions)."""
+
+    irradiance: np.ndarray
+    depth: np.ndarray
+    albedo: np.ndarray | None = None
+    normal: np.ndarray | None = None
+    thickness: np.ndarray | None = None
+    material_id: np.ndarray | None = None
+    focal_px: float | None = None
+    mm_per_unit: float | None = None
+    path: str | None = None
+    layout: str = "generic"
+    metadata: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.depth.shape
+
+    def to_buffers(self, *, use_albedo: bool = True):
+        """The frame as ``sss_jax.Buffers`` (``use_albedo=False`` drops the albedo buffer so materials decide)."""
+        import jax.numpy as jnp
+
+        from ._scene import Buffers
+
+        opt = lambda a: None if a is None else jnp.asarray(a)
+        return Buffers(
+            irradiance=jnp.asarray(self.irradiance),
+            depth=jnp.asarray(self.depth),
+            albedo=opt(self.albedo) if use_albedo else None,
+            normal=opt(self.normal),
+            thickness=opt(self.thickness),
+            material_id=None if self.material_id is None else jnp.asarray(self.material_id, dtype=jnp.int32),
+        )
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# reading
+# ------------------------------------------------------------------------------------------------------------------
+
+
+def read_channels(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, Any], tuple[int, int]]:
+    """All channels of every subimage as float32 ``(H, W)`` arrays, the header attributes, and ``(H, W)``."""
+    oiio = _oiio()
+    path = pathlib.Path(path)
+    if not path.exists():
+        raise SSSInputError(f"{path}: file not found")
+    if path.is_dir():
+        raise SSSInputError(f"{path}: is a directory, not an image")
+    if path.stat().st_size == 0:
+        raise SSSInputError(f"{path}: file is empty (0 bytes)")
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise SSSInputError(f"{path}: not a readable image ({oiio.geterror() or 'unknown format'})")
+    channels: dict[str, np.ndarray] = {}
+    metadata: dict[str, Any] = {}
+    shape = None
+    try:
+        sub = 0
+        while inp.seek_subimage(sub, 0):
+            spec = inp.spec()
+            if shape is None:
+                shape = (spec.height, spec.width)
+                for attr in spec.extra_attribs:
+                    metadata[attr.name] = attr.value
+            elif (spec.height, spec.width) != shape:
+                raise SSSInputError(
+                    f"{path}: subimage {sub} is {spec.width}x{spec.height}, the first is {shape[1]}x{shape[0]}"
+                )
+            pixels = inp.read_image(sub, 0, 0, spec.nchannels, oiio.FLOAT)
+            if pixels is None:
+                raise SSSInputError(f"{path}: could not read subimage {sub} (truncated or corrupted: {inp.geterror()})")
+            pixels = np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels)
+            part = spec.getattribute("name") if sub > 0 else None
+            for c, name in enumerate(spec.channelnames):
+                key = f"{part}.{name}" if part and name in channels else name
+                channels[key] = pixels[..., c]
+            sub += 1
+    finally:
+        inp.close()
+    if not channels:
+        raise SSSInputError(f"{path}: no channels")
+    return channels, metadata, shape
+
+
+def load_channel_map(source: str | os.PathLike | Mapping[str, Any]) -> dict[str, Any]:
+    """A channel map from a dict or a ``.json`` / ``.toml`` file: buffer name -> channel name(s)."""
+    if isinstance(source, Mapping):
+        data = dict(source)
+        origin = "channel map"
+    else:
+        p = pathlib.Path(source)
+        origin = str(p)
+        try:
+            text = p.read_text()
+        except OSError as exc:
+            raise SSSInputError(f"{p}: cannot read channel map ({exc.strerror})") from None
+        try:
+            if p.suffix.lower() == ".toml":
+                import tomllib
+
+                data = tomllib.loads(text)
+            else:
+                data = json.loads(text)
+        except Exception as exc:
+            raise SSSInputError(f"{p}: invalid channel map ({exc})") from None
+    if not isinstance(data, dict):
+        raise SSSInputError(f"{origin}: a channel map must be a table of buffer name -> channel name(s)")
+    for key, value in data.items():
+        if key not in BUFFER_NAMES:
+            raise SSSInputError(f"{origin}: unknown buffer {key!r}; known buffers: {', '.join(BUFFER_NAMES)}")
+        want = 3 if key in ("irradiance", "albedo", "normal") else 1
+        names = [value] if isinstance(value, str) else value
+        if not isinstance(names, list) or len(names) != want or not all(isinstance(n, str) for n in names):
+            raise SSSInputError(f"{origin}: {key!r} needs {want} channel name(s), got {value!r}")
+    return data
+
+
+def _blender_layers(names: list[str]) -> dict[str, str]:
+    """``{pass.channel: full name}`` of Blender's ``<layer>.<pass>.<channel>`` channels (first view layer)."""
+    out: dict[str, str] = {}
+    for n in names:
+        parts = n.split(".")
+        if len(parts) >= 3:
+            key = ".".join(parts[-2:])
+            out.setdefault(key, n)
+    return out
+
+
+def _first(channels: dict[str, np.ndarray], *candidates: str) -> str | None:
+    for c in candidates:
+        if c in channels:
+            return c
+    return None
+
+
+def _resolve(channels: dict[str, np.ndarray], channel_map: Mapping[str, Any] | None, path) -> tuple[dict, str]:
+    """Which channels make which buffer, and the name of the layout recognised."""
+    names = list(channels)
+    found = ", ".join(names[:24]) + (" ..." if len(names) > 24 else "")
+    plan: dict[str, list[str] | tuple] = {}
+    if channel_map:
+        for key, value in channel_map.items():
+            cols = [value] if isinstance(value, str) else list(value)
+            missing = [c for c in cols if c not in channels]
+            if missing:
+                raise SSSInputError(f"{path}: channel map names missing channel(s) {missing}; channels found: {found}")
+            plan[key] = cols
+        layout = "channel-map"
+    else:
+        blender = _blender_layers(names)
+        if "DiffDir.R" in blender or "Depth.Z" in blender:
+            layout = "blender"
+            rgb = lambda p: [blender.get(f"{p}.{c}") for c in "RGB"]
+            if all(rgb("DiffDir")) and all(rgb("DiffInd")):
+                plan["irradiance"] = ("sum", rgb("DiffDir"), rgb("DiffInd"))
+            elif all(rgb("DiffDir")):
+                plan["irradiance"] = rgb("DiffDir")
+            elif all(rgb("Combined")):
+                plan["irradiance"] = rgb("Combined")
+            if "Depth.Z" in blender:
+                plan["depth"] = [blender["Depth.Z"]]
+            if all(rgb("DiffCol")):
+                plan["albedo"] = rgb("DiffCol")
+            normal = [blender.get(f"Normal.{c}") for c in "XYZ"]
+            if all(normal):
+                plan["normal"] = normal
+            idx = blender.get("IndexOB.X") or blender.get("IndexMA.X")
+            if idx:
+                plan["id"] = [idx]
+        else:
+            layout = "generic"
+            if all(c in channels for c in "RGB"):
+                plan["irradiance"] = ["R", "G", "B"]
+            z = _first(channels, "Z", "depth.Z", "Depth.Z", "depth", "Z.Z")
+            if z:
+                plan["depth"] = [z]
+            if all(f"albedo.{c}" in channels for c in "RGB"):
+                plan["albedo"] = [f"albedo.{c}" for c in "RGB"]
+            if all(f"N.{c}" in channels for c in "XYZ"):
+                plan["normal"] = [f"N.{c}" for c in "XYZ"]
+            t = _first(channels, "thickness", "thickness.Y", "T")
+            if t:
+                plan["thickness"] = [t]
+            i = _first(channels, "id", "id.Y", "matid")
+            if i:
+                plan["id"] = [i]
+    for required in ("irradiance", "depth"):
+        if required not in plan:
+            what = "R, G, B" if required == "irradiance" else "Z"
+            raise SSSInputError(
+                f"{path}: missing {required} channel(s) (expected {what}, Blender passes, or a channel map); "
+                f"channels found: {found}"
+            )
+    return plan, layout
+
+
+def _stack(channels: dict[str, np.ndarray], spec) -> np.ndarray:
+    if isinstance(spec, tuple) and spec[0] == "sum":
+        return _stack(channels, spec[1]) + _stack(channels, spec[2])
+    arrays = [channels[c] for c in spec]
+    return arrays[0] if len(arrays) == 1 else np.stack(arrays, axis=-1)
+
+
+def _sidecar(path: pathlib.Path) -> dict[str, Any]:
+    side = path.with_suffix(".json")
+    if not side.exists():
+        return {}
+    try:
+        data = json.loads(side.read_text())
+    except Exception as exc:
+        raise SSSInputError(f"{side}: invalid scene description JSON ({exc})") from None
+    return data if isinstance(data, dict) else {}
+
+
+def distance_to_planar(distance: np.ndarray, focal_px: float, principal_point: tuple[float, float] | None = None):
+    """Planar depth from distance to the camera: ``z = dist / sqrt(1 + ((x-cx)^2 + (y-cy)^2) / f^2)`` at pixel centres
+    ``(x + 0.5, y + 0.5)``; the principal point defaults to the image centre."""
+    h, w = distance.shape
+    cx, cy = principal_point if principal_point is not None else (w / 2, h / 2)
+    xs = (np.arange(w) + 0.5 - cx) / focal_px
+    ys = (np.arange(h) + 0.5 - cy) / focal_px
+    return (distance / np.sqrt(1 + xs[None, :] ** 2 + ys[:, None] ** 2)).astype(np.float32)
+
+
+def read_frame(
+    path: str | os.PathLike,
+    *,
+    channel_map: str | os.PathLike | Mapping[str, Any] | None = None,
+    depth_kind: str = "planar",
+    focal_px: float | None = None,
+    mm_per_unit: float | None = None,
+    principal_point: tuple[float, float] | None = None,
+    depth_path: str | os.PathLike | None = None,
+) -> Frame:
+    """Read one frame's buffers from an EXR (see the module docstring for the namings understood).
+
+    ``depth_kind``: ``"planar"`` (view depth along the camera axis) or ``"distance"`` (to the camera centre; converted
+    with ``focal_px``). ``depth_path``: depth from a separate single-channel file of the same resolution.
+    """
+    if depth_kind not in ("planar", "distance"):
+        raise SSSInputError(f"depth_kind={depth_kind!r} is not one of ('planar', 'distance')")
+    path = pathlib.Path(path)
+    channels, metadata, shape = read_channels(path)
+    cmap = load_channel_map(channel_map) if channel_map is not None else None
+    if depth_path is not None:
+        d_channels, _, d_shape = read_channels(depth_path)
+        if d_shape != shape:
+            raise SSSInputError(
+                f"{depth_path}: depth is {d_shape[1]}x{d_shape[0]} but {path} is {shape[1]}x{shape[0]}"
+            )
+        key = _first(d_channels, "Z", "depth.Z", "Depth.Z", "Y", "R") or next(iter(d_channels))
+        channels = dict(channels, **{"Z": d_channels[key]})
+    plan, layout = _resolve(channels, cmap, path)
+    buffers = {k: _stack(channels, v) for k, v in plan.items()}
+
+    side = _sidecar(path)
+    if focal_px is None:
+        focal_px = metadata.get("sss_jax:focal_px") or (side.get("camera") or {}).get("focal_px")
+    if mm_per_unit is None:
+        mm_per_unit = metadata.get("sss_jax:mm_per_unit") or side.get("scene_unit_mm")
+    focal_px = None if focal_px is None else float(focal_px)
+    mm_per_unit = None if mm_per_unit is None else float(mm_per_unit)
+
+    depth = buffers["depth"].astype(np.float32)
+    depth = np.where(np.isfinite(depth) & (depth > 0) & (depth < _BACKGROUND_DEPTH), depth, np.inf).astype(np.float32)
+    if depth_kind == "distance":
+        if focal_px is None:
+            raise SSSInputError(f"{path}: depth_kind='distance' needs the focal length (focal_px) to convert to planar")
+        depth = np.where(np.isfinite(depth), distance_to_planar(np.where(np.isfinite(depth), depth, 1.0), focal_px,
+                                                                 principal_point), np.inf).astype(np.float32)
+    irradiance = np.asarray(buffers["irradiance"], np.float32)
+    if not np.all(np.isfinite(irradiance)):
+        raise SSSInputError(f"{path}: irradiance has {int(np.sum(~np.isfinite(irradiance)))} non-finite values")
+    irradiance = np.maximum(irradiance, 0.0)
+    ids = buffers.get("id")
+    if ids is not None:
+        if not np.all(np.isfinite(ids)):
+            raise SSSInputError(f"{path}: id channel has non-finite values")
+        ids = np.rint(ids).astype(np.int32)
+        if np.any(ids < 0):
+            raise SSSInputError(f"{path}: id channel has negative ids (min {int(ids.min())})")
+    albedo = buffers.get("albedo")
+    if albedo is not None:
+        albedo = np.clip(np.nan_to_num(albedo.astype(np.float32)), 0.0, 1.0)
+    normal = buffers.get("normal")
+    if normal is not None:
+        normal = np.nan_to_num(normal.astype(np.float32))
+    thickness = buffers.get("thickness")
+    if thickness is not None:
+        thickness = np.maximum(np.nan_to_num(thickness.astype(np.float32), nan=0.0, posinf=np.inf), 0.0)
+    return Frame(irradiance=irradiance, depth=depth, albedo=albedo, normal=normal, thickness=thickness,
+                 material_id=ids, focal_px=focal_px, mm_per_unit=mm_per_unit, path=str(path), layout=layout,
+                 metadata=metadata)
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# writing (atomic)
+# ------------------------------------------------------------------------------------------------------------------
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike) -> Iterator[pathlib.Path]:
+    """Yield a temporary path beside ``path``; on success rename it into place, on any failure remove it."""
+    path = pathlib.Path(path)
+    directory = path.parent if str(path.parent) else pathlib.Path(".")
+    if not directory.is_dir():
+        raise SSSInputError(f"{directory}: output directory does not exist")
+    if not os.access(directory, os.W_OK):
+        raise SSSInputError(f"{directory}: output directory is not writable")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=directory)
+    os.close(fd)
+    tmp_path = pathlib.Path(tmp)
+    try:
+        yield tmp_path
+        os.replace(tmp_path, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            tmp_path.unlink()
+        raise
+
+
+def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> pathlib.Path:
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+    return pathlib.Path(path)
+
+
+def write_json_atomic(path: str | os.PathLike, obj: Any, *, indent: int = 1) -> pathlib.Path:
+    text = json.dumps(obj, indent=indent, default=_json_default) + "\n"
+    return write_bytes_atomic(path, text.encode())
+
+
+def _json_default(o):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, pathlib.Path):
+        return str(o)
+    raise TypeError(f"{type(o).__name__} is not JSON serialisable")
+
+
+def write_exr(
+    path: str | os.PathLike,
+    image: np.ndarray | Mapping[str, np.ndarray],
+    *,
+    channel_names: list[str] | None = None,
+    half: bool = False,
+    attributes: Mapping[str, Any] | None = None,
+) -> pathlib.Path:
+    """Write an ``(H, W, C)`` image (or a dict of named ``(H, W)`` channels) as a ZIP-compressed EXR, float32 or
+    half, with ``attributes`` (str, int, float) in the header. Atomic."""
+    oiio = _oiio()
+    if isinstance(image, Mapping):
+        channel_names = list(image)
+        arrays = [np.asarray(image[k], np.float32) for k in channel_names]
+        if not arrays or any(a.shape != arrays[0].shape or a.ndim != 2 for a in arrays):
+            raise SSSInputError(f"{path}: channels must all be (H, W) arrays of one shape")
+        data = np.stack(arrays, axis=-1)
+    else:
+        data = np.asarray(image, np.float32)
+        if data.ndim == 2:
+            data = data[..., None]
+        if data.ndim != 3:
+            raise SSSInputError(f"{path}: image must be (H, W) or (H, W, C), got shape {data.shape}")
+        if channel_names is None:
+            channel_names = {1: ["Y"], 3: ["R", "G", "B"], 4: ["R", "G", "B", "A"]}.get(
+                data.shape[-1], [f"C{i}" for i in range(data.shape[-1])])
+    if len(channel_names) != data.shape[-1]:
+        raise SSSInputError(f"{path}: {len(channel_names)} channel names for {data.shape[-1]} channels")
+    h, w, c = data.shape
+    spec = oiio.ImageSpec(w, h, c, oiio.HALF if half else oiio.FLOAT)
+    spec.channelnames = tuple(channel_names)
+    spec.attribute("compression", "zip")
+    for key, value in (attributes or {}).items():
+        if isinstance(value, (bool, np.bool_)):
+            value = int(value)
+        if isinstance(value, (int, np.integer)):
+            spec.attribute(key, int(value))
+        elif isinstance(value, (float, np.floating)):
+            spec.attribute(key, float(value))
+        else:
+            spec.attribute(key, str(value))
+    with atomic_path(path) as tmp:
+        out = oiio.ImageOutput.create(str(tmp))
+        if out is None or not out.open(str(tmp), spec):
+            raise SSSInputError(f"{path}: cannot open for writing ({oiio.geterror()})")
+        try:
+            ok = out.write_image(np.ascontiguousarray(data.astype(np.float16 if half else np.float32)))
+        finally:
+            out.close()
+        if not ok:
+            raise SSSInputError(f"{path}: write failed ({out.geterror()})")
+    return pathlib.Path(path)
+
+
+def display_transform(image: np.ndarray, *, exposure: float = 0.0, transform: str = "srgb") -> np.ndarray:
+    """Linear scene-referred RGB -> display-referred sRGB in [0, 1]: exposure (stops), then ``"srgb"`` (clip) or
+    ``"filmic"`` (Reinhard ``x / (1 + x)`` on luminance-preserving RGB), then the exact piecewise sRGB OETF
+    (IEC 61966-2-1: ``12.92 x`` below 0.0031308, else ``1.055 x^(1/2.4) - 0.055``)."""
+    x = np.nan_to_num(np.asarray(image, np.float64), nan=0.0, posinf=0.0, neginf=0.0) * 2.0**exposure
+    x = np.maximum(x, 0.0)
+    if transform == "filmic":
+        x = x / (1 + x)
+    elif transform != "srgb":
+        raise ValueError(f"transform={transform!r} is not one of ('srgb', 'filmic')")
+    x = np.clip(x, 0.0, 1.0)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+
+
+def write_png_preview(path: str | os.PathLike, image: np.ndarray, *, exposure: float = 0.0,
+                      transform: str = "srgb") -> pathlib.Path:
+    """An 8-bit sRGB PNG preview of a linear image through ``display_transform``. Atomic."""
+    oiio = _oiio()
+    disp = display_transform(image, exposure=exposure, transform=transform)
+    if disp.ndim == 2:
+        disp = disp[..., None]
+    data = np.round(disp * 255).astype(np.uint8)
+    h, w, c = data.shape
+    spec = oiio.ImageSpec(w, h, c, oiio.UINT8)
+    with atomic_path(path) as tmp:
+        out = oiio.ImageOutput.create(str(tmp))
+        if out is None or not out.open(str(tmp), spec):
+            raise SSSInputError(f"{path}: cannot open for writing ({oiio.geterror()})")
+        try:
+            ok = out.write_image(np.ascontiguousarray(data))
+        finally:
+            out.close()
+        if not ok:
+            raise SSSInputError(f"{path}: write failed ({out.geterror()})")
+    return pathlib.Path(path)

@@ -1,0 +1,187 @@
+"""``sss-jax apply``: run a technique over one frame or many."""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import pathlib
+import sys
+import time
+
+EPILOG = """examples:
+  sss-jax apply frame.exr -o out.exr --technique burley --albedo 0.8,0.6,0.5 --d-mm 3,1.4,0.8 --focal-px 1200 --mm-per-unit 10
+  sss-jax apply render.exr -o sss.exr --technique separable --albedo 0.85,0.75,0.55 --mfp-mm 400,250,150
+  sss-jax apply 'shots/*.exr' --out-dir sss/ --technique burley --albedo 0.8,0.6,0.5 --d-mm 3,1.4,0.8 --png
+  sss-jax apply frame.exr -o sta.exr --technique sta --albedo 0.8,0.6,0.5 --light-dir 0.3,-0.4,0.9 --thickness 0.5
+
+Input channels: R,G,B irradiance and Z planar depth (scene units; inf = no surface); optional albedo.R/G/B, N.X/Y/Z,
+thickness, id (0 = no SSS: passes through untouched). A Blender multi-layer EXR works as it is (DiffDir + DiffInd,
+Depth, DiffCol, IndexOB); --albedo overrides the albedo pass. The focal length and scene unit come from the flags,
+the EXR header (sss_jax:focal_px, sss_jax:mm_per_unit) or a sidecar <name>.json (camera.focal_px, scene_unit_mm).
+"""
+
+
+def _triple(text: str) -> tuple[float, float, float]:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected three comma-separated numbers R,G,B, got {text!r}") from None
+    if len(values) == 1:
+        values = values * 3
+    if len(values) != 3:
+        raise argparse.ArgumentTypeError(f"expected three comma-separated numbers R,G,B, got {text!r}")
+    return values
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "apply",
+        help="apply a technique to EXR frames",
+        description="Apply STA, separable, Burley or the reference to one or more EXR frames.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("inputs", nargs="+", help="input EXR files or glob patterns")
+    where = p.add_mutually_exclusive_group(required=True)
+    where.add_argument("-o", "--output", type=pathlib.Path, help="output EXR (one input)")
+    where.add_argument("--out-dir", type=pathlib.Path, help="output directory: each output is named after its input")
+    p.add_argument("--technique", required=True, help="sta, separable, burley or reference")
+    p.add_argument("--albedo", type=_triple, help="surface albedo R,G,B in [0,1] (overrides an albedo pass)")
+    p.add_argument("--d-mm", type=_triple, help="Burley scattering distance d per channel, mm")
+    p.add_argument("--mfp-mm", type=_triple, help="mean free path per channel, mm (d = mfp / s(A), diffuse-transmission fit)")
+    p.add_argument("--focal-px", type=float, help="focal length in pixels")
+    p.add_argument("--mm-per-unit", type=float, help="millimetres per scene unit of the depth buffer")
+    p.add_argument("--depth-kind", choices=("planar", "distance"), default="planar",
+                   help="Z is planar view depth (default) or distance to the camera")
+    p.add_argument("--channel-map", help="JSON/TOML file mapping buffers (irradiance, depth, albedo, normal, thickness, id) to channels")
+    p.add_argument("--samples", type=int, default=32, help="Burley spiral samples (default 32)")
+    p.add_argument("--taps", type=int, default=25, help="separable taps per pass (default 25)")
+    p.add_argument("--radius-px", type=int, help="reference window radius in pixels (default: 99.9%% of the energy)")
+    sta = p.add_argument_group("STA")
+    sta.add_argument("--light-dir", type=_triple, help="direction towards the light, camera space (x right, y down, z forward)")
+    sta.add_argument("--light-colour", type=_triple, default=(1.0, 1.0, 1.0), help="light irradiance R,G,B (default 1)")
+    sta.add_argument("--sta-distortion", type=float, default=0.2)
+    sta.add_argument("--sta-power", type=float, default=4.0)
+    sta.add_argument("--sta-scale", type=_triple, default=(1.0, 1.0, 1.0))
+    sta.add_argument("--sta-ambient", type=_triple, default=(0.0, 0.0, 0.0))
+    sta.add_argument("--sta-thickness-mm", type=_triple, default=(1.0, 1.0, 1.0),
+                     help="thickness falloff per channel, mm: t = exp(-thickness / this)")
+    sta.add_argument("--thickness", type=float, help="constant thickness in scene units where there is no thickness channel")
+    p.add_argument("--half", action="store_true", help="write half-float EXR")
+    p.add_argument("--png", action="store_true", help="also write an sRGB PNG preview beside each output")
+    p.set_defaults(func=run)
+
+
+def _expand(inputs: list[str]) -> list[pathlib.Path]:
+    paths: list[pathlib.Path] = []
+    for item in inputs:
+        if any(ch in item for ch in "*?["):
+            matches = sorted(glob.glob(item))
+            if not matches:
+                raise ValueError(f"no files match {item!r}")
+            paths.extend(pathlib.Path(m) for m in matches)
+        else:
+            paths.append(pathlib.Path(item))
+    return paths
+
+
+def _material(args):
+    import jax.numpy as jnp
+
+    from .._materials import BurleyMaterial, DirectionalLight, STAParams
+
+    albedo = args.albedo if args.albedo is not None else (1.0, 1.0, 1.0)
+    if args.technique == "sta":
+        if args.light_dir is None:
+            raise ValueError("--technique sta needs --light-dir X,Y,Z")
+        params = STAParams(distortion=args.sta_distortion, power=args.sta_power, scale=args.sta_scale,
+                           ambient=args.sta_ambient, thickness_mm=args.sta_thickness_mm)
+        return params, DirectionalLight(jnp.asarray(args.light_dir, jnp.float32), args.light_colour)
+    if args.d_mm is not None and args.mfp_mm is not None:
+        raise ValueError("give either --d-mm or --mfp-mm, not both")
+    if args.d_mm is not None:
+        return BurleyMaterial(albedo, args.d_mm), None
+    if args.mfp_mm is not None:
+        return BurleyMaterial.from_mfp(albedo, args.mfp_mm), None
+    raise ValueError(f"--technique {args.technique} needs the material: --d-mm R,G,B or --mfp-mm R,G,B")
+
+
+def apply_frame(path: pathlib.Path, output: pathlib.Path, args, material, light) -> None:
+    import numpy as np
+
+    from .._io import SSSInputError, read_frame, write_exr, write_png_preview
+    from .._scene import Camera, validate_buffers
+    from .._techniques import burley, reference, separable, translucency
+
+    frame = read_frame(path, channel_map=args.channel_map, depth_kind=args.depth_kind, focal_px=args.focal_px,
+                       mm_per_unit=args.mm_per_unit)
+    if frame.focal_px is None:
+        raise SSSInputError(f"{path}: no focal length: pass --focal-px (or put sss_jax:focal_px in the header)")
+    mm_per_unit = frame.mm_per_unit if frame.mm_per_unit is not None else 1.0
+    camera = Camera(frame.focal_px, mm_per_unit)
+    buffers = frame.to_buffers(use_albedo=args.albedo is None)
+    validate_buffers(buffers, materials=1)
+    t = args.technique
+    if t == "sta":
+        out = translucency(buffers, material, camera, light, albedo=args.albedo, thickness=args.thickness)
+    elif t == "burley":
+        out = burley(buffers, material, camera, samples=args.samples)
+    elif t == "separable":
+        out = separable(buffers, material, camera, taps=args.taps)
+    else:
+        out = reference(buffers, material, camera, radius_px=args.radius_px)
+    out = np.asarray(out, np.float32)
+    attrs = {"sss_jax:technique": t, "sss_jax:input": str(path), "sss_jax:focal_px": float(frame.focal_px),
+             "sss_jax:mm_per_unit": float(mm_per_unit)}
+    if t == "sta":
+        attrs["sss_jax:light_dir"] = ",".join(map(str, args.light_dir))
+    else:
+        attrs["sss_jax:d_mm"] = ",".join(f"{v:.6g}" for v in np.asarray(material.d_mm)[0])
+        attrs["sss_jax:albedo"] = ",".join(f"{v:.6g}" for v in np.asarray(material.albedo)[0])
+        attrs["sss_jax:samples" if t == "burley" else "sss_jax:taps"] = args.samples if t == "burley" else args.taps
+    write_exr(output, out, channel_names=["R", "G", "B"], half=args.half, attributes=attrs)
+    if args.png:
+        write_png_preview(output.with_suffix(".png"), out)
+
+
+def run(args) -> int:
+    from .._techniques import TECHNIQUES
+
+    try:
+        if args.technique not in TECHNIQUES:
+            raise ValueError(f"unknown technique {args.technique!r}; valid techniques: {', '.join(TECHNIQUES)}")
+        for name in ("samples", "taps"):
+            if getattr(args, name) < 1:
+                raise ValueError(f"--{name} must be >= 1, got {getattr(args, name)}")
+        if args.taps % 2 == 0:
+            raise ValueError(f"--taps must be odd, got {args.taps}")
+        for name in ("focal_px", "mm_per_unit"):
+            v = getattr(args, name)
+            if v is not None and not (v > 0 and v < float("inf")):
+                raise ValueError(f"--{name.replace('_', '-')} must be a finite positive number, got {v}")
+        inputs = _expand(args.inputs)
+        if args.output is not None and len(inputs) != 1:
+            raise ValueError(f"-o takes one input, got {len(inputs)}: use --out-dir for many")
+        material, light = _material(args)
+        if args.out_dir is not None:
+            args.out_dir.mkdir(parents=True, exist_ok=True)
+    except (ValueError, OSError) as exc:
+        print(f"sss-jax apply: {exc}", file=sys.stderr)
+        return 2
+
+    failed: list[tuple[pathlib.Path, str]] = []
+    for i, path in enumerate(inputs):
+        output = args.output if args.output is not None else args.out_dir / (path.stem + ".exr")
+        t0 = time.perf_counter()
+        try:
+            apply_frame(path, output, args, material, light)
+        except (ValueError, OSError, TypeError) as exc:
+            failed.append((path, str(exc)))
+            print(f"[{i + 1}/{len(inputs)}] FAILED {path}: {exc}", file=sys.stderr)
+            continue
+        print(f"[{i + 1}/{len(inputs)}] {path} -> {output} ({time.perf_counter() - t0:.2f} s)", file=sys.stderr)
+    if failed:
+        print(f"sss-jax apply: {len(failed)} of {len(inputs)} frame(s) failed: "
+              + "; ".join(str(p) for p, _ in failed), file=sys.stderr)
+        return 1
+    return 0
