@@ -1,0 +1,259 @@
+"""Reading and writing frames, the demo and apply commands, and a real Blender/Cycles render."""
+
+import json
+import math
+
+import jax.numpy as jnp
+import numpy as np
+import OpenImageIO as oiio
+import pytest
+
+import sss_jax as sj
+from sss_jax import _io
+from sss_jax.cli import main
+
+
+def write_raw_exr(path, channels: dict, attrs=None):
+    """An EXR written with raw OpenImageIO calls (independent of sss_jax's writer)."""
+    names = list(channels)
+    data = np.stack([np.asarray(channels[n], np.float32) for n in names], -1)
+    h, w, c = data.shape
+    spec = oiio.ImageSpec(w, h, c, oiio.FLOAT)
+    spec.channelnames = tuple(names)
+    for k, v in (attrs or {}).items():
+        spec.attribute(k, v)
+    out = oiio.ImageOutput.create(str(path))
+    assert out.open(str(path), spec)
+    assert out.write_image(data)
+    out.close()
+
+
+def synthetic_frame(path, h=12, w=16, *, with_id=True, focal=None):
+    rng = np.random.default_rng(0)
+    ch = {"R": rng.uniform(0, 1, (h, w)), "G": rng.uniform(0, 1, (h, w)), "B": rng.uniform(0, 1, (h, w)),
+          "Z": np.full((h, w), 30.0)}
+    ch["Z"][0, 0] = np.inf
+    if with_id:
+        ids = np.ones((h, w))
+        ids[:, :3] = 0
+        ch["id"] = ids
+    write_raw_exr(path, ch, {"sss_jax:focal_px": float(focal)} if focal else None)
+    return ch
+
+
+def test_exr_round_trip_float_half_and_header(tmp_path):
+    img = np.random.default_rng(1).uniform(0, 4, (5, 7, 3)).astype(np.float32)
+    for half in (False, True):
+        p = tmp_path / f"x{half}.exr"
+        _io.write_exr(p, img, half=half, attributes={"sss_jax:technique": "burley", "sss_jax:samples": 32})
+        inp = oiio.ImageInput.open(str(p))
+        spec = inp.spec()
+        got = inp.read_image(oiio.FLOAT)
+        inp.close()
+        np.testing.assert_allclose(got, img, rtol=1e-3 if half else 0)
+        assert spec.format == (oiio.HALF if half else oiio.FLOAT)
+        assert spec.getattribute("sss_jax:technique") == "burley"
+        assert spec.getattribute("sss_jax:samples") == 32
+    assert not list(tmp_path.glob(".*tmp*"))
+
+
+def test_atomic_write_keeps_the_old_file_on_failure(tmp_path):
+    p = tmp_path / "keep.json"
+    _io.write_json_atomic(p, {"a": 1})
+    with pytest.raises(TypeError):
+        _io.write_json_atomic(p, {"a": object()})  # fails while serialising
+    assert json.loads(p.read_text()) == {"a": 1}
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["keep.json"]
+
+
+def test_generic_layout_and_channel_map(tmp_path):
+    p = tmp_path / "f.exr"
+    ch = synthetic_frame(p, focal=500.0)
+    f = _io.read_frame(p)
+    assert f.layout == "generic" and f.focal_px == 500.0
+    np.testing.assert_array_equal(f.irradiance[..., 1], ch["G"].astype(np.float32))
+    assert np.isinf(f.depth[0, 0]) and f.depth[1, 1] == 30.0
+    assert f.material_id.dtype == np.int32 and f.material_id[0, 0] == 0
+    # the same data under other names, found through a TOML channel map
+    q = tmp_path / "g.exr"
+    write_raw_exr(q, {"diffuse.R": ch["R"], "diffuse.G": ch["G"], "diffuse.B": ch["B"], "P.Z": ch["Z"]})
+    cmap = tmp_path / "map.toml"
+    cmap.write_text('irradiance = ["diffuse.R", "diffuse.G", "diffuse.B"]\ndepth = "P.Z"\n')
+    g = _io.read_frame(q, channel_map=cmap)
+    np.testing.assert_array_equal(g.irradiance, f.irradiance)
+    with pytest.raises(_io.SSSInputError, match="missing irradiance channel"):
+        _io.read_frame(q)
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"irradiance": "diffuse.R"}')
+    with pytest.raises(_io.SSSInputError, match="'irradiance' needs 3 channel"):
+        _io.read_frame(q, channel_map=bad)
+
+
+def test_distance_depth_converted_to_planar(tmp_path):
+    # pixel (0, 0) of a 4x4 image with f = 2: centre offset (-1.5, -1.5) px -> z = dist / sqrt(1 + 2 * 0.75^2)
+    p = tmp_path / "d.exr"
+    write_raw_exr(p, {"R": np.ones((4, 4)), "G": np.ones((4, 4)), "B": np.ones((4, 4)), "Z": np.full((4, 4), 10.0)})
+    f = _io.read_frame(p, depth_kind="distance", focal_px=2.0)
+    assert f.depth[0, 0] == pytest.approx(10.0 / math.sqrt(1 + 2 * 0.75**2), rel=1e-6)
+    with pytest.raises(_io.SSSInputError, match="needs the focal length"):
+        _io.read_frame(p, depth_kind="distance")
+
+
+def test_png_preview_is_srgb(tmp_path):
+    # IEC 61966-2-1: 0.5 linear -> 1.055 * 0.5^(1/2.4) - 0.055 = 0.7354 -> 188/255; 0.002 -> 12.92 * 0.002 -> 7/255
+    img = np.zeros((1, 3, 3), np.float32)
+    img[0, 0], img[0, 1], img[0, 2] = 0.5, 0.002, 7.0
+    p = tmp_path / "p.png"
+    _io.write_png_preview(p, img)
+    inp = oiio.ImageInput.open(str(p))
+    got = inp.read_image(oiio.UINT8)
+    inp.close()
+    assert got[0, 0, 0] == round(255 * (1.055 * 0.5 ** (1 / 2.4) - 0.055))
+    assert got[0, 1, 0] == round(255 * 12.92 * 0.002)
+    assert got[0, 2, 0] == 255
+
+
+@pytest.mark.parametrize("content, message", [
+    (b"", "file is empty"),
+    (b"this is not an image at all", "not a readable image"),
+])
+def test_bad_files(tmp_path, content, message):
+    p = tmp_path / "bad.exr"
+    p.write_bytes(content)
+    with pytest.raises(_io.SSSInputError, match=message):
+        _io.read_frame(p)
+
+
+def test_truncated_exr(tmp_path):
+    p = tmp_path / "full.exr"
+    synthetic_frame(p, 64, 64)
+    data = p.read_bytes()
+    q = tmp_path / "trunc.exr"
+    q.write_bytes(data[: len(data) // 2])
+    with pytest.raises(_io.SSSInputError, match="trunc.exr"):
+        _io.read_frame(q)
+
+
+def test_blender_render_reads_out_of_the_box(shared_dir):
+    path = shared_dir / "reference" / "blender" / "irradiance_backlit.exr"
+    f = _io.read_frame(path)
+    assert f.layout == "blender"
+    # independent: DiffDir + DiffInd with raw OpenImageIO
+    inp = oiio.ImageInput.open(str(path))
+    spec = inp.spec()
+    raw = inp.read_image(oiio.FLOAT)
+    inp.close()
+    names = list(spec.channelnames)
+    col = lambda n: raw[..., names.index(n)]
+    expected = np.stack([col(f"ViewLayer.DiffDir.{c}") + col(f"ViewLayer.DiffInd.{c}") for c in "RGB"], -1)
+    np.testing.assert_allclose(f.irradiance, expected, rtol=1e-6)
+    assert set(np.unique(f.material_id)) == {0, 1, 2}
+    assert f.focal_px == pytest.approx(444.444, rel=1e-4) and f.mm_per_unit == 1000.0
+    assert np.all(np.isinf(f.depth[col("ViewLayer.Depth.Z") > 1e9]))
+
+
+def blender_material(scene: dict) -> sj.BurleyMaterial:
+    """Cycles' conversion, as the scene README states (Blender intern/cycles/kernel/closure/bssrdf.h):
+    d = (0.25 / pi) * radius / s(A), s(A) = 1.9 - A + 3.5 (A - 0.8)^2, radius in metres -> mm."""
+    a = np.asarray(scene["material"]["subsurface_color"], np.float64)
+    radius_mm = np.asarray(scene["material"]["radius_m"], np.float64) * scene["scene_unit_mm"]
+    s = 1.9 - a + 3.5 * (a - 0.8) ** 2
+    return sj.BurleyMaterial(a.astype(np.float32), (0.25 / math.pi * radius_mm / s).astype(np.float32))
+
+
+def test_burley_on_blender_render_is_closer_to_cycles_than_local_shading(shared_dir):
+    base = shared_dir / "reference" / "blender"
+    scene = json.loads((base / "burley_backlit.json").read_text())
+    f = _io.read_frame(base / "irradiance_backlit.exr")
+    target = _io.read_frame(base / "burley_backlit.exr", channel_map={
+        "irradiance": ["ViewLayer.Combined.R", "ViewLayer.Combined.G", "ViewLayer.Combined.B"],
+        "depth": "ViewLayer.Depth.Z"}).irradiance
+    mat = blender_material(scene)
+    b = f.to_buffers(use_albedo=False)  # the white render's DiffCol is 1: the material's colour is the albedo
+    out = np.asarray(sj.burley(b, mat, sj.Camera(f.focal_px, f.mm_per_unit), samples=64))
+    mask = f.material_id > 0
+    albedo = np.asarray(mat.albedo)[0]
+    local = albedo * f.irradiance
+    err = lambda x: np.linalg.norm((x - target)[mask]) / np.linalg.norm(target[mask])
+    # metric: relative L2 over the SSS objects' pixels (IndexOB > 0). Measured: Burley 0.1942, local shading 0.2045.
+    # Most of both errors is what screen space cannot know (light entering the unseen back-lit ears and silhouettes,
+    # ~8% less red energy in Cycles) plus a few percent of path-tracing noise per pixel; the part SSS can fix is the
+    # blur, worth one percentage point here. The bound asks for at least half of that margin.
+    assert err(out) < err(local) - 0.005, (err(out), err(local))
+
+
+def test_cli_demo_writes_images_and_summary(tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), "--size", "48x32", "--samples", "8", "--taps", "7", "--no-report"]) == 0
+    for name in ("reference", "burley_8", "separable_preintegrated_7", "sta", "irradiance", "overview"):
+        assert (out / f"{name}.png").exists(), name
+    summary = json.loads((out / "summary.json").read_text())
+    rows = {r["technique"]: r for r in summary["rows"]}
+    assert rows["reference"]["rel_l2_vs_reference"] == 0
+    assert rows["sta"]["energy_ratio_rgb"][0] > 1  # STA adds light
+    assert "rel L2 vs ref" in capsys.readouterr().out
+
+
+def test_cli_apply_single_and_many(tmp_path, capsys):
+    a, b = tmp_path / "a.exr", tmp_path / "b.exr"
+    ch = synthetic_frame(a, focal=200.0)
+    synthetic_frame(b, focal=200.0)
+    (tmp_path / "single").mkdir()
+    out = tmp_path / "single" / "o.exr"
+    args = ["--technique", "burley", "--albedo", "0.8,0.6,0.5", "--d-mm", "2,1,0.5", "--mm-per-unit", "10"]
+    assert main(["apply", str(a), "-o", str(out)] + args) == 0
+    got = _io.read_frame(out, channel_map={"irradiance": ["R", "G", "B"], "depth": "R"})
+    # id-0 pixels pass through untouched
+    np.testing.assert_array_equal(got.irradiance[:, :3, 0], ch["R"][:, :3].astype(np.float32))
+    inp = oiio.ImageInput.open(str(out))
+    assert inp.spec().getattribute("sss_jax:technique") == "burley"
+    inp.close()
+    assert main(["apply", str(tmp_path / "*.exr"), "--out-dir", str(tmp_path / "many")] + args) == 0
+    assert sorted(p.name for p in (tmp_path / "many").iterdir()) == ["a.exr", "b.exr"]
+
+
+def test_cli_apply_reports_each_failed_frame_and_goes_on(tmp_path, capsys):
+    good = tmp_path / "good.exr"
+    synthetic_frame(good, focal=200.0)
+    bad = tmp_path / "broken.exr"
+    bad.write_bytes(b"garbage")
+    rc = main(["apply", str(bad), str(good), "--out-dir", str(tmp_path / "o"), "--technique", "separable",
+               "--d-mm", "1,1,1"])
+    err = capsys.readouterr().err
+    assert rc == 1
+    assert "broken.exr" in err and "1 of 2 frame(s) failed" in err
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["good.exr"]
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--technique", "burley"], "needs the material"),
+    (["--technique", "burley", "--d-mm", "1,1,1", "--mfp-mm", "1,1,1"], "either --d-mm or --mfp-mm"),
+    (["--technique", "sta"], "needs --light-dir"),
+    (["--technique", "magic", "--d-mm", "1,1,1"], "unknown technique 'magic'"),
+    (["--technique", "burley", "--d-mm", "1,1,1", "--taps", "4"], "--taps must be odd"),
+    (["--technique", "burley", "--d-mm=-1,1,1"], r"d_mm must lie in \[0.0, inf\]"),
+    (["--technique", "burley", "--d-mm", "1,1,1", "--albedo", "2,0,0"], r"albedo must lie in \[0.0, 1.0\]"),
+    (["--technique", "burley", "--d-mm", "1,1,1", "--focal-px=-3"], "--focal-px must be a finite positive"),
+])
+def test_cli_apply_bad_arguments(tmp_path, capsys, argv, message):
+    a = tmp_path / "a.exr"
+    synthetic_frame(a, focal=200.0)
+    out = tmp_path / "o.exr"
+    assert main(["apply", str(a), "-o", str(out)] + argv) == 2
+    assert pytest.importorskip("re").search(message, capsys.readouterr().err)
+    assert not out.exists()
+
+
+def test_cli_apply_missing_focal_length(tmp_path, capsys):
+    a = tmp_path / "a.exr"
+    synthetic_frame(a)
+    assert main(["apply", str(a), "-o", str(tmp_path / "o.exr"), "--technique", "burley", "--d-mm", "1,1,1"]) == 1
+    assert "no focal length" in capsys.readouterr().err
+    assert not (tmp_path / "o.exr").exists()
+
+
+def test_cli_help_shows_examples(capsys):
+    for cmd in ("apply", "demo"):
+        with pytest.raises(SystemExit):
+            main([cmd, "--help"])
+        assert "example" in capsys.readouterr().out
