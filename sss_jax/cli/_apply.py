@@ -106,44 +106,6 @@ def _material(args):
     raise ValueError(f"--technique {args.technique} needs the material: --d-mm R,G,B or --mfp-mm R,G,B")
 
 
-def apply_frame(path: pathlib.Path, output: pathlib.Path, args, material, light) -> None:
-    import numpy as np
-
-    from .._io import SSSInputError, read_frame, write_exr, write_png_preview
-    from .._scene import Camera, validate_buffers
-    from .._techniques import burley, reference, separable, translucency
-
-    frame = read_frame(path, channel_map=args.channel_map, depth_kind=args.depth_kind, focal_px=args.focal_px,
-                       mm_per_unit=args.mm_per_unit)
-    if frame.focal_px is None:
-        raise SSSInputError(f"{path}: no focal length: pass --focal-px (or put sss_jax:focal_px in the header)")
-    mm_per_unit = frame.mm_per_unit if frame.mm_per_unit is not None else 1.0
-    camera = Camera(frame.focal_px, mm_per_unit)
-    buffers = frame.to_buffers(use_albedo=args.albedo is None)
-    validate_buffers(buffers, materials=1)
-    t = args.technique
-    if t == "sta":
-        out = translucency(buffers, material, camera, light, albedo=args.albedo, thickness=args.thickness)
-    elif t == "burley":
-        out = burley(buffers, material, camera, samples=args.samples)
-    elif t == "separable":
-        out = separable(buffers, material, camera, taps=args.taps)
-    else:
-        out = reference(buffers, material, camera, radius_px=args.radius_px)
-    out = np.asarray(out, np.float32)
-    attrs = {"sss_jax:technique": t, "sss_jax:input": str(path), "sss_jax:focal_px": float(frame.focal_px),
-             "sss_jax:mm_per_unit": float(mm_per_unit)}
-    if t == "sta":
-        attrs["sss_jax:light_dir"] = ",".join(map(str, args.light_dir))
-    else:
-        attrs["sss_jax:d_mm"] = ",".join(f"{v:.6g}" for v in np.asarray(material.d_mm)[0])
-        attrs["sss_jax:albedo"] = ",".join(f"{v:.6g}" for v in np.asarray(material.albedo)[0])
-        attrs["sss_jax:samples" if t == "burley" else "sss_jax:taps"] = args.samples if t == "burley" else args.taps
-    write_exr(output, out, channel_names=["R", "G", "B"], half=args.half, attributes=attrs)
-    if args.png:
-        write_png_preview(output.with_suffix(".png"), out)
-
-
 def run(args) -> int:
     from .._techniques import TECHNIQUES
 
@@ -169,19 +131,43 @@ def run(args) -> int:
         print(f"sss-jax apply: {exc}", file=sys.stderr)
         return 2
 
-    failed: list[tuple[pathlib.Path, str]] = []
-    for i, path in enumerate(inputs):
-        output = args.output if args.output is not None else args.out_dir / (path.stem + ".exr")
-        t0 = time.perf_counter()
-        try:
-            apply_frame(path, output, args, material, light)
-        except (ValueError, OSError, TypeError) as exc:
-            failed.append((path, str(exc)))
-            print(f"[{i + 1}/{len(inputs)}] FAILED {path}: {exc}", file=sys.stderr)
-            continue
-        print(f"[{i + 1}/{len(inputs)}] {path} -> {output} ({time.perf_counter() - t0:.2f} s)", file=sys.stderr)
-    if failed:
-        print(f"sss-jax apply: {len(failed)} of {len(inputs)} frame(s) failed: "
-              + "; ".join(str(p) for p, _ in failed), file=sys.stderr)
+    from .._batch import process_frames
+
+    if args.technique == "reference" and args.radius_px is None:
+        args.radius_px = _reference_radius(inputs, args, material)
+    sta = args.technique == "sta"
+    result = process_frames(
+        inputs, args.technique, material if not sta else (material, light),
+        out_dir=args.out_dir, outputs=None if args.output is None else [args.output], png=args.png,
+        focal_px=args.focal_px, mm_per_unit=args.mm_per_unit, channel_map=args.channel_map,
+        depth_kind=args.depth_kind, use_albedo_pass=args.albedo is None, samples=args.samples, taps=args.taps,
+        radius_px=args.radius_px, half=args.half, skip_existing=False, progress=len(inputs) > 1,
+        sta_albedo=args.albedo, sta_thickness=args.thickness,
+        on_frame_done=lambda r: print(
+            f"{'FAILED ' if r.status == 'failed' else ''}{r.input}"
+            + (f": {r.message}" if r.status == "failed" else f" -> {r.output} ({r.seconds:.2f} s)"),
+            file=sys.stderr),
+    )
+    if result.failed:
+        print(f"sss-jax apply: {len(result.failed)} of {len(result.frames)} frame(s) failed: "
+              + "; ".join(f.input for f in result.failed), file=sys.stderr)
         return 1
     return 0
+
+
+def _reference_radius(inputs, args, material) -> int:
+    """One reference window for the whole sequence: the largest any readable frame needs."""
+    from .._io import read_frame
+    from .._scene import Camera
+    from .._techniques import reference_radius_px
+
+    radius = 1
+    for path in inputs:
+        try:
+            f = read_frame(path, channel_map=args.channel_map, focal_px=args.focal_px, mm_per_unit=args.mm_per_unit)
+        except (OSError, ValueError):
+            continue  # reported when the batch reaches it
+        if f.focal_px is not None:
+            cam = Camera(f.focal_px, f.mm_per_unit or 1.0)
+            radius = max(radius, reference_radius_px(f.to_buffers(), material, cam))
+    return radius
