@@ -80,10 +80,11 @@ def burley_cdf(r_mm: ArrayLike, d_mm: ArrayLike) -> Array:
     """
     r = _float(r_mm)
     d = _float(d_mm, r)
-    d_ok = d > 0
-    x = jnp.where(d_ok, r / jnp.where(d_ok, d, 1.0), jnp.where(r > 0, jnp.inf, 0.0))
-    x = jnp.maximum(x, 0.0)
-    return -jnp.expm1(-x) / 4 + 3 * -jnp.expm1(-x / 3) / 4
+    # finite r with d > 0 is the formula; r = inf or d = 0 (with r > 0) is all of the energy, with a zero gradient
+    ok = (d > 0) & jnp.isfinite(r)
+    x = jnp.maximum(jnp.where(ok, r, 0.0) / jnp.where(ok, d, 1.0), 0.0)
+    value = -jnp.expm1(-x) / 4 + 3 * -jnp.expm1(-x / 3) / 4
+    return jnp.where(ok, value, jnp.where(r > 0, 1.0, 0.0))
 
 
 def burley_inverse_ccdf(v: ArrayLike, d_mm: ArrayLike) -> Array:

@@ -1,0 +1,312 @@
+"""The stability sweep: every technique, profile and kernel over the cross product of extreme inputs.
+
+For each case the outcome is one of
+- ``ok``: output finite, gradients (w.r.t. the material parameters and the irradiance) finite, energy bounded;
+- ``handled_error``: the input is invalid and a clear ``ValueError``/``TypeError`` named it (counted as handled);
+- ``nonfinite_output`` / ``nonfinite_gradient`` / ``energy_unbounded`` / ``unexpected_error``: a failure.
+
+Invalid inputs go through the same host-side validation the command line and the batch API use
+(``validate_buffers``, the materials' constructors), so "handled" means a user would have seen that message.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import math
+import time
+from typing import Any, Callable, Iterator
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._kernels import separable_kernel_from_profile, spiral_samples, two_gaussian_kernel
+from ._materials import BurleyMaterial, DirectionalLight, STAParams, TwoGaussianMaterial
+from ._profiles import BurleyProfile, burley_cdf, burley_inverse_cdf, burley_R
+from ._scene import Buffers, Camera, validate_buffers
+from ._techniques import burley, reference, separable, translucency
+
+__all__ = ["run_sweep", "sweep_cases", "Case"]
+
+D_MM = (0.0, 1e-6, 1e-3, 1.0, 1e3, 1e6)
+ALBEDO = (0.0, 1e-6, 0.5, 1 - 1e-6, 1.0)
+SIGMA = (0.0, 1e-8, 1e4)
+W = (0.0, 1.0)
+STA_POWER = (0.0, 1e3)
+DEPTH_SPECIALS = ("plain", "zero", "inf", "nan", "tiny", "huge")
+IRRADIANCE = ("plain", "zero", "subnormal", "1e-30", "1e30")
+DTYPES = ("float16", "float32", "float64")
+SIZES = ((1, 1), (1, 5), (4, 4))
+
+CAMERA = Camera(focal_px=50.0, mm_per_unit=10.0)
+
+
+@dataclasses.dataclass
+class Case:
+    component: str
+    params: dict[str, Any]
+    outcome: str = ""
+    message: str = ""
+
+
+def _depth(kind: str, shape, dtype) -> np.ndarray:
+    z = np.full(shape, 20.0)
+    if kind != "plain":
+        value = {"zero": 0.0, "inf": np.inf, "nan": np.nan, "tiny": 1e-8, "huge": 1e8}[kind]
+        z.flat[:: 2] = value  # every other pixel: specials next to ordinary neighbours
+    with np.errstate(over="ignore"):  # 1e8 is inf in float16: a sky pixel, as it should be
+        return z.astype(dtype)
+
+
+def _irradiance(kind: str, shape, dtype) -> np.ndarray:
+    rng = np.random.default_rng(0)
+    e = rng.uniform(0.1, 1.0, shape + (3,))
+    if kind == "zero":
+        e[:] = 0.0
+    elif kind == "subnormal":
+        e[:] = np.finfo(np.dtype(dtype)).smallest_subnormal
+    elif kind == "1e-30":
+        e *= 1e-30
+    elif kind == "1e30":
+        e *= 1e30
+    with np.errstate(over="ignore"):  # 1e30 overflows float16 to inf on purpose: validation must say so
+        return e.astype(dtype)
+
+
+def sweep_cases(quick: bool = False) -> Iterator[Case]:
+    """All cases (``quick``: a ninth of the technique cases in float16/float32 at 4x4, one tap count)."""
+    big: list[Case] = []
+    for tech in ("burley", "separable_burley", "reference"):
+        for d, a, dk, ek, dt in itertools.product(D_MM, ALBEDO, DEPTH_SPECIALS, IRRADIANCE, DTYPES):
+            big.append(Case(tech, dict(d_mm=d, albedo=a, depth=dk, irradiance=ek, dtype=dt, size=(4, 4))))
+        for d, dt, size in itertools.product(D_MM, DTYPES, SIZES[:2]):
+            big.append(Case(tech, dict(d_mm=d, albedo=0.5, depth="plain", irradiance="plain", dtype=dt, size=size)))
+    for sn, sf, w, dk, ek, dt in itertools.product(SIGMA, SIGMA, W, DEPTH_SPECIALS, IRRADIANCE, DTYPES):
+        big.append(Case("separable_two_gaussian", dict(sigma_near_mm=sn, sigma_far_mm=sf, w=w, depth=dk,
+                                                       irradiance=ek, dtype=dt, size=(4, 4))))
+    for p, dist, thick, dk, ek, dt in itertools.product(STA_POWER, (0.0, 1.0), (1e-6, 1.0, 1e6), DEPTH_SPECIALS,
+                                                        IRRADIANCE, DTYPES):
+        big.append(Case("sta", dict(power=p, distortion=dist, thickness_mm=thick, depth=dk, irradiance=ek, dtype=dt,
+                                    size=(4, 4))))
+    if quick:
+        # every technique and every kind of extreme, on two dtypes and one size: few compilations, seconds to run
+        big = [c for c in big if c.params["dtype"] in ("float16", "float32") and tuple(c.params["size"]) == (4, 4)]
+        big = big[::9]
+    yield from big
+    # the profiles, kernels and invalid parameters: small, always all
+    for d, r in itertools.product(D_MM, (0.0, 1e-30, 1e-6, 1.0, 1e6, np.inf)):
+        yield Case("profile", dict(d_mm=d, r_mm=r))
+    tap_counts = (5,) if quick else (1, 5, 25)
+    for d, taps in itertools.product(D_MM, tap_counts):
+        yield Case("kernel_preintegrated", dict(d_mm=d, taps=taps))
+    for sn, sf, w, taps in itertools.product(SIGMA, SIGMA, W, tap_counts):
+        yield Case("kernel_two_gaussian", dict(sigma_near_mm=sn, sigma_far_mm=sf, w=w, taps=taps))
+    for n in (1, 4, 128):
+        yield Case("spiral_samples", dict(n=n))
+    for bad in (dict(d_mm=np.nan), dict(d_mm=-1.0), dict(albedo=1.5), dict(albedo=np.nan), dict(d_mm=np.inf)):
+        yield Case("invalid_parameter", dict(bad))
+
+
+# ------------------------------------------------------------------------------------------------------------------
+
+
+def _finite(tree) -> bool:
+    return all(bool(np.all(np.isfinite(np.asarray(x, np.float64)))) for x in jax.tree.leaves(tree))
+
+
+_COMPILED: dict[tuple, Callable] = {}
+
+
+def _technique_fn(component: str, samples: int = 4, taps: int = 5, radius: int = 3) -> Callable:
+    """Batched (irradiance, depth, params) -> ((objective, output), grads w.r.t. irradiance and params): one vmapped
+    jitted call serves every case of a (component, dtype, size) group."""
+    key = (component, samples, taps, radius)
+    if key in _COMPILED:
+        return _COMPILED[key]
+
+    def forward(irradiance, depth, params):
+        b = Buffers(irradiance=irradiance, depth=depth)
+        if component == "burley":
+            out = burley(b, BurleyMaterial(params["albedo"], params["d_mm"]), CAMERA, samples=samples)
+        elif component == "separable_burley":
+            out = separable(b, BurleyMaterial(params["albedo"], params["d_mm"]), CAMERA, taps=taps)
+        elif component == "reference":
+            out = reference(b, BurleyMaterial(params["albedo"], params["d_mm"]), CAMERA, radius_px=radius)
+        elif component == "separable_two_gaussian":
+            mat = TwoGaussianMaterial(params["albedo"], params["w"], params["sigma_near_mm"], params["sigma_far_mm"])
+            out = separable(b, mat, CAMERA, taps=taps)
+        else:
+            sta = STAParams(distortion=params["distortion"], power=params["power"], scale=1.0, ambient=0.1,
+                            thickness_mm=params["thickness_mm"])
+            light = DirectionalLight(jnp.asarray([0.2, -0.3, 0.9], jnp.float32))
+            out = translucency(b, sta, CAMERA, light, thickness=0.05)
+        # a scale-free objective: finite for inputs of any magnitude
+        scale = jax.lax.stop_gradient(1.0 + jnp.max(jnp.abs(irradiance.astype(jnp.float32))))
+        return jnp.sum(out.astype(jnp.float32)) / scale, out
+
+    fn = jax.jit(jax.vmap(jax.value_and_grad(forward, argnums=(0, 2), has_aux=True)))
+    _COMPILED[key] = fn
+    return fn
+
+
+def _prepare_technique_case(case: Case):
+    """Host-side validation as a user would meet it; the arrays of a valid case, or None (outcome recorded)."""
+    p = case.params
+    dtype = np.dtype(p["dtype"])
+    shape = tuple(p["size"])
+    e = _irradiance(p["irradiance"], shape, dtype)
+    z = _depth(p["depth"], shape, dtype)
+    try:
+        validate_buffers(Buffers(irradiance=jnp.asarray(e), depth=jnp.asarray(z)))
+        if case.component in ("burley", "separable_burley", "reference"):
+            params = dict(albedo=np.full((3,), p["albedo"], np.float32), d_mm=np.full((3,), p["d_mm"], np.float32))
+            BurleyMaterial(params["albedo"], params["d_mm"])  # host-side range checks
+        elif case.component == "separable_two_gaussian":
+            params = dict(albedo=np.full((3,), 0.7, np.float32), w=np.full((3,), p["w"], np.float32),
+                          sigma_near_mm=np.full((3,), p["sigma_near_mm"], np.float32),
+                          sigma_far_mm=np.full((3,), p["sigma_far_mm"], np.float32))
+            TwoGaussianMaterial(**params)
+        else:
+            params = {k: np.asarray(p[k], np.float32) for k in ("power", "distortion", "thickness_mm")}
+            STAParams(**params)
+    except (ValueError, TypeError) as exc:
+        case.outcome, case.message = "handled_error", str(exc)
+        return None
+    return e, z, params
+
+
+def _run_technique_group(cases: list[Case]) -> None:
+    prepared = [(c, _prepare_technique_case(c)) for c in cases]
+    prepared = [(c, x) for c, x in prepared if x is not None]
+    if not prepared:
+        return
+    dtype = np.dtype(prepared[0][0].params["dtype"])
+    if dtype == np.float64 and not jax.config.read("jax_enable_x64"):
+        jax.config.update("jax_enable_x64", True)
+    e = jnp.asarray(np.stack([x[0] for _, x in prepared]))
+    z = jnp.asarray(np.stack([x[1] for _, x in prepared]))
+    params = {k: jnp.asarray(np.stack([x[2][k] for _, x in prepared])) for k in prepared[0][1][2]}
+    (values, outs), grads = _technique_fn(prepared[0][0].component)(e, z, params)
+    values, outs = np.asarray(values, np.float64), np.asarray(outs, np.float64)
+    grads = jax.tree.map(lambda g: np.asarray(g, np.float64), grads)
+    e64 = np.asarray(e, np.float64)
+    for i, (case, _) in enumerate(prepared):
+        out = outs[i]
+        if not np.all(np.isfinite(out)) or not np.isfinite(values[i]):
+            case.outcome = "nonfinite_output"
+            continue
+        if not all(np.all(np.isfinite(g[i])) for g in jax.tree.leaves(grads)):
+            case.outcome = "nonfinite_gradient"
+            continue
+        if case.component != "sta":
+            # redistribution creates no light: every output is a convex combination of inputs times albedo <= 1,
+            # so no pixel exceeds the brightest input, and the total stays within the border effects of a gather
+            tol = 2e-2 if dtype == np.float16 else 1e-4
+            top, total_in, total_out = e64[i].max(), e64[i].sum(), out.sum()
+            if out.max() > top * (1 + tol) + 1e-300 or total_out > 1.25 * total_in + 1e-300:
+                case.outcome = "energy_unbounded"
+                case.message = f"max out/in {out.max() / max(top, 1e-300):.6g}, total {total_out / max(total_in, 1e-300):.6g}"
+                continue
+        case.outcome = "ok"
+
+
+def _run_small_case(case: Case) -> None:
+    p = case.params
+    try:
+        if case.component == "profile":
+            d, r = jnp.float32(p["d_mm"]), jnp.float32(p["r_mm"])
+            vals = [burley_R(r, d), burley_cdf(r, d), burley_inverse_cdf(jnp.float32(0.5), d)]
+            grads = [jax.grad(lambda dd: burley_cdf(r, dd))(d), jax.grad(lambda dd: burley_inverse_cdf(0.5, dd))(d)]
+            # R(0) is +inf by definition (the integrable 1/r peak): every other value must be finite
+            vals = vals[1:] if p["r_mm"] == 0.0 and p["d_mm"] > 0 else vals
+            if p["r_mm"] == 0.0 and p["d_mm"] > 0 and not np.isposinf(float(burley_R(r, d))):
+                case.outcome = "nonfinite_output"
+                return
+        elif case.component == "kernel_preintegrated":
+            d = jnp.full((3,), p["d_mm"], jnp.float32)
+            k = separable_kernel_from_profile(BurleyProfile(d), taps=p["taps"])
+            vals = [k.offsets_mm, k.weights, jnp.sum(k.weights, axis=0) - 1]
+            grads = [jax.grad(lambda dd: jnp.sum(separable_kernel_from_profile(BurleyProfile(dd), taps=p["taps"])
+                                                 .weights[0] ** 2))(d)]
+        elif case.component == "kernel_two_gaussian":
+            args = [jnp.full((3,), p[n], jnp.float32) for n in ("w", "sigma_near_mm", "sigma_far_mm")]
+            f = lambda *a: two_gaussian_kernel(*a, taps=p["taps"])
+            k = f(*args)
+            vals = [k.offsets_mm, k.weights, jnp.sum(k.weights, axis=0) - 1]
+            grads = [jax.grad(lambda *a: jnp.sum(f(*a).weights[0] ** 2), argnums=(0, 1, 2))(*args)]
+        elif case.component == "spiral_samples":
+            s = spiral_samples(p["n"])
+            vals, grads = [s.unit_radii(), s.angles], []
+        else:  # invalid_parameter
+            BurleyMaterial(p.get("albedo", 0.5), jnp.full((3,), p.get("d_mm", 1.0)))
+            case.outcome, case.message = "unexpected_error", "invalid parameter accepted"
+            return
+    except (ValueError, TypeError) as exc:
+        case.outcome, case.message = "handled_error", str(exc)
+        return
+    if case.component.startswith("kernel") and abs(float(jnp.max(jnp.abs(vals[2])))) > 1e-5:
+        case.outcome, case.message = "energy_unbounded", "kernel weights do not sum to 1"
+        return
+    if not _finite(vals):
+        case.outcome = "nonfinite_output"
+    elif not _finite(grads):
+        case.outcome = "nonfinite_gradient"
+    else:
+        case.outcome = "ok"
+
+
+def run_sweep(*, quick: bool = False, progress: bool = True) -> dict[str, Any]:
+    """Run the sweep and return the summary with every case (the JSON ``sss-jax stability`` writes)."""
+    cases = list(sweep_cases(quick))
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=len(cases), unit="case", desc="stability sweep")
+    t0 = time.perf_counter()
+    groups: dict[tuple, list[Case]] = {}
+    for case in cases:
+        if case.component in ("profile", "kernel_preintegrated", "kernel_two_gaussian", "spiral_samples",
+                              "invalid_parameter"):
+            try:
+                _run_small_case(case)
+            except Exception as exc:  # noqa: BLE001 - an unexpected error is a finding, recorded, not a crash
+                case.outcome, case.message = "unexpected_error", f"{type(exc).__name__}: {exc}"
+            if bar is not None:
+                bar.update(1)
+        else:
+            groups.setdefault((case.component, case.params["dtype"], tuple(case.params["size"])), []).append(case)
+    for group in groups.values():
+        try:
+            _run_technique_group(group)
+        except Exception as exc:  # noqa: BLE001
+            for case in group:
+                if not case.outcome:
+                    case.outcome, case.message = "unexpected_error", f"{type(exc).__name__}: {exc}"
+        if bar is not None:
+            bar.update(len(group))
+    if bar is not None:
+        bar.close()
+    count = lambda name: sum(c.outcome == name for c in cases)
+    return {
+        "cases": len(cases),
+        "ok": count("ok"),
+        "handled_errors": count("handled_error"),
+        "nonfinite_outputs": count("nonfinite_output"),
+        "nonfinite_gradients": count("nonfinite_gradient"),
+        "energy_unbounded": count("energy_unbounded"),
+        "unexpected_errors": count("unexpected_error"),
+        "seconds": round(time.perf_counter() - t0, 1),
+        "quick": quick,
+        "case_list": [dict(component=c.component, params={k: _jsonable(v) for k, v in c.params.items()},
+                           outcome=c.outcome, message=c.message[:300]) for c in cases],
+    }
+
+
+def _jsonable(v):
+    if isinstance(v, float) and not math.isfinite(v):
+        return str(v)
+    if isinstance(v, tuple):
+        return list(v)
+    return v

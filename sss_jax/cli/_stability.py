@@ -1,0 +1,50 @@
+"""``sss-jax stability``: the sweep over extreme inputs."""
+
+from __future__ import annotations
+
+import argparse
+import pathlib
+import sys
+
+EPILOG = """examples:
+  sss-jax stability --json stability.json           # the full sweep (~11,000 cases)
+  sss-jax stability --quick --json quick.json       # the reduced sweep the tests run
+"""
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "stability",
+        help="sweep every technique, profile and kernel over extreme inputs",
+        description="Run every technique, the profiles and the kernels over the cross product of extreme parameters "
+        "and buffers (d from 0 to 1e6 mm, albedo 0..1, sigma 0..1e4, depth 0/inf/NaN/1e-8/1e8, irradiance "
+        "0/subnormal/1e-30/1e30, float16/32/64, 1x1 and 1xN images) and count non-finite outputs and gradients.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--json", type=pathlib.Path, required=True, help="where to write the summary and every case")
+    p.add_argument("--quick", action="store_true", help="the reduced sweep")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    import jax
+
+    jax.config.update("jax_enable_x64", True)  # float64 cases must really run in float64
+    from .._io import write_json_atomic
+    from .._stability import run_sweep
+
+    if not args.json.parent.exists():
+        print(f"sss-jax stability: output directory {args.json.parent} does not exist", file=sys.stderr)
+        return 2
+    summary = run_sweep(quick=args.quick, progress=True)
+    write_json_atomic(args.json, summary)
+    print(f"cases tried:          {summary['cases']}")
+    print(f"ok:                   {summary['ok']}")
+    print(f"handled errors:       {summary['handled_errors']}")
+    print(f"non-finite outputs:   {summary['nonfinite_outputs']}")
+    print(f"non-finite gradients: {summary['nonfinite_gradients']}")
+    print(f"energy unbounded:     {summary['energy_unbounded']}")
+    print(f"unexpected errors:    {summary['unexpected_errors']}")
+    bad = summary["cases"] - summary["ok"] - summary["handled_errors"]
+    return 0 if bad == 0 else 1

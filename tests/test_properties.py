@@ -1,0 +1,75 @@
+"""Property-based tests (hypothesis) of the invariants every pass must keep."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from hypothesis import given, settings, strategies as st
+
+import sss_jax as sj
+
+SETTINGS = settings(max_examples=15, deadline=None)
+H, W = 10, 12
+CAM = sj.Camera(focal_px=80.0, mm_per_unit=10.0)
+positive = st.floats(min_value=1e-3, max_value=50.0, allow_nan=False)
+triples = st.tuples(positive, positive, positive)
+
+
+def _buffers(e, depth):
+    return sj.Buffers(irradiance=jnp.asarray(e), depth=jnp.asarray(depth))
+
+
+@jax.jit
+def _passes(e, depth, d):
+    b = _buffers(e, depth)
+    mat = sj.BurleyMaterial(jnp.ones(3), d)
+    return (sj.burley(b, mat, CAM, samples=8), sj.separable(b, mat, CAM, taps=7),
+            sj.reference(b, mat, CAM, radius_px=4))
+
+
+@SETTINGS
+@given(triples, st.sampled_from([5, 9, 25]))
+def test_preintegrated_weights_sum_to_one(d, taps):
+    k = sj.separable_kernel_from_profile(sj.BurleyProfile(jnp.asarray(d)), taps=taps)
+    np.testing.assert_allclose(np.asarray(k.weights).sum(0), 1.0, rtol=1e-9)
+    assert np.all(np.asarray(k.weights) >= 0)
+
+
+@SETTINGS
+@given(st.tuples(*[st.floats(0, 1)] * 3), triples, triples, st.sampled_from([3, 7, 33]))
+def test_two_gaussian_weights_sum_to_one(w, s_near, s_far, taps):
+    k = sj.two_gaussian_kernel(jnp.asarray(w), jnp.asarray(s_near), jnp.asarray(s_far), taps=taps)
+    np.testing.assert_allclose(np.asarray(k.weights).sum(0), 1.0, rtol=1e-9)
+
+
+@SETTINGS
+@given(st.integers(0, 2**31 - 1), triples, st.floats(-50, 50), st.floats(0.5, 3.0))
+def test_linear_and_no_energy_created(seed, d, a, slope):
+    rng = np.random.default_rng(seed)
+    e1, e2 = rng.uniform(0, 2, (H, W, 3)), rng.uniform(0, 2, (H, W, 3))
+    depth = 40.0 + slope * np.linspace(0, 1, W)[None, :] * np.ones((H, 1))
+    d = jnp.asarray(d)
+    c = abs(a)
+    out1, out2, out12 = _passes(e1, depth, d), _passes(e2, depth, d), _passes(2 * e1 + c * e2, depth, d)
+    for o1, o2, o12 in zip(out1, out2, out12):
+        np.testing.assert_allclose(np.asarray(o12), 2 * np.asarray(o1) + c * np.asarray(o2), rtol=1e-9, atol=1e-9)
+        # each output is a convex combination of inputs (albedo 1): no pixel exceeds the brightest input
+        assert np.asarray(o1).max() <= e1.max() * (1 + 1e-12)
+        assert np.asarray(o1).min() >= e1.min() * (1 - 1e-12)
+
+
+@SETTINGS
+@given(st.floats(0.01, 100.0), triples, st.floats(0.0, 5.0), st.floats(20.0, 80.0))
+def test_flat_stays_flat_on_a_smooth_surface(level, d, slope, base):
+    e = np.full((H, W, 3), level)
+    ys, xs = np.mgrid[0:H, 0:W]
+    depth = base + slope * (xs / W + 0.5 * ys / H)  # a tilted plane: no depth edges
+    for out in _passes(e, depth, jnp.asarray(d)):
+        np.testing.assert_allclose(np.asarray(out), level, rtol=1e-9)
+
+
+@SETTINGS
+@given(st.integers(0, 2**31 - 1))
+def test_zero_width_is_identity(seed):
+    e = np.random.default_rng(seed).uniform(0, 5, (H, W, 3))
+    for out in _passes(e, np.full((H, W), 30.0), jnp.zeros(3)):
+        np.testing.assert_allclose(np.asarray(out), e, rtol=1e-12)
