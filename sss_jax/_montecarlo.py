@@ -155,8 +155,7 @@ def _make_kernel(lanes: int, bins: int, r_max: float, max_events: int, slab: boo
         state = launch(jax.random.fold_in(key, 0), (lanes,))
         alive = jnp.arange(lanes) < budget
         tallies = dict(
-            R=jnp.zeros(n_bins + 1, f32), R2=jnp.zeros(n_bins + 1, f32),
-            T=jnp.zeros(n_bins + 1, f32), T2=jnp.zeros(n_bins + 1, f32),
+            hist=jnp.zeros((4, n_bins + 1), f32),
             R1=jnp.zeros((), f32), R1sq=jnp.zeros((), f32),
             capped=jnp.zeros((), jnp.int32), capped_w=jnp.zeros((), f32), events=jnp.zeros((), jnp.int32),
         )
@@ -169,8 +168,7 @@ def _make_kernel(lanes: int, bins: int, r_max: float, max_events: int, slab: boo
         def body(carry):
             state, alive, launched, tallies, it = carry
             k = jax.random.fold_in(key, it + 1)
-            ks = jax.random.split(k, 5)
-            u_step, u_fres, u_cos, u_phi, u_rr = (jax.random.uniform(kk, (lanes,), f32) for kk in ks)
+            u_step, u_fres, u_cos, u_phi, u_rr = jax.random.uniform(k, (5, lanes), f32)
             x, y, z, ux, uy, uz, w, n = (state[s] for s in ("x", "y", "z", "ux", "uy", "uz", "w", "n"))
             step = -jnp.log(jnp.maximum(u_step, 1e-30))
             z_new = z + uz * step
@@ -199,36 +197,38 @@ def _make_kernel(lanes: int, bins: int, r_max: float, max_events: int, slab: boo
             top_w = jnp.where(leaves & hits_top, w, 0.0)
             bot_w = jnp.where(leaves & hits_bottom, w, 0.0)
             tallies = dict(tallies)
-            tallies["R"] = tallies["R"].at[bin_idx].add(top_w)
-            tallies["R2"] = tallies["R2"].at[bin_idx].add(top_w * top_w)
-            tallies["T"] = tallies["T"].at[bin_idx].add(bot_w)
-            tallies["T2"] = tallies["T2"].at[bin_idx].add(bot_w * bot_w)
+            # one scatter-add for all four histograms: rows R, R^2, T, T^2
+            exit_w = top_w + bot_w
+            row = jnp.where(hits_bottom, 2, 0)
+            hist = tallies["hist"].at[row, bin_idx].add(exit_w).at[row + 1, bin_idx].add(exit_w * exit_w)
+            tallies["hist"] = hist
             single = jnp.where(n == 1, top_w, 0.0)
             tallies["R1"] = tallies["R1"] + jnp.sum(single)
             tallies["R1sq"] = tallies["R1sq"] + jnp.sum(single * single)
-            tallies["events"] = tallies["events"] + jnp.sum(scatter.astype(jnp.int32))
+            tallies["events"] = tallies["events"] + jnp.sum(scatter, dtype=jnp.int32)
             # Russian roulette on weak photons, and the event cap
             weak = alive & ~leaves & (w < _ROULETTE_WEIGHT)
             survive = u_rr < _ROULETTE_SURVIVAL
             w = jnp.where(weak, jnp.where(survive, w / _ROULETTE_SURVIVAL, 0.0), w)
             died = weak & ~survive
             capped = alive & ~leaves & ~died & (n >= max_events)
-            tallies["capped"] = tallies["capped"] + jnp.sum(capped.astype(jnp.int32))
+            tallies["capped"] = tallies["capped"] + jnp.sum(capped, dtype=jnp.int32)
             tallies["capped_w"] = tallies["capped_w"] + jnp.sum(jnp.where(capped, w, 0.0))
             alive = alive & ~leaves & ~died & ~capped
             # refill finished lanes with new photons while the budget lasts
             free = ~alive
-            rank = jnp.cumsum(free.astype(jnp.int32)) - 1
+            rank = jnp.cumsum(free, dtype=jnp.int32) - 1
             refill = free & (launched + rank < budget)
             fresh = launch(jax.random.fold_in(k, 7), (lanes,))
             state = dict(x=x, y=y, z=z, ux=ux, uy=uy, uz=uz, w=w, n=n)
             state = {s: jnp.where(refill, fresh[s], v) for s, v in state.items()}
-            launched = launched + jnp.sum(refill.astype(jnp.int32))
+            launched = launched + jnp.sum(refill, dtype=jnp.int32)
             alive = alive | refill
             return state, alive, launched, tallies, it + 1
 
         _, _, _, tallies, _ = jax.lax.while_loop(cond, body, (state, alive, launched, tallies, jnp.int32(0)))
-        return tallies
+        hist = tallies.pop("hist")
+        return dict(tallies, R=hist[0], R2=hist[1], T=hist[2], T2=hist[3])
 
     return run
 

@@ -1,0 +1,156 @@
+"""The random walk against physics it did not produce: energy conservation, the single-scattering integral,
+Chandrasekhar's H-function, the diffusion limit, Fresnel."""
+
+import json
+import math
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import sss_jax as sj
+from sss_jax._montecarlo import _hg_cos, fresnel_unpolarised, simulate, to_tabulated_profile
+from sss_jax.cli import main
+
+FAST = dict(lanes=4096, bins=50, r_max_mfp=10.0)
+
+
+def chandrasekhar_h(albedo: float, mu: np.ndarray, nodes: int = 200) -> np.ndarray:
+    """Chandrasekhar's H-function for isotropic scattering (Radiative Transfer, 1950, ch. V), solved by fixed-point
+    iteration of its alternative form ``1/H(mu) = sqrt(1 - a) + (a/2) int_0^1 mu' H(mu') / (mu + mu') dmu'``
+    (damped, it converges in ~50 steps even for a = 1) on Gauss-Legendre nodes, then evaluated at ``mu``."""
+    x, w = np.polynomial.legendre.leggauss(nodes)
+    m, wm = 0.5 * (x + 1), 0.5 * w
+    root = math.sqrt(max(1 - albedo, 0.0))
+    h = np.ones_like(m)
+    for _ in range(5000):
+        new = 0.5 * h + 0.5 / (root + 0.5 * albedo * np.sum(wm * m * h / (m[:, None] + m), axis=1))
+        if np.max(np.abs(new - h)) < 1e-13:
+            break
+        h = new
+    mu = np.atleast_1d(mu)
+    return 1 / (root + 0.5 * albedo * np.sum(wm * m * h / (mu[:, None] + m), axis=1))
+
+
+def test_h_function_solver_against_published_value():
+    # Chandrasekhar's table for conservative isotropic scattering: H(1) = 2.9078; and his moment identity
+    # int_0^1 H dmu = (2/a)(1 - sqrt(1 - a))
+    assert chandrasekhar_h(1.0, np.array([1.0]))[0] == pytest.approx(2.9078, abs=2e-4)
+    x, w = np.polynomial.legendre.leggauss(64)
+    mu = 0.5 * (x + 1)
+    for a in (0.5, 0.9):
+        assert np.sum(0.5 * w * chandrasekhar_h(a, mu)) == pytest.approx(2 / a * (1 - math.sqrt(1 - a)), rel=1e-8)
+
+
+def test_energy_is_conserved_without_absorption():
+    # albedo 1, index-matched, semi-infinite: every photon leaves through the top, unless it hits the event cap
+    r = simulate(1.0, photons=20_000, max_events=3000, seed=1, **FAST)
+    assert r.total_reflectance + r.capped_weight == pytest.approx(1.0, abs=1e-4)
+    assert r.capped_photons / r.photons < 0.03  # the walk's return-time tail beyond 3000 events
+    # a slab with a dielectric boundary: specular + reflected + transmitted + capped = 1
+    s = simulate(1.0, photons=20_000, eta=1.4, slab_mfp=1.5, max_events=3000, seed=2, **FAST)
+    total = s.specular_reflectance + s.total_reflectance + s.total_transmittance + s.capped_weight
+    assert total == pytest.approx(1.0, abs=1e-4)
+    assert s.specular_reflectance == pytest.approx((0.4 / 2.4) ** 2)
+
+
+@pytest.fixture(scope="module")
+def half_albedo():
+    return simulate(0.5, photons=200_000, seed=3, **FAST)
+
+
+def test_single_scattering_matches_the_analytic_integral(half_albedo):
+    # normal incidence, first scatter at depth tau ~ Exp(1), isotropic, escapes along mu with prob. exp(-tau/mu):
+    # R1 = a int_0^inf e^-tau int_0^1 (1/2) e^(-tau/mu) dmu dtau = (a/2) int_0^1 mu/(1+mu) dmu = (a/2)(1 - ln 2)
+    r = half_albedo
+    expected = 0.5 / 2 * (1 - math.log(2))
+    assert abs(r.single_scatter_reflectance - expected) < 4 * r.single_scatter_reflectance_stderr + 1e-6
+
+
+def test_total_reflectance_matches_chandrasekhar(half_albedo):
+    # plane albedo of a semi-infinite isotropic medium at normal incidence: 1 - H(1) sqrt(1 - a)
+    for r in (half_albedo, simulate(0.9, photons=100_000, seed=4, **FAST)):
+        expected = 1 - chandrasekhar_h(r.albedo, np.array([1.0]))[0] * math.sqrt(1 - r.albedo)
+        assert abs(r.total_reflectance - expected) < 4 * r.total_reflectance_stderr, (r.albedo, expected)
+
+
+def test_diffusion_limit_for_high_albedo():
+    # Jensen et al. 2001 (eq. for total diffuse reflectance of the dipole, index-matched A = 1):
+    # Rd = (a/2)(1 + exp(-4/3 sqrt(3(1-a)))) exp(-sqrt(3(1-a))). Diffusion theory is an approximation: near a = 1
+    # it agrees with transport to a few percent (Jensen et al., Fig. 4), so the tolerance is 3% (the MC's own
+    # standard error is ~0.15% here)
+    a = 0.99
+    r = simulate(a, photons=50_000, seed=5, **FAST)
+    s = math.sqrt(3 * (1 - a))
+    dipole = a / 2 * (1 + math.exp(-4 / 3 * s)) * math.exp(-s)
+    assert r.total_reflectance == pytest.approx(dipole, rel=0.03)
+    assert r.total_reflectance_stderr < 0.005
+
+
+def test_profile_bins_add_up_and_have_errors(half_albedo):
+    r = half_albedo
+    area = math.pi * (r.bin_edges_mfp[1:] ** 2 - r.bin_edges_mfp[:-1] ** 2)
+    inside = float(np.sum(r.R * area))
+    assert inside <= r.total_reflectance + 1e-9 and inside > 0.95 * r.total_reflectance
+    assert np.all(r.R_stderr >= 0) and np.all(r.R_stderr[:10] > 0)
+    assert r.R[0] > r.R[10] > r.R[30]  # the profile falls off with radius
+
+
+def test_henyey_greenstein_sampling_mean_cosine():
+    # <cos theta> of the Henyey-Greenstein phase function is g
+    import jax
+
+    u = jax.random.uniform(jax.random.PRNGKey(0), (400_000,))
+    for g in (-0.5, 0.0, 0.3, 0.9):
+        assert float(jnp.mean(_hg_cos(u, g))) == pytest.approx(g, abs=3e-3)
+
+
+def test_fresnel_by_hand():
+    # normal incidence ((n1-n2)/(n1+n2))^2; total internal reflection beyond asin(1/1.4) from inside
+    assert float(fresnel_unpolarised(1.0, 1.0, 1.4)) == pytest.approx((0.4 / 2.4) ** 2, rel=1e-6)
+    assert float(fresnel_unpolarised(math.cos(math.radians(50)), 1.4, 1.0)) == 1.0
+    # 45 degrees from air into n = 1.5: Rs = 0.0920, Rp = 0.0085 (textbook values), mean 0.0503
+    assert float(fresnel_unpolarised(math.cos(math.pi / 4), 1.0, 1.5)) == pytest.approx(0.0503, abs=3e-4)
+
+
+def test_reproducible_from_a_seed():
+    a = simulate(0.8, photons=5000, seed=7, **FAST)
+    b = simulate(0.8, photons=5000, seed=7, **FAST)
+    c = simulate(0.8, photons=5000, seed=8, **FAST)
+    np.testing.assert_array_equal(a.R, b.R)
+    assert a.total_reflectance == b.total_reflectance != c.total_reflectance
+
+
+def test_batches_stream_with_bounded_lanes():
+    # 3 calls of 4096 photons each through 1024 lanes: the same physics as one big call, to the statistical error
+    small = simulate(0.7, photons=12_288, seed=9, lanes=1024, batch_photons=4096, bins=50, r_max_mfp=10.0)
+    big = simulate(0.7, photons=12_288, seed=10, lanes=4096, bins=50, r_max_mfp=10.0)
+    err = math.hypot(small.total_reflectance_stderr, big.total_reflectance_stderr)
+    assert abs(small.total_reflectance - big.total_reflectance) < 4 * err
+
+
+def test_tabulated_profile_feeds_the_techniques(half_albedo):
+    prof = to_tabulated_profile([half_albedo] * 3, [1.0, 2.0, 3.0])
+    assert prof.num_channels == 3
+    np.testing.assert_allclose(np.asarray(prof.albedo), half_albedo.total_reflectance, rtol=0.06)
+    mat = sj.ProfileMaterial(prof, albedo=jnp.full(3, 0.5))
+    b = sj.Buffers(irradiance=jnp.ones((6, 6, 3)), depth=jnp.full((6, 6), 10.0))
+    out = sj.reference(b, mat, sj.Camera(20.0, 1.0), radius_px=3)
+    np.testing.assert_allclose(np.asarray(out), 0.5, rtol=1e-6)  # flat stays flat, times the albedo
+
+
+def test_cli_writes_json_and_rejects_bad_input(tmp_path, capsys):
+    out = tmp_path / "mc.json"
+    assert main(["montecarlo", "--albedo", "0.8", "--photons", "3000", "--json", str(out)]) == 0
+    data = json.loads(out.read_text())
+    for key in ("total_reflectance", "total_reflectance_stderr", "photons", "seed"):
+        assert key in data
+    assert len(data["profile"]["r_mfp"]) == len(data["profile"]["rR"]) == len(data["profile"]["rR_stderr"])
+    assert main(["montecarlo", "--albedo", "0.8", "--photons", "3000", "--slab-mm", "2", "--json", str(out)]) == 0
+    assert "total_transmittance" in json.loads(out.read_text())
+    for argv, message in [(["--albedo", "1.5"], r"albedo must lie in \[0, 1\]"), (["--albedo", "0.5", "--g", "1"], "g must"),
+                          (["--albedo", "0.5", "--eta", "0.5"], "eta must"), (["--albedo", "0.5", "--photons", "0"], "photons must")]:
+        args = ["montecarlo", "--photons", "100"] + argv + ["--json", str(tmp_path / "bad.json")]
+        assert main(args) == 2
+        assert __import__("re").search(message, capsys.readouterr().err)
+        assert not (tmp_path / "bad.json").exists()
