@@ -1,0 +1,255 @@
+"""The speed/accuracy trade, measured side by side in one run.
+
+For each technique and sample/tap count: compile time, median time per frame (``block_until_ready``), the compiled
+program's memory, and the error against ``reference`` on the demo scene and on test patterns. Peers timed on the
+same frames in the same run: OpenCV's ``sepFilter2D`` (plain separable filter with the same taps, not depth-aware),
+``filter2D`` (dense 25x25 kernel) and SciPy's ``fftconvolve``. Timings belong here, never in tests.
+"""
+
+from __future__ import annotations
+
+import math
+import platform
+import time
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._demo import demo_burley_material
+from ._materials import BurleyMaterial, STAParams
+from ._scene import Buffers, Camera, demo_scene
+from ._techniques import burley, reference, separable, translucency
+
+__all__ = ["run_bench", "GOALS", "test_patterns"]
+
+GOALS = {
+    "separable_vs_sepFilter2D": ("<=", 2.0),
+    "burley_vs_filter2D": ("<=", 1.0),
+    "coverage10_vs_full": ("<=", 0.25),
+    "compile_seconds": ("<", 5.0),
+    "peak_memory_vs_input": ("<=", 8.0),
+}
+
+
+def _median_time(fn: Callable[[], Any], repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = fn()
+        if hasattr(out, "block_until_ready"):
+            out.block_until_ready()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
+
+
+def _compile_and_time(fn: Callable[[], jax.Array], repeats: int) -> tuple[float, float]:
+    t0 = time.perf_counter()
+    fn().block_until_ready()
+    first = time.perf_counter() - t0
+    run = _median_time(fn, repeats)
+    return max(first - run, 0.0), run
+
+
+def test_patterns(size: int = 64) -> dict[str, Buffers]:
+    """Irradiance patterns on a plane at depth 30 (cm): a shadow edge, a thin line, a point light."""
+    z = jnp.full((size, size), 30.0, jnp.float32)
+    edge = np.zeros((size, size, 3), np.float32)
+    edge[:, size // 2:] = 1.0
+    line = np.full((size, size, 3), 0.05, np.float32)
+    line[:, size // 2] = 1.0
+    point = np.zeros((size, size, 3), np.float32)
+    point[size // 2, size // 2] = 50.0
+    return {name: Buffers(irradiance=jnp.asarray(e), depth=z) for name, e in
+            (("shadow_edge", edge), ("thin_line", line), ("point_light", point))}
+
+
+def _rel_l2(a, b, mask=None):
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    if mask is not None:
+        a, b = a[mask], b[mask]
+    return float(np.linalg.norm(a - b) / max(np.linalg.norm(b), 1e-30))
+
+
+def _memory_bytes(fn_jit, *args) -> float | None:
+    try:
+        ma = fn_jit.lower(*args).compile().memory_analysis()
+        return float(ma.temp_size_in_bytes + ma.output_size_in_bytes + ma.argument_size_in_bytes)
+    except Exception:  # noqa: BLE001 - not every backend reports it
+        return None
+
+
+def run_bench(*, quick: bool = False, repeats: int = 3, progress: Callable[[str], None] | None = None,
+              grid: dict[str, Any] | None = None) -> dict:
+    """Measure the grid; returns the table (rows), the peers, the ratios with their goals, and the Pareto front.
+
+    ``grid`` overrides any of ``taps``, ``samples``, ``resolutions`` (list of (w, h)) and ``ratio_resolution``.
+    """
+    import cv2
+    from scipy.signal import fftconvolve
+
+    say = progress or (lambda m: None)
+    taps_grid = (9, 25) if quick else (5, 9, 17, 25, 33, 65)
+    samples_grid = (8, 32) if quick else (4, 8, 16, 32, 64, 128)
+    res_grid = ((256, 256), (512, 512)) if quick else ((256, 256), (512, 512), (1280, 720), (1920, 1080))
+    ratio_res = (960, 540) if quick else (1920, 1080)
+    if grid:
+        taps_grid = tuple(grid.get("taps", taps_grid))
+        samples_grid = tuple(grid.get("samples", samples_grid))
+        res_grid = tuple(tuple(r) for r in grid.get("resolutions", res_grid))
+        ratio_res = tuple(grid.get("ratio_resolution", ratio_res))
+    mat = demo_burley_material()
+    sta = STAParams(distortion=0.2, power=4.0, scale=(1.0, 0.8, 0.6), ambient=0.05, thickness_mm=(6.0, 3.5, 2.0))
+
+    # --- errors against the reference (resolution-independent: measured once on a small frame) --------------------
+    say("reference images for the error columns ...")
+    err_scene = demo_scene(*((48, 64) if grid else (96, 128)))
+    eb, ecam = err_scene.buffers, err_scene.camera
+    emask = np.asarray(eb.material_id) > 0
+    ref_demo = np.asarray(reference(eb, mat, ecam))
+    pat_cam = Camera(80.0, 10.0)
+    pat_mat = BurleyMaterial(albedo=(1.0, 1.0, 1.0), d_mm=(8.0, 4.0, 2.0))
+    patterns = test_patterns(32 if grid else 64)
+    ref_pat = {k: np.asarray(reference(b, pat_mat, pat_cam)) for k, b in patterns.items()}
+
+    def errors(run_demo: Callable, run_pattern: Callable) -> dict[str, float]:
+        out = {"demo": _rel_l2(run_demo(eb, ecam), ref_demo, emask)}
+        for k, b in patterns.items():
+            out[k] = _rel_l2(run_pattern(b, pat_cam), ref_pat[k])
+        return out
+
+    configs: list[tuple[str, int | None, Callable, Callable, Callable]] = [
+        ("sta", None, lambda b, c, s: translucency(b, sta, c, s.back_light),
+         lambda b, c: translucency(b, sta, c, err_scene.back_light),
+         lambda b, c: translucency(b, sta, c, err_scene.back_light)),
+    ]
+    for n in taps_grid:
+        configs.append(("separable", n, lambda b, c, s, n=n: separable(b, mat, c, taps=n),
+                        lambda b, c, n=n: separable(b, mat, c, taps=n),
+                        lambda b, c, n=n: separable(b, pat_mat, c, taps=n)))
+    for n in samples_grid:
+        configs.append(("burley", n, lambda b, c, s, n=n: burley(b, mat, c, samples=n),
+                        lambda b, c, n=n: burley(b, mat, c, samples=n),
+                        lambda b, c, n=n: burley(b, pat_mat, c, samples=n)))
+
+    rows = []
+    for (w, h) in res_grid:
+        scene = demo_scene(h, w)
+        b, cam = scene.buffers, scene.camera
+        input_bytes = sum(x.nbytes for x in jax.tree.leaves(b))
+        for tech, n, run_full, run_demo, run_pat in configs:
+            say(f"{tech} {n or ''} at {w}x{h} ...")
+            compile_s, seconds = _compile_and_time(lambda: run_full(b, cam, scene), repeats)
+            row = dict(technique=tech, count=n, width=w, height=h, compile_seconds=round(compile_s, 3),
+                       ms_per_frame=round(1e3 * seconds, 3), input_bytes=input_bytes)
+            mem = _memory_bytes(jax.jit(lambda bb, cc: run_full(bb, cc, scene)), b, cam)
+            row["peak_memory_bytes"] = mem
+            row["peak_memory_vs_input"] = None if mem is None else round(mem / input_bytes, 2)
+            if (w, h) == res_grid[0]:
+                row["errors"] = errors(run_demo, run_pat)
+            rows.append(row)
+    # the errors are per configuration: copy them to every resolution's row
+    by_cfg = {(r["technique"], r["count"]): r["errors"] for r in rows if "errors" in r}
+    for r in rows:
+        r["errors"] = by_cfg[(r["technique"], r["count"])]
+        r["error_demo"] = r["errors"]["demo"]
+
+    # --- peers and the issue's ratios, side by side at one resolution ---------------------------------------------
+    w, h = ratio_res
+    say(f"peers and ratios at {w}x{h} ...")
+    scene = demo_scene(h, w)
+    b, cam = scene.buffers, scene.camera
+    img = np.ascontiguousarray(np.asarray(b.irradiance, np.float32))
+    k25 = cv2.getGaussianKernel(25, 4.0).astype(np.float32)
+    k_dense = (k25 @ k25.T).astype(np.float32)
+    peers = {
+        "cv2.sepFilter2D_25": _median_time(lambda: cv2.sepFilter2D(img, -1, k25, k25), repeats),
+        "cv2.filter2D_25x25": _median_time(lambda: cv2.filter2D(img, -1, k_dense), repeats),
+        "scipy.fftconvolve_25x25": _median_time(
+            lambda: fftconvolve(img, k_dense[..., None], mode="same", axes=(0, 1)), repeats),
+    }
+    c_sep, t_sep = _compile_and_time(lambda: separable(b, mat, cam, taps=25), repeats)
+    c_bur, t_bur = _compile_and_time(lambda: burley(b, mat, cam, samples=32), repeats)
+    # 10% coverage: the same frame with SSS on a tenth of the pixels (a band of rows)
+    ids = np.zeros((h, w), np.int32)
+    ids[: max(1, h // 10)] = 1
+    b10 = Buffers(irradiance=b.irradiance, depth=b.depth, albedo=b.albedo, material_id=jnp.asarray(ids))
+    b100 = Buffers(irradiance=b.irradiance, depth=b.depth, albedo=b.albedo, material_id=jnp.ones((h, w), jnp.int32))
+    one = BurleyMaterial(mat.albedo[0], mat.d_mm[0])
+    _, t_full = _compile_and_time(lambda: burley(b100, one, cam, samples=32), repeats)
+    _, t_10 = _compile_and_time(lambda: burley(b10, one, cam, samples=32), repeats)
+    input_bytes = sum(x.nbytes for x in jax.tree.leaves(b))
+    mem = _memory_bytes(jax.jit(lambda bb, cc: burley(bb, mat, cc, samples=32)), b, cam)
+    compile_max = max([r["compile_seconds"] for r in rows] + [c_sep, c_bur])
+    ratios = {
+        "separable_vs_sepFilter2D": t_sep / peers["cv2.sepFilter2D_25"],
+        "burley_vs_filter2D": t_bur / peers["cv2.filter2D_25x25"],
+        "coverage10_vs_full": t_10 / t_full,
+        "compile_seconds": compile_max,
+        "peak_memory_vs_input": None if mem is None else mem / input_bytes,
+    }
+    ratio_table = {k: {"value": None if v is None else round(v, 3), "goal": f"{GOALS[k][0]} {GOALS[k][1]}",
+                       "met": None if v is None else bool(v <= GOALS[k][1] if GOALS[k][0] == "<=" else v < GOALS[k][1])}
+                   for k, v in ratios.items()}
+    timings = {"separable_25_ms": 1e3 * t_sep, "burley_32_ms": 1e3 * t_bur, "burley_32_full_coverage_ms": 1e3 * t_full,
+               "burley_32_10pct_coverage_ms": 1e3 * t_10, **{k + "_ms": 1e3 * v for k, v in peers.items()}}
+
+    # --- Pareto front (error against time) at the first resolution ----------------------------------------------------
+    base = [r for r in rows if (r["width"], r["height"]) == res_grid[0]]
+    front = []
+    for r in sorted(base, key=lambda r: (r["ms_per_frame"], r["error_demo"])):
+        if not front or r["error_demo"] < front[-1]["error_demo"]:
+            front.append(r)
+    for r in rows:
+        r["pareto"] = any(r is f for f in front)
+    return {
+        "machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
+                    "devices": [str(d) for d in jax.devices()], "jax": jax.__version__},
+        "date": time.strftime("%Y-%m-%d"),
+        "quick": quick,
+        "ratio_resolution": list(ratio_res),
+        "rows": rows,
+        "peers_ms": {k: round(1e3 * v, 3) for k, v in peers.items()},
+        "timings_ms": {k: round(v, 3) for k, v in timings.items()},
+        "ratios": ratio_table,
+        "pareto": [dict(technique=r["technique"], count=r["count"], ms_per_frame=r["ms_per_frame"],
+                        error_demo=r["error_demo"]) for r in front],
+    }
+
+
+def plot_pareto(result: dict, path) -> None:
+    """Error against time per frame at the first resolution, the Pareto front drawn through."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    first = (result["rows"][0]["width"], result["rows"][0]["height"])
+    rows = [r for r in result["rows"] if (r["width"], r["height"]) == first]
+    fig = Figure(figsize=(6.4, 4.2), dpi=110)
+    ax = fig.add_subplot(1, 1, 1)
+    colours = {"sta": "tab:orange", "separable": "tab:blue", "burley": "tab:green"}
+    for tech, c in colours.items():
+        pts = [r for r in rows if r["technique"] == tech]
+        ax.scatter([r["ms_per_frame"] for r in pts], [r["error_demo"] for r in pts], color=c, label=tech, zorder=3)
+        for r in pts:
+            if r["count"]:
+                ax.annotate(str(r["count"]), (r["ms_per_frame"], r["error_demo"]), fontsize=7,
+                            xytext=(3, 3), textcoords="offset points")
+    front = result["pareto"]
+    ax.plot([f["ms_per_frame"] for f in front], [f["error_demo"] for f in front], "k--", lw=1, label="Pareto front")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel(f"ms per frame at {first[0]}x{first[1]} (this machine)")
+    ax.set_ylabel("relative L2 error vs reference (demo scene)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    import io
+
+    from ._io import write_bytes_atomic
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
+    write_bytes_atomic(path, buf.getvalue())

@@ -1,0 +1,71 @@
+"""``sss-jax bench``: the measured speed/accuracy trade and the performance ratios."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import pathlib
+import sys
+
+EPILOG = """examples:
+  sss-jax bench --quick                       # reduced grid, under two minutes on a 2-core CPU
+  sss-jax bench --json bench.json --out-dir bench_out   # full grid: table CSV, Pareto plot, JSON
+"""
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "bench",
+        help="measure time, memory and error of every technique against peers",
+        description="Time STA, separable (5..65 taps) and Burley (4..128 samples) at 256x256..1920x1080, with compile "
+        "time, memory and the error against the reference; OpenCV sepFilter2D/filter2D and SciPy FFT convolution "
+        "measured side by side; print the ratios against the performance goals.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--quick", action="store_true", help="reduced grid (ratios at 960x540)")
+    p.add_argument("--json", type=pathlib.Path, help="write the whole result as JSON")
+    p.add_argument("--out-dir", type=pathlib.Path, help="write table.csv and pareto.png here")
+    p.add_argument("--repeats", type=int, default=3, help="timed runs per configuration (median)")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from .._bench import plot_pareto, run_bench
+    from .._io import write_bytes_atomic, write_json_atomic
+
+    for target in (args.json.parent if args.json else None, args.out_dir):
+        if target is not None and not target.exists() and target is not args.out_dir:
+            print(f"sss-jax bench: directory {target} does not exist", file=sys.stderr)
+            return 2
+    if args.repeats < 1:
+        print("sss-jax bench: --repeats must be >= 1", file=sys.stderr)
+        return 2
+    result = run_bench(quick=args.quick, repeats=args.repeats, progress=lambda m: print(m, file=sys.stderr, flush=True))
+    print(f"\n{'technique':10s} {'n':>4s} {'size':>10s} {'ms/frame':>10s} {'compile s':>9s} {'rel L2 demo':>11s} "
+          f"{'edge':>7s} {'line':>7s} {'point':>7s}  pareto")
+    for r in result["rows"]:
+        e = r["errors"]
+        print(f"{r['technique']:10s} {r['count'] or '':>4} {r['width']}x{r['height']:<5} {r['ms_per_frame']:10.2f} "
+              f"{r['compile_seconds']:9.2f} {e['demo']:11.4f} {e['shadow_edge']:7.4f} {e['thin_line']:7.4f} "
+              f"{e['point_light']:7.4f}  {'*' if r['pareto'] else ''}")
+    w, h = result["ratio_resolution"]
+    print(f"\npeers at {w}x{h} (ms): " + ", ".join(f"{k} {v:.2f}" for k, v in result["peers_ms"].items()))
+    print(f"ratios at {w}x{h}:")
+    for k, v in result["ratios"].items():
+        met = "n/a" if v["met"] is None else ("met" if v["met"] else "NOT met")
+        print(f"  {k:26s} {v['value']!s:>10}   goal {v['goal']:8s} {met}")
+    if args.json:
+        write_json_atomic(args.json, result)
+    if args.out_dir:
+        args.out_dir.mkdir(parents=True, exist_ok=True)
+        buf = io.StringIO()
+        fields = ["technique", "count", "width", "height", "ms_per_frame", "compile_seconds", "error_demo",
+                  "peak_memory_vs_input", "pareto"]
+        writer = csv.DictWriter(buf, fieldnames=fields, extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(result["rows"])
+        write_bytes_atomic(args.out_dir / "table.csv", buf.getvalue().encode())
+        plot_pareto(result, args.out_dir / "pareto.png")
+    return 0

@@ -1,0 +1,45 @@
+"""The HTML report and the bench: every section and field present, everything embedded, goals beside ratios."""
+
+import json
+import re
+
+import pytest
+
+from sss_jax._bench import GOALS, run_bench
+from sss_jax._demo import run_demo
+from sss_jax._reporting import write_demo_report
+
+
+def test_demo_report_has_every_section_and_embeds_its_images(tmp_path):
+    result = run_demo(height=24, width=32, samples=4, taps=5, repeats=1)
+    html_path = write_demo_report(result, tmp_path)
+    page = html_path.read_text()
+    for title in ("Summary", "Renders", "Difference maps", "Profiles and kernels", "Energy",
+                  "Speed against accuracy", "Presets"):
+        assert f">{title}</h2>" in page, title
+    assert len(re.findall(r"data:image/png;base64,", page)) >= 15
+    assert not re.search(r"(src|href)=['\"](http|file:|/)", page)  # self-contained
+    data = json.loads((tmp_path / "report.json").read_text())
+    techniques = {r["technique"] for r in data["sections"]["Summary"]["techniques"]}
+    assert {"reference", "burley_4", "separable_preintegrated_5", "sta"} <= techniques
+    trade = data["sections"]["Speed against accuracy"]["trade"]
+    assert any(r["pareto"] for r in trade) and {r["technique"] for r in trade} == {"sta", "separable", "burley"}
+    energy = {r["technique"]: r for r in data["sections"]["Energy"]["energy"]}
+    assert energy["sta"]["R"] > 1 and energy["sta"]["conserves"].startswith("no")
+    assert not list(tmp_path.glob(".*tmp*"))
+
+
+def test_bench_reports_every_ratio_with_its_goal():
+    res = run_bench(repeats=1, grid=dict(taps=(5,), samples=(4,), resolutions=[(32, 24)], ratio_resolution=(64, 48)))
+    assert set(res["ratios"]) == set(GOALS) == {"separable_vs_sepFilter2D", "burley_vs_filter2D",
+                                                "coverage10_vs_full", "compile_seconds", "peak_memory_vs_input"}
+    for name, r in res["ratios"].items():
+        assert r["goal"] == f"{GOALS[name][0]} {GOALS[name][1]}"
+        assert r["value"] is None or r["value"] > 0
+    assert {"cv2.sepFilter2D_25", "cv2.filter2D_25x25", "scipy.fftconvolve_25x25"} == set(res["peers_ms"])
+    techniques = {(r["technique"], r["count"]) for r in res["rows"]}
+    assert techniques == {("sta", None), ("separable", 5), ("burley", 4)}
+    for r in res["rows"]:
+        assert set(r["errors"]) == {"demo", "shadow_edge", "thin_line", "point_light"}
+        assert r["ms_per_frame"] > 0
+    assert res["pareto"] and res["pareto"][0]["ms_per_frame"] == min(r["ms_per_frame"] for r in res["rows"])
