@@ -153,7 +153,7 @@ def write_demo_report(result, out_dir: pathlib.Path, *, pareto: bool = True) -> 
         rows.append(dict(technique=r["technique"], ms_per_frame=r["ms_per_frame"], compile_s=r["compile_s"],
                          rel_l2=r["rel_l2_vs_reference"], delta_e_mean=round(de["mean"], 3),
                          delta_e_p95=round(de["p95"], 3), energy_rgb=r["energy_ratio_rgb"],
-                         light="adds" if r["technique"] == "sta" else "redistributes"))
+                         light={"sta": "adds", "local": "local only"}.get(r["technique"], "redistributes")))
     rep.table(sec, rows, "time, error and energy per technique", key="techniques")
 
     # 2. renders
@@ -163,15 +163,17 @@ def write_demo_report(result, out_dir: pathlib.Path, *, pareto: bool = True) -> 
         rep.image(sec, result.images[n], n)
 
     # 3. difference and CIEDE2000 maps
-    sec = rep.section("Difference maps", "Absolute difference to the reference (luminance, same scale for all) and "
-                      "CIEDE2000 per pixel (same scale for all), SSS pixels only.")
+    sec = rep.section("Difference maps", "Absolute difference to the reference (mean over RGB) and CIEDE2000 per "
+                      "pixel, SSS pixels only. The scattering techniques share one scale so they compare at a "
+                      "glance; STA, which adds light, has its own.")
     diffs = {n: np.abs(result.images[n] - ref).mean(-1) * mask for n in names if n != "reference"}
-    vmax = max(float(np.percentile(d[mask], 99.5)) for d in diffs.values()) or 1.0
     des = {n: delta_e_2000(result.images[n], ref, mask=mask)["map"] for n in diffs}
-    de_max = max(float(np.percentile(d[mask], 99.5)) for d in des.values()) or 1.0
+    shared = [n for n in diffs if n != "sta"]
+    scale = lambda maps, keys: max(float(np.percentile(maps[k][mask], 99.5)) for k in keys) or 1.0
     for n in diffs:
-        rep.figure(sec, _heatmap(diffs[n], f"|{n} - reference|", vmax), f"{n}: absolute difference")
-        rep.figure(sec, _heatmap(des[n], f"ΔE2000 {n}", de_max, "viridis"), f"{n}: CIEDE2000")
+        keys = shared if n in shared else [n]
+        rep.figure(sec, _heatmap(diffs[n], f"|{n} - reference|", scale(diffs, keys)), f"{n}: absolute difference")
+        rep.figure(sec, _heatmap(des[n], f"ΔE2000 {n}", scale(des, keys), "viridis"), f"{n}: CIEDE2000")
 
     # 4. profiles and kernels
     sec = rep.section("Profiles and kernels", "Left: r·R(r) of each demo material's Christensen–Burley profile per "
