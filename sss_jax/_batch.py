@@ -142,13 +142,20 @@ def process_frames(
     """Apply ``technique`` to every frame and write ``out_dir/<input stem>.exr`` (or the given ``outputs``, one per
     input), with an sRGB PNG preview beside each when ``png``.
 
-    ``material``: a ``BurleyMaterial`` / ``TwoGaussianMaterial`` (rows per material id), or ``(STAParams,
+    ``material``: a preset name or file (see ``_presets``), a ``BurleyMaterial`` / ``TwoGaussianMaterial`` (rows
+    per material id), or ``(STAParams,
     DirectionalLight)`` for ``"sta"`` (with ``sta_albedo (3,)`` where frames carry no albedo and ``sta_thickness``
     in scene units where they carry no thickness). ``radius_px`` is required for ``"reference"`` (one window for the sequence).
     Returns a per-frame status list; raises only for arguments that make the whole batch impossible.
     """
     if technique not in TECHNIQUES:
         raise ValueError(f"unknown technique {technique!r}; valid techniques: {', '.join(TECHNIQUES)}")
+    if isinstance(material, (str, pathlib.Path)):  # a preset name or file
+        from ._presets import load_preset, material_for
+
+        material = material_for(technique, load_preset(material))
+        if technique == "sta":
+            raise TypeError("technique 'sta' needs material=(STAParams, DirectionalLight): a preset gives no light")
     if technique == "sta":
         if not (isinstance(material, tuple) and len(material) == 2 and isinstance(material[0], STAParams)
                 and isinstance(material[1], DirectionalLight)):

@@ -106,6 +106,12 @@ def sweep_cases(quick: bool = False) -> Iterator[Case]:
         yield Case("spiral_samples", dict(n=n))
     for bad in (dict(d_mm=np.nan), dict(d_mm=-1.0), dict(albedo=1.5), dict(albedo=np.nan), dict(d_mm=np.inf)):
         yield Case("invalid_parameter", dict(bad))
+    slabs = (None, 1e-6, 1e3)
+    for a, slab, eta in itertools.product(ALBEDO, slabs, (1.0, 1.4)):
+        yield Case("montecarlo", dict(albedo=a, slab_mfp=slab, eta=eta))
+    for bad in (dict(albedo=-0.1), dict(albedo=np.nan), dict(albedo=0.5, g=1.0), dict(albedo=0.5, eta=0.5),
+                dict(albedo=0.5, slab_mfp=0.0)):
+        yield Case("montecarlo", bad)
 
 
 # ------------------------------------------------------------------------------------------------------------------
@@ -238,6 +244,17 @@ def _run_small_case(case: Case) -> None:
         elif case.component == "spiral_samples":
             s = spiral_samples(p["n"])
             vals, grads = [s.unit_radii(), s.angles], []
+        elif case.component == "montecarlo":
+            from ._montecarlo import simulate
+
+            kw = {k: v for k, v in p.items() if k != "albedo"}
+            r = simulate(p["albedo"], photons=256, lanes=256, bins=8, r_max_mfp=4.0, max_events=500, seed=1, **kw)
+            vals = [r.R, r.R_stderr, r.T, np.asarray([r.total_reflectance, r.total_transmittance])]
+            grads = []
+            total = r.total_reflectance + r.total_transmittance + r.capped_weight
+            if not total <= 1 + 1e-4:
+                case.outcome, case.message = "energy_unbounded", f"R + T = {total}"
+                return
         else:  # invalid_parameter
             BurleyMaterial(p.get("albedo", 0.5), jnp.full((3,), p.get("d_mm", 1.0)))
             case.outcome, case.message = "unexpected_error", "invalid parameter accepted"
@@ -268,7 +285,7 @@ def run_sweep(*, quick: bool = False, progress: bool = True) -> dict[str, Any]:
     groups: dict[tuple, list[Case]] = {}
     for case in cases:
         if case.component in ("profile", "kernel_preintegrated", "kernel_two_gaussian", "spiral_samples",
-                              "invalid_parameter"):
+                              "invalid_parameter", "montecarlo"):
             try:
                 _run_small_case(case)
             except Exception as exc:  # noqa: BLE001 - an unexpected error is a finding, recorded, not a crash

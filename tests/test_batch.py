@@ -1,5 +1,7 @@
 """Batch processing: sharding over devices, resuming after an interruption, per-frame failures, process shares."""
 
+import re
+
 import jax
 import numpy as np
 import pytest
@@ -101,3 +103,65 @@ def test_batch_rejects_bad_arguments(frames, tmp_path):
         process_frames(str(frames / "*.exr"), "reference", MAT, out_dir=tmp_path)
     with pytest.raises(_io.SSSInputError, match="no files match"):
         process_frames(str(tmp_path / "none*.exr"), "burley", MAT, out_dir=tmp_path)
+
+
+PRESET = {"name": "test_skin", "albedo": [0.8, 0.6, 0.5], "burley": {"d_mm": [3.0, 1.4, 0.8]},
+          "separable": {"two_gaussian": {"w": [0.5, 0.6, 0.7], "sigma_near_mm": [1.0, 0.6, 0.4],
+                                         "sigma_far_mm": [5.0, 3.0, 2.0]}},
+          "sta": {"distortion": 0.2, "power": 4.0, "scale": [1, 1, 1], "ambient": [0, 0, 0], "thickness_mm": [2, 2, 2]}}
+
+
+def test_presets_by_file_and_by_name(frames, tmp_path, monkeypatch):
+    import json
+
+    from sss_jax._presets import load_preset
+
+    pdir = tmp_path / "presets"
+    pdir.mkdir()
+    (pdir / "test_skin.json").write_text(json.dumps(PRESET))
+    monkeypatch.setenv("SSS_JAX_PRESETS", str(pdir))
+    p = load_preset("test_skin")
+    np.testing.assert_allclose(np.asarray(p.two_gaussian.sigma_far_mm)[0], [5.0, 3.0, 2.0])
+    by_name = process_frames(str(frames / "f0.exr"), "separable", "test_skin", out_dir=tmp_path / "a", taps=5,
+                             progress=False)
+    by_file = process_frames(str(frames / "f0.exr"), "separable", str(pdir / "test_skin.json"), out_dir=tmp_path / "b",
+                             taps=5, progress=False)
+    assert by_name.ok and by_file.ok
+    # the preset's two-Gaussian kernel, as the single-frame API computes it
+    f = _io.read_frame(frames / "f0.exr")
+    direct = np.asarray(sj.separable(f.to_buffers(), p.two_gaussian, sj.Camera(f.focal_px, 10.0), taps=5))
+    np.testing.assert_allclose(read_rgb(tmp_path / "a" / "f0.exr"), direct, rtol=1e-6, atol=1e-6)
+    np.testing.assert_array_equal(read_rgb(tmp_path / "a" / "f0.exr"), read_rgb(tmp_path / "b" / "f0.exr"))
+
+
+@pytest.mark.parametrize("mutate, message", [
+    (lambda d: d.pop("burley"), "preset is missing burley.d_mm"),
+    (lambda d: d.update(albedo=[0.5, 0.5]), "albedo must be a list of 3 numbers"),
+    (lambda d: d["burley"].update(d_mm=[-1, 1, 1]), r"invalid preset: d_mm must lie in"),
+    (lambda d: d["separable"]["two_gaussian"].update(w=[2, 0, 0]), r"invalid preset: w must lie in"),
+])
+def test_invalid_presets_are_named(tmp_path, capsys, mutate, message):
+    import copy
+    import json
+
+    from sss_jax.cli import main
+
+    data = copy.deepcopy(PRESET)
+    mutate(data)
+    preset = tmp_path / "bad.json"
+    preset.write_text(json.dumps(data))
+    src = tmp_path / "in.exr"
+    _io.write_exr(src, {"R": np.ones((4, 4)), "G": np.ones((4, 4)), "B": np.ones((4, 4)), "Z": np.ones((4, 4))})
+    out = tmp_path / "out.exr"
+    assert main(["apply", str(src), "-o", str(out), "--technique", "burley", "--preset", str(preset),
+                 "--focal-px", "10"]) == 2
+    err = capsys.readouterr().err
+    assert "bad.json" in err and re.search(message, err)
+    assert not out.exists()
+    (tmp_path / "broken.json").write_text("{not json")
+    assert main(["apply", str(src), "-o", str(out), "--technique", "burley", "--preset",
+                 str(tmp_path / "broken.json"), "--focal-px", "10"]) == 2
+    assert "not valid JSON" in capsys.readouterr().err
+    assert main(["apply", str(src), "-o", str(out), "--technique", "burley", "--preset", "no_such_preset",
+                 "--focal-px", "10"]) == 2
+    assert "unknown preset 'no_such_preset'" in capsys.readouterr().err

@@ -22,7 +22,8 @@ def test_quick_sweep_has_no_nonfinite_outputs_or_gradients(quick_sweep):
     # every component took part, and both kinds of invalid input were caught with a message naming the input
     components = {c["component"] for c in s["case_list"]}
     assert {"burley", "separable_burley", "separable_two_gaussian", "reference", "sta", "profile",
-            "kernel_preintegrated", "kernel_two_gaussian", "spiral_samples", "invalid_parameter"} <= components
+            "kernel_preintegrated", "kernel_two_gaussian", "spiral_samples", "invalid_parameter",
+            "montecarlo"} <= components
     messages = [c["message"] for c in s["case_list"] if c["outcome"] == "handled_error"]
     assert any("irradiance has" in m for m in messages)  # 1e30 in float16 is inf: caught, not propagated
     assert any("d_mm must" in m for m in messages) and any("albedo must" in m for m in messages)

@@ -13,6 +13,7 @@ EPILOG = """examples:
   sss-jax apply render.exr -o sss.exr --technique separable --albedo 0.85,0.75,0.55 --mfp-mm 400,250,150
   sss-jax apply 'shots/*.exr' --out-dir sss/ --technique burley --albedo 0.8,0.6,0.5 --d-mm 3,1.4,0.8 --png
   sss-jax apply frame.exr -o sta.exr --technique sta --albedo 0.8,0.6,0.5 --light-dir 0.3,-0.4,0.9 --thickness 0.5
+  sss-jax apply frame.exr -o skin.exr --technique separable --preset my_skin.json --focal-px 1200
 
 Input channels: R,G,B irradiance and Z planar depth (scene units; inf = no surface); optional albedo.R/G/B, N.X/Y/Z,
 thickness, id (0 = no SSS: passes through untouched). A Blender multi-layer EXR works as it is (DiffDir + DiffInd,
@@ -49,6 +50,8 @@ def register(subparsers) -> None:
     p.add_argument("--albedo", type=_triple, help="surface albedo R,G,B in [0,1] (overrides an albedo pass)")
     p.add_argument("--d-mm", type=_triple, help="Burley scattering distance d per channel, mm")
     p.add_argument("--mfp-mm", type=_triple, help="mean free path per channel, mm (d = mfp / s(A), diffuse-transmission fit)")
+    p.add_argument("--preset", help="material preset: a name (fits/<name>.json, or a directory in SSS_JAX_PRESETS) "
+                   "or a preset JSON file")
     p.add_argument("--focal-px", type=float, help="focal length in pixels")
     p.add_argument("--mm-per-unit", type=float, help="millimetres per scene unit of the depth buffer")
     p.add_argument("--depth-kind", choices=("planar", "distance"), default="planar",
@@ -89,21 +92,31 @@ def _material(args):
     import jax.numpy as jnp
 
     from .._materials import BurleyMaterial, DirectionalLight, STAParams
+    from .._presets import load_preset, material_for
 
+    given = [n for n in ("d_mm", "mfp_mm", "preset") if getattr(args, n) is not None]
+    if len(given) > 1:
+        if "preset" in given:
+            raise ValueError("give either --preset or --d-mm/--mfp-mm, not both")
+        raise ValueError("give either --d-mm or --mfp-mm, not both")
+    preset = load_preset(args.preset) if args.preset is not None else None
     albedo = args.albedo if args.albedo is not None else (1.0, 1.0, 1.0)
     if args.technique == "sta":
         if args.light_dir is None:
             raise ValueError("--technique sta needs --light-dir X,Y,Z")
+        light = DirectionalLight(jnp.asarray(args.light_dir, jnp.float32), args.light_colour)
+        if preset is not None:
+            return material_for("sta", preset), light
         params = STAParams(distortion=args.sta_distortion, power=args.sta_power, scale=args.sta_scale,
                            ambient=args.sta_ambient, thickness_mm=args.sta_thickness_mm)
-        return params, DirectionalLight(jnp.asarray(args.light_dir, jnp.float32), args.light_colour)
-    if args.d_mm is not None and args.mfp_mm is not None:
-        raise ValueError("give either --d-mm or --mfp-mm, not both")
+        return params, light
+    if preset is not None:
+        return material_for(args.technique, preset, albedo=args.albedo), None
     if args.d_mm is not None:
         return BurleyMaterial(albedo, args.d_mm), None
     if args.mfp_mm is not None:
         return BurleyMaterial.from_mfp(albedo, args.mfp_mm), None
-    raise ValueError(f"--technique {args.technique} needs the material: --d-mm R,G,B or --mfp-mm R,G,B")
+    raise ValueError(f"--technique {args.technique} needs the material: --d-mm R,G,B, --mfp-mm R,G,B or --preset")
 
 
 def run(args) -> int:

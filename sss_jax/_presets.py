@@ -1,0 +1,113 @@
+"""Reading material presets: ``fits/<name>.json`` files, or any file of the same format.
+
+The fields read (the preset format of the fitting issue; anything else in the file is kept in ``raw``):
+
+    {"name": "skin", "albedo": [r, g, b],
+     "burley": {"d_mm": [r, g, b]},
+     "separable": {"two_gaussian": {"w": [...], "sigma_near_mm": [...], "sigma_far_mm": [...]}},
+     "sta": {"distortion": d, "power": p, "scale": [...], "ambient": [...], "thickness_mm": [...]}}
+
+``albedo`` and ``burley`` are required; the two-Gaussian kernel and the STA parameters are optional. A name is looked
+up in the directories of ``SSS_JAX_PRESETS`` (``os.pathsep``-separated) and then the repository's ``fits/``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import pathlib
+from typing import Any
+
+from ._io import SSSInputError
+from ._materials import BurleyMaterial, STAParams, TwoGaussianMaterial
+
+__all__ = ["Preset", "load_preset", "preset_dirs", "material_for"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Preset:
+    name: str
+    path: str
+    burley: BurleyMaterial
+    two_gaussian: TwoGaussianMaterial | None
+    sta: STAParams | None
+    raw: dict[str, Any]
+
+
+def preset_dirs() -> list[pathlib.Path]:
+    dirs = [pathlib.Path(p) for p in os.environ.get("SSS_JAX_PRESETS", "").split(os.pathsep) if p]
+    return dirs + [pathlib.Path(__file__).resolve().parents[1] / "fits"]
+
+
+def _resolve(name_or_path: str | os.PathLike) -> pathlib.Path:
+    p = pathlib.Path(name_or_path)
+    if p.suffix == ".json" or p.exists() or os.sep in str(name_or_path):
+        if not p.exists():
+            raise SSSInputError(f"{p}: preset file not found")
+        return p
+    for d in preset_dirs():
+        candidate = d / f"{name_or_path}.json"
+        if candidate.exists():
+            return candidate
+    known = sorted({c.stem for d in preset_dirs() if d.is_dir() for c in d.glob("*.json") if c.stem != "schema"})
+    raise SSSInputError(f"unknown preset {str(name_or_path)!r}; presets found: {', '.join(known) or 'none'} "
+                        f"(looked in {', '.join(str(d) for d in preset_dirs())})")
+
+
+def _triple(data: dict, path: list[str], source: pathlib.Path):
+    node: Any = data
+    for key in path:
+        if not isinstance(node, dict) or key not in node:
+            raise SSSInputError(f"{source}: preset is missing {'.'.join(path)}")
+        node = node[key]
+    if not (isinstance(node, list) and len(node) == 3 and all(isinstance(v, (int, float)) for v in node)):
+        raise SSSInputError(f"{source}: {'.'.join(path)} must be a list of 3 numbers (R, G, B), got {node!r}")
+    return node
+
+
+def load_preset(name_or_path: str | os.PathLike) -> Preset:
+    """Read and validate a preset; every error names the file and the field."""
+    path = _resolve(name_or_path)
+    try:
+        data = json.loads(path.read_text())
+    except OSError as exc:
+        raise SSSInputError(f"{path}: cannot read preset ({exc.strerror})") from None
+    except ValueError as exc:
+        raise SSSInputError(f"{path}: preset is not valid JSON ({exc})") from None
+    if not isinstance(data, dict):
+        raise SSSInputError(f"{path}: a preset must be a JSON object")
+    albedo = _triple(data, ["albedo"], path)
+    try:
+        burley = BurleyMaterial(albedo, _triple(data, ["burley", "d_mm"], path))
+        tg = None
+        if isinstance(data.get("separable"), dict) and "two_gaussian" in data["separable"]:
+            fields = [_triple(data, ["separable", "two_gaussian", f], path)
+                      for f in ("w", "sigma_near_mm", "sigma_far_mm")]
+            tg = TwoGaussianMaterial(albedo, *fields)
+        sta = None
+        if "sta" in data:
+            s = data["sta"]
+            if not isinstance(s, dict):
+                raise SSSInputError(f"{path}: sta must be an object of STA parameters")
+            allowed = {"distortion", "power", "scale", "ambient", "thickness_mm"}
+            sta = STAParams(**{k: v for k, v in s.items() if k in allowed})
+    except SSSInputError:
+        raise
+    except (ValueError, TypeError) as exc:
+        raise SSSInputError(f"{path}: invalid preset: {exc}") from None
+    return Preset(name=str(data.get("name", path.stem)), path=str(path), burley=burley, two_gaussian=tg, sta=sta,
+                  raw=data)
+
+
+def material_for(technique: str, preset: Preset, *, albedo=None):
+    """The parameters a technique takes from a preset (``albedo`` (3,) overrides the preset's)."""
+    if technique == "sta":
+        if preset.sta is None:
+            raise SSSInputError(f"{preset.path}: preset has no sta parameters")
+        return preset.sta
+    if technique == "separable" and preset.two_gaussian is not None:
+        tg = preset.two_gaussian
+        return tg if albedo is None else TwoGaussianMaterial(albedo, tg.w, tg.sigma_near_mm, tg.sigma_far_mm)
+    b = preset.burley
+    return b if albedo is None else BurleyMaterial(albedo, b.d_mm)
