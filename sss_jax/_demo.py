@@ -35,33 +35,17 @@ def demo_burley_material(dtype=np.float32) -> BurleyMaterial:
 
 
 def demo_two_gaussian(dtype=np.float32) -> TwoGaussianMaterial:
-    """Two-Gaussian kernels for the demo materials, fitted to each Burley profile in profile space when the fitting
-    module is available, else matched by moments (the near Gaussian takes the 1D kernel's inner, the far one its
-    outer second moment)."""
+    """Two-Gaussian kernels for the demo materials, fitted to each Burley profile in profile space
+    (``_fitting.fit_two_gaussian_to_burley``; Burley profiles share one shape, so one fit per material)."""
+    from ._fitting import fit_two_gaussian_to_burley
+
     mat = demo_burley_material(np.float64)
-    try:
-        from ._fitting import fit_two_gaussian_to_burley  # type: ignore[attr-defined]
-    except ImportError:
-        fit_two_gaussian_to_burley = None
-    if fit_two_gaussian_to_burley is not None:
-        try:
-            fits = [fit_two_gaussian_to_burley(np.asarray(mat.d_mm[i])) for i in range(mat.count)]
-            return TwoGaussianMaterial(
-                albedo=np.asarray(mat.albedo, dtype),
-                w=np.asarray([f["w"] for f in fits], dtype),
-                sigma_near_mm=np.asarray([f["sigma_near_mm"] for f in fits], dtype),
-                sigma_far_mm=np.asarray([f["sigma_far_mm"] for f in fits], dtype),
-            )
-        except Exception:  # pragma: no cover - fall back to moments below
-            pass
-    d = np.asarray(mat.d_mm)
-    # Burley's two exponentials, e^{-r/d} and e^{-r/3d}, carry 1/4 and 3/4 of the energy; the 1D marginal of a 2D
-    # exponential profile of scale s has standard deviation sqrt(3) s (second moment of r is 6 s^2, halved per axis).
+    fits = [fit_two_gaussian_to_burley(np.asarray(mat.d_mm[i])) for i in range(mat.count)]
     return TwoGaussianMaterial(
         albedo=np.asarray(mat.albedo, dtype),
-        w=np.full_like(d, 0.25, dtype=dtype),
-        sigma_near_mm=(np.sqrt(3.0) * d).astype(dtype),
-        sigma_far_mm=(np.sqrt(3.0) * 3 * d).astype(dtype),
+        w=np.asarray([f["w"] for f in fits], dtype),
+        sigma_near_mm=np.asarray([f["sigma_near_mm"] for f in fits], dtype),
+        sigma_far_mm=np.asarray([f["sigma_far_mm"] for f in fits], dtype),
     )
 
 

@@ -178,7 +178,7 @@ def write_demo_report(result, out_dir: pathlib.Path, *, pareto: bool = True) -> 
     # 4. profiles and kernels
     sec = rep.section("Profiles and kernels", "Left: r·R(r) of each demo material's Christensen–Burley profile per "
                       "channel. Right: the 1D separable kernel: Burley pre-integrated a_p(x) (solid) against the "
-                      "two-Gaussian kernel used by separable_two_gaussian (dashed).")
+                      "two-Gaussian kernel fitted to it in profile space, used by separable_two_gaussian (dashed).")
     mat, tg = demo_burley_material(np.float64), demo_two_gaussian(np.float64)
     r = np.linspace(1e-3, 12.0, 400)
     colours = ("tab:red", "tab:green", "tab:blue")

@@ -1,0 +1,379 @@
+"""Fitting the cheap models to physical references: objectives, two solvers, and the inverse fit from images.
+
+Objectives (each a residual vector; the loss is half its squared norm):
+
+- profile space: ``r_ij = (A_m(x_i, y_j) - R_ij) / ||R||_2`` on a (2N+1)^2 pixel grid of side ``pixel_mm``, where
+  ``A_m(x, y) = a_m(x) a_m(y)`` is the separable two-Gaussian kernel integrated exactly over each pixel (erf
+  differences) and ``R_ij`` the target profile's mass over pixel ij (centre pixel through the CDF, others by a
+  4x4 midpoint rule): a relative L2 per channel.
+- image space: ``r = (separable(E_k; two-Gaussian) - reference(E_k; target)) / ||reference||`` over test irradiance
+  patterns ``E_k`` (shadow edge, thin line, point light, textured, curved surface with depth): the error under
+  practical lighting, which is what Jimenez et al. optimised.
+- STA: ``r = STA(t, L, V) - T(t) cos(theta_L)`` over slab thicknesses t and light/view angles, with the target
+  transmittance ``T(t) = (exp(-t/d) + 3 exp(-t/(3d)))/4`` of the Burley profile through the slab (the complementary
+  CDF at r = t: HDRP's thin-object transmission) or a Monte Carlo slab transmittance.
+
+Solvers: ``"optimistix"`` (Levenberg–Marquardt on the residuals, unconstrained log/logit parameters) and ``"jaxopt"``
+(bounded L-BFGS-B on the loss in the natural parameters). Both start from the moments of the target and keep the
+best of a few starts. Every fit returns a record: solver, outcome, iterations, seconds, final error.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._materials import BurleyMaterial, STAParams, TwoGaussianMaterial
+from ._profiles import AbstractProfile, BurleyProfile
+from ._scene import Buffers, Camera
+from ._techniques import burley, reference, separable, sta_term
+
+__all__ = ["SOLVERS", "fit_two_gaussian_profile", "fit_two_gaussian_to_burley", "fit_two_gaussian_image",
+           "fit_sta", "fit_burley_from_image", "image_patterns", "profile_pixel_mass", "two_gaussian_pixel_mass",
+           "burley_slab_transmittance"]
+
+SOLVERS = ("optimistix", "jaxopt")
+
+
+def _check_solver(solver: str) -> None:
+    if solver not in SOLVERS:
+        raise ValueError(f"unknown solver {solver!r}; valid solvers: {', '.join(SOLVERS)}")
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# profile space
+# ------------------------------------------------------------------------------------------------------------------
+
+
+def profile_pixel_mass(profile: AbstractProfile, pixel_mm: float, half: int) -> np.ndarray:
+    """Mass of the normalised profile over each pixel of a (2 half + 1)^2 grid, ``(n, n, C)`` (host, float64)."""
+    n = 2 * half + 1
+    sub = 4
+    offs = (np.arange(sub) + 0.5) / sub - 0.5
+    idx = np.arange(-half, half + 1)
+    xs = (idx[:, None] + offs[None, :]).reshape(-1) * pixel_mm
+    r = np.sqrt(xs[:, None] ** 2 + xs[None, :] ** 2)
+    dtype = profile.albedo.dtype
+    vals = np.asarray(profile.radial(jnp.asarray(r.reshape(-1), dtype)), np.float64)
+    c = vals.shape[-1]
+    vals = vals.reshape(n, sub, n, sub, c).mean(axis=(1, 3)) * pixel_mm**2
+    # the centre pixel holds the 1/r peak: its exact mass through the CDF, (4/pi) int_0^{pi/4} CDF(a / cos t) dt
+    nodes, weights = np.polynomial.legendre.leggauss(24)
+    t = (nodes + 1) * math.pi / 8
+    cdf = np.asarray(profile.cdf(jnp.asarray(0.5 * pixel_mm / np.cos(t), dtype)), np.float64)
+    vals[half, half] = (4 / math.pi) * np.sum(weights[:, None] * cdf, axis=0) * math.pi / 8
+    return vals
+
+
+def _normal_mass_1d(edges: jnp.ndarray, sigma: jnp.ndarray) -> jnp.ndarray:
+    cdf = 0.5 * (1 + jax.scipy.special.erf(edges[:, None] / (math.sqrt(2) * sigma[None, :])))
+    return cdf[1:] - cdf[:-1]
+
+
+def two_gaussian_pixel_mass(w, sigma_near, sigma_far, pixel_mm: float, half: int) -> jnp.ndarray:
+    """``a_m(x) a_m(y)`` integrated exactly over each pixel: ``(n, n, C)``."""
+    edges = (jnp.arange(-half, half + 2) - 0.5) * pixel_mm
+    m = w[None, :] * _normal_mass_1d(edges, sigma_near) + (1 - w[None, :]) * _normal_mass_1d(edges, sigma_far)
+    return m[:, None, :] * m[None, :, :]
+
+
+def _moments_sigma(target: np.ndarray, pixel_mm: float, half: int) -> np.ndarray:
+    """Standard deviation of the target's 1D marginal per channel (its second moment along x)."""
+    x = np.arange(-half, half + 1) * pixel_mm
+    marginal = target.sum(axis=1)  # (n, C)
+    total = marginal.sum(axis=0)
+    return np.sqrt(np.maximum((marginal * x[:, None] ** 2).sum(axis=0) / np.maximum(total, 1e-30), 1e-12))
+
+
+def _solve(residual_fn: Callable, x0: np.ndarray, lower: np.ndarray, upper: np.ndarray, solver: str,
+           max_steps: int = 400, args: Any = None) -> tuple[np.ndarray, str, int]:
+    """Minimise ``0.5 ||residual(x, args)||^2`` for x in [lower, upper]; returns (x, outcome, iterations).
+
+    optimistix works on z with x = lower + (upper - lower) sigmoid(z) (unconstrained); jaxopt's L-BFGS-B on x with
+    the bounds directly. ``residual_fn`` should be one function object across calls (data in ``args``) so each
+    solver compiles once."""
+    lower, upper = np.asarray(lower, np.float64), np.asarray(upper, np.float64)
+    if solver == "optimistix":
+        import optimistix as optx
+
+        lo, span = jnp.asarray(lower), jnp.asarray(upper - lower)
+        p = np.clip((x0 - lower) / (upper - lower), 1e-6, 1 - 1e-6)
+        z0 = jnp.asarray(np.log(p / (1 - p)))
+        fn = _optx_residual(residual_fn)
+        sol = optx.least_squares(fn, optx.LevenbergMarquardt(rtol=1e-8, atol=1e-10), z0, args=(lo, span, args),
+                                 max_steps=max_steps, throw=False)
+        outcome = "successful" if sol.result == optx.RESULTS.successful else str(optx.RESULTS[sol.result]).strip()
+        return np.asarray(lo + span * jax.nn.sigmoid(sol.value)), outcome, int(sol.stats["num_steps"])
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="JAXopt is no longer maintained", category=DeprecationWarning)
+        import jaxopt
+    opt = jaxopt.LBFGSB(fun=_jaxopt_loss(residual_fn), maxiter=max_steps, tol=1e-9)
+    res = opt.run(jnp.asarray(x0), (jnp.asarray(lower), jnp.asarray(upper)), args)
+    it = int(res.state.iter_num)
+    outcome = "successful" if it < max_steps else "max_steps_reached"
+    return np.asarray(res.params), outcome, it
+
+
+_WRAPPED: dict[tuple, Callable] = {}
+
+
+def _optx_residual(fn):
+    key = ("optx", fn)
+    if key not in _WRAPPED:
+        _WRAPPED[key] = lambda z, a: fn(a[0] + a[1] * jax.nn.sigmoid(z), a[2])
+    return _WRAPPED[key]
+
+
+def _jaxopt_loss(fn):
+    key = ("jaxopt", fn)
+    if key not in _WRAPPED:
+        _WRAPPED[key] = lambda x, a: 0.5 * jnp.sum(fn(x, a) ** 2)
+    return _WRAPPED[key]
+
+
+def _profile_residual(x, data):
+    """Residual of the profile-space fit for one channel; ``data = (target, weights, norm, pixel_mm)``."""
+    target, weights, norm, pixel_mm = data
+    half = (target.shape[0] - 1) // 2
+    edges = (jnp.arange(-half, half + 2) - 0.5) * pixel_mm
+    cdf = lambda s: 0.5 * (1 + jax.scipy.special.erf(edges / (math.sqrt(2) * s)))
+    m1 = x[0] * jnp.diff(cdf(x[1])) + (1 - x[0]) * jnp.diff(cdf(x[2]))
+    return ((m1[:, None] * m1[None, :] - target) * weights / norm).reshape(-1)
+
+
+def fit_two_gaussian_grid(target: np.ndarray, pixel_mm: float, *, solver: str = "optimistix",
+                          starts: int = 3) -> tuple[np.ndarray, float, str, int]:
+    """Fit one channel's ``(w, sigma_near, sigma_far)`` to a pixel grid of masses ``(2 half + 1, 2 half + 1)``;
+    returns (params, weighted relative L2, outcome, iterations)."""
+    _check_solver(solver)
+    target = np.asarray(target, np.float64)
+    half = (target.shape[0] - 1) // 2
+    idx = np.arange(-half, half + 1)
+    radius = np.hypot(idx[:, None], idx[None, :]) * pixel_mm
+    radius[half, half] = pixel_mm / math.sqrt(math.pi)  # the centre pixel's disc of equal area, its mean radius
+    norm = float(np.linalg.norm(target * radius))
+    s0 = float(_moments_sigma(target[..., None], pixel_mm, half)[0])
+    data = (jnp.asarray(target), jnp.asarray(radius), jnp.asarray(norm), jnp.asarray(pixel_mm))
+    lower = np.array([0.0, 1e-3 * s0, 1e-3 * s0])
+    upper = np.array([1.0, 10 * s0, 20 * s0])
+    best = None
+    # starts from the moments: the near Gaussian inside, the far one outside the marginal's spread
+    for w0, fn, ff in [(0.5, 0.4, 1.6), (0.3, 0.2, 1.3), (0.7, 0.6, 2.5)][:starts]:
+        x, outcome, it = _solve(_profile_residual, np.array([w0, fn * s0, ff * s0]), lower, upper, solver, args=data)
+        err = float(jnp.linalg.norm(_profile_residual(jnp.asarray(x), data)))
+        if best is None or err < best[1]:
+            best = (x, err, outcome, it)
+    x, err, outcome, it = best
+    if x[1] > x[2]:  # name the narrower Gaussian "near"
+        x = np.array([1 - x[0], x[2], x[1]])
+    return x, err, outcome, it
+
+
+def fit_two_gaussian_profile(profile: AbstractProfile, *, pixel_mm: float | None = None, half: int = 40,
+                             solver: str = "optimistix", starts: int = 3) -> dict[str, Any]:
+    """Fit ``w, sigma_near, sigma_far`` per channel so ``a_m(x) a_m(y)`` matches the profile on a pixel grid.
+
+    The residual is weighted by the distance to the centre (the r R(r) of the paper's Fig. 4, so the 1/r peak does
+    not outweigh the tail) and relative: ``||r (A_m - R)|| / ||r R||``. ``pixel_mm``: the world size of a pixel
+    (default per channel: the grid of ``2 half + 1`` pixels spans 99.9% of that channel's energy).
+    """
+    _check_solver(solver)
+    out = {"w": [], "sigma_near_mm": [], "sigma_far_mm": []}
+    records = []
+    t0 = time.perf_counter()
+    r999 = np.asarray(profile.radius_for_energy(0.999), np.float64)
+    for c in range(profile.num_channels):
+        pix = float(pixel_mm) if pixel_mm is not None else float(r999[c]) / half
+        x, err, outcome, it = fit_two_gaussian_grid(profile_pixel_mass(profile, pix, half)[..., c], pix,
+                                                    solver=solver, starts=starts)
+        out["w"].append(float(x[0]))
+        out["sigma_near_mm"].append(float(x[1]))
+        out["sigma_far_mm"].append(float(x[2]))
+        records.append(dict(error=err, outcome=outcome, iterations=it, pixel_mm=pix))
+    out["fit"] = {
+        "solver": solver,
+        "objective": "profile space: ||r (a_m(x)a_m(y) - R)|| / ||r R|| on a pixel grid, per channel",
+        "pixel_mm": [r["pixel_mm"] for r in records], "grid_half_px": half,
+        "outcome": "successful" if all(r["outcome"] == "successful" for r in records) else
+        ";".join(r["outcome"] for r in records),
+        "iterations": [r["iterations"] for r in records], "seconds": round(time.perf_counter() - t0, 3),
+        "error_relative_l2": [r["error"] for r in records],
+    }
+    return out
+
+
+def fit_two_gaussian_to_burley(d_mm, *, pixel_mm: float | None = None, solver: str = "optimistix") -> dict[str, Any]:
+    """Profile-space fit of the two-Gaussian kernel to a Burley profile."""
+    return fit_two_gaussian_profile(BurleyProfile(jnp.asarray(np.asarray(d_mm, np.float64), dtype=jnp.result_type(float))),
+                                    pixel_mm=pixel_mm,
+                                    solver=solver)
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# image space
+# ------------------------------------------------------------------------------------------------------------------
+
+
+def image_patterns(size: int = 32, *, depth: float = 10.0) -> list[Buffers]:
+    """Test irradiance: shadow edge, thin line, point light, textured, and a curved surface (a bump in depth)."""
+    rng = np.random.default_rng(0)
+    z = np.full((size, size), depth)
+    edge = np.zeros((size, size, 3))
+    edge[:, size // 2:] = 1.0
+    line = np.full((size, size, 3), 0.05)
+    line[:, size // 2] = 1.0
+    point = np.zeros((size, size, 3))
+    point[size // 2, size // 2] = 20.0
+    tex = np.repeat(rng.uniform(0.2, 1.0, (size // 4, size // 4, 1)), 4, 0).repeat(4, 1) * np.ones((1, 1, 3))
+    ys, xs = np.mgrid[0:size, 0:size] - size / 2
+    curved_z = depth - 0.3 * np.exp(-(xs**2 + ys**2) / (2 * (size / 5) ** 2))
+    curved_e = np.clip(0.5 + xs / size, 0, 1)[..., None] * np.ones((1, 1, 3))
+    mk = lambda e, zz: Buffers(irradiance=jnp.asarray(e, jnp.float64), depth=jnp.asarray(zz, jnp.float64))
+    return [mk(edge, z), mk(line, z), mk(point, z), mk(tex, z), mk(curved_e, curved_z)]
+
+
+def image_error(material: TwoGaussianMaterial, target, camera: Camera, patterns: list[Buffers] | None = None, *,
+                taps: int = 25, references: list | None = None) -> float:
+    """Relative L2 of ``separable`` with the two-Gaussian kernel against ``reference`` with the target, over the
+    patterns (albedo 1)."""
+    patterns = patterns or image_patterns()
+    refs = references or [np.asarray(reference(b, target, camera)) for b in patterns]
+    outs = [np.asarray(separable(b, material, camera, taps=taps)) for b in patterns]
+    num = sum(np.sum((o - r) ** 2) for o, r in zip(outs, refs))
+    return float(np.sqrt(num / sum(np.sum(r**2) for r in refs)))
+
+
+def fit_two_gaussian_image(target: BurleyMaterial, camera: Camera, *, taps: int = 25, init: dict | None = None,
+                           solver: str = "optimistix", size: int = 32) -> dict[str, Any]:
+    """Image-space fit: separable with the two-Gaussian kernel against reference with the target (one material)."""
+    _check_solver(solver)
+    patterns = image_patterns(size)
+    refs = [reference(b, target, camera) for b in patterns]
+    norm = float(np.sqrt(sum(np.sum(np.asarray(r) ** 2) for r in refs)))
+    ones = jnp.ones(3)
+    if init is None:
+        init = fit_two_gaussian_to_burley(np.asarray(target.d_mm[0]))
+    x0 = np.concatenate([init["w"], init["sigma_near_mm"], init["sigma_far_mm"]])
+
+    def residual(x, _=None):
+        mat = TwoGaussianMaterial(ones, x[0:3], x[3:6], x[6:9])
+        return jnp.concatenate([((separable(b, mat, camera, taps=taps) - r) / norm).reshape(-1)
+                                for b, r in zip(patterns, refs)])
+
+    s = np.concatenate([init["sigma_near_mm"], init["sigma_far_mm"]])
+    lower = np.concatenate([np.zeros(3), 1e-3 * s])
+    upper = np.concatenate([np.ones(3), 10 * s])
+    t0 = time.perf_counter()
+    x, outcome, it = _solve(residual, x0, lower, upper, solver, max_steps=100)
+    err = float(jnp.linalg.norm(residual(jnp.asarray(x))))
+    near, far = x[3:6], x[6:9]
+    w = np.where(near <= far, x[0:3], 1 - x[0:3])
+    return {"w": w.tolist(), "sigma_near_mm": np.minimum(near, far).tolist(),
+            "sigma_far_mm": np.maximum(near, far).tolist(),
+            "fit": {"solver": solver, "objective": "image-space relative L2 of separable against reference over "
+                    "shadow edge, thin line, point light, texture and a curved surface",
+                    "outcome": outcome, "iterations": it, "seconds": round(time.perf_counter() - t0, 3),
+                    "error_relative_l2": err, "initial_error_relative_l2": float(jnp.linalg.norm(residual(jnp.asarray(x0))))}}
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# STA
+# ------------------------------------------------------------------------------------------------------------------
+
+
+def burley_slab_transmittance(thickness_mm, d_mm):
+    """Light through a slab of thickness t from the Burley profile: its complementary CDF at r = t,
+    ``(exp(-t/d) + 3 exp(-t/(3d))) / 4`` per channel (HDRP's thin-object transmission for the same profile)."""
+    t = jnp.asarray(thickness_mm)[..., None]
+    d = jnp.asarray(d_mm)
+    d = d.reshape((1,) * (t.ndim - 1) + d.shape)
+    return (jnp.exp(-t / d) + 3 * jnp.exp(-t / (3 * d))) / 4
+
+
+def fit_sta(d_mm, *, solver: str = "jaxopt", transmittance: Callable | None = None,
+            thickness_range: tuple[float, float] | None = None) -> dict[str, Any]:
+    """Fit the STA parameters to slab transmission over thicknesses and light/view angles.
+
+    Target: ``T(t) cos(theta_L)`` (diffuse light through the slab, Lambertian at the back face), T from the Burley
+    profile or ``transmittance(t_mm) -> (N, 3)`` (e.g. a Monte Carlo slab). The STA term is evaluated with the back
+    face's normal opposite the view plane's, the light behind at theta_L, the view at theta_V.
+    """
+    _check_solver(solver)
+    d = np.asarray(d_mm, np.float64)
+    lo, hi = thickness_range or (0.05 * d.min(), 6.0 * d.max())
+    t = np.geomspace(lo, hi, 16)
+    angles = np.radians([0.0, 30.0, 60.0])
+    T = np.asarray(transmittance(t) if transmittance else burley_slab_transmittance(t, d))  # (Nt, 3)
+    rows = []
+    for tl in angles:
+        for tv in angles:
+            # camera space: view along -z to the camera; the lit surface faces the camera (N = (0,0,-1)),
+            # the light is behind the slab at theta_L from the axis, the view leaves at theta_V
+            light = np.array([math.sin(tl), 0.0, math.cos(tl)])
+            view = np.array([-math.sin(tv), 0.0, -math.cos(tv)])
+            rows.append((light, view, math.cos(tl)))
+    L = jnp.asarray(np.stack([r[0] for r in rows]))
+    V = jnp.asarray(np.stack([r[1] for r in rows]))
+    cosl = jnp.asarray([r[2] for r in rows])
+    target = jnp.asarray(T)[None, :, :] * cosl[:, None, None]  # (A, Nt, 3)
+    N = jnp.asarray([0.0, 0.0, -1.0])
+    tt = jnp.asarray(t)
+
+    def sta_values(x):
+        p = STAParams(distortion=x[0], power=x[1], scale=x[2:5], ambient=x[5:8], thickness_mm=x[8:11])
+        from ._materials import DirectionalLight
+
+        def one(light, view):
+            normal = jnp.broadcast_to(N, (1, t.shape[0], 3))
+            v = jnp.broadcast_to(view, (1, t.shape[0], 3))
+            lt = DirectionalLight.__new__(DirectionalLight)
+            object.__setattr__(lt, "direction", light)
+            object.__setattr__(lt, "colour", jnp.ones(3))
+            return sta_term(normal, v, lt, p, tt[None, :])[0]
+
+        return jax.vmap(one)(L, V)
+
+    residual = lambda x, _=None: (sta_values(x) - target).reshape(-1)
+    x0 = np.concatenate([[0.2, 2.0], np.full(3, 1.0), np.full(3, 0.05), d * 2])
+    lower = np.concatenate([[0.0, 0.0], np.zeros(3), np.zeros(3), d * 0.01])
+    upper = np.concatenate([[1.0, 16.0], np.full(3, 4.0), np.full(3, 2.0), d * 100])
+    t0 = time.perf_counter()
+    x, outcome, it = _solve(residual, x0, lower, upper, solver, max_steps=300)
+    err = float(jnp.linalg.norm(residual(jnp.asarray(x))) / jnp.linalg.norm(target))
+    return {"distortion": float(x[0]), "power": float(x[1]), "scale": x[2:5].tolist(), "ambient": x[5:8].tolist(),
+            "thickness_mm": x[8:11].tolist(),
+            "fit": {"solver": solver, "objective": "STA against T(t) cos(theta_L) over 16 thicknesses and 3x3 angles",
+                    "outcome": outcome, "iterations": it, "seconds": round(time.perf_counter() - t0, 3),
+                    "error_relative_l2": err}}
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# inverse fit from images
+# ------------------------------------------------------------------------------------------------------------------
+
+
+def fit_burley_from_image(buffers: Buffers, target_image, camera: Camera, *, albedo, d0_mm, samples: int = 16,
+                          solver: str = "optimistix") -> dict[str, Any]:
+    """Recover Burley's d per channel (mm) by differentiating ``burley`` (bilinear, smooth in d) against a target
+    image of the same frame, e.g. an offline render; ``albedo (3,)`` is known."""
+    _check_solver(solver)
+    target = jnp.asarray(target_image)
+    norm = float(jnp.linalg.norm(target))
+    alb = jnp.asarray(albedo, jnp.float64)
+
+    def residual(x, _=None):
+        out = burley(buffers, BurleyMaterial(alb, x), camera, samples=samples, interpolation="bilinear")
+        return ((out - target) / norm).reshape(-1)
+
+    d0 = np.asarray(d0_mm, np.float64)
+    t0 = time.perf_counter()
+    x, outcome, it = _solve(residual, d0, d0 / 20, d0 * 20, solver, max_steps=200)
+    return {"d_mm": x.tolist(), "fit": {"solver": solver, "outcome": outcome, "iterations": it,
+                                       "seconds": round(time.perf_counter() - t0, 3),
+                                       "error_relative_l2": float(jnp.linalg.norm(residual(jnp.asarray(x))))}}

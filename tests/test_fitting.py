@@ -1,0 +1,87 @@
+"""Fits recover known parameters from synthetic targets; both solvers agree; the fitted kernels' errors."""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import sss_jax as sj
+from sss_jax import _fitting as F
+
+
+def test_profile_fit_recovers_a_known_two_gaussian_with_both_solvers():
+    # a target made by the model itself (exact pixel integrals): the optimum is the truth, error 0
+    truth = np.array([0.35, 0.4, 1.8])
+    grid = np.asarray(F.two_gaussian_pixel_mass(jnp.asarray(truth[:1]), jnp.asarray(truth[1:2]),
+                                                jnp.asarray(truth[2:3]), 0.1, 30))[..., 0]
+    found = {}
+    for solver in F.SOLVERS:
+        x, err, outcome, it = F.fit_two_gaussian_grid(grid, 0.1, solver=solver, starts=1)
+        np.testing.assert_allclose(x, truth, rtol=1e-3)
+        assert err < 1e-4 and outcome == "successful" and it > 0
+        found[solver] = x
+    np.testing.assert_allclose(found["optimistix"], found["jaxopt"], rtol=1e-3)  # the same optimum
+    with pytest.raises(ValueError, match="unknown solver 'newton'; valid solvers: optimistix, jaxopt"):
+        F.fit_two_gaussian_grid(grid, 0.1, solver="newton")
+
+
+def test_burley_fit_is_scale_invariant_and_records_itself():
+    # Burley profiles of every d have one shape: the fitted kernel scales with d and the error is the same
+    fit = F.fit_two_gaussian_to_burley([4.0, 2.0, 1.0])
+    sn, sf = np.asarray(fit["sigma_near_mm"]), np.asarray(fit["sigma_far_mm"])
+    np.testing.assert_allclose(sn / [4.0, 2.0, 1.0], sn[0] / 4.0, rtol=1e-3)
+    np.testing.assert_allclose(sf / [4.0, 2.0, 1.0], sf[0] / 4.0, rtol=1e-3)
+    np.testing.assert_allclose(fit["w"], fit["w"][0], rtol=1e-3)
+    assert np.all(sn < sf)
+    rec = fit["fit"]
+    assert rec["solver"] == "optimistix" and rec["outcome"] == "successful" and rec["seconds"] > 0
+    # a separable product cannot be radial: the weighted profile-space error stays large (measured 0.558), which is
+    # why the image-space error below is the one that matters
+    assert 0.3 < rec["error_relative_l2"][0] < 0.7
+
+
+def test_fitted_kernel_image_error_is_bounded():
+    # bound: 12% relative L2 over the five test patterns (measured 9.5%). Justification: the point light dominates
+    # it (a delta shows the kernel itself, and no separable product matches the radial 1/r peak); the pre-integrated
+    # kernel of the same profile, measured beside it, is the best a separable pass does; local shading (no
+    # scattering) is at 67%. A kernel within 12% is doing the job; a broken fit is several times worse.
+    cam = sj.Camera(focal_px=60.0, mm_per_unit=10.0)  # 0.6 px per mm at depth 10
+    target = sj.BurleyMaterial([1.0, 1.0, 1.0], [4.0, 2.5, 1.5])
+    fit = F.fit_two_gaussian_to_burley(np.asarray(target.d_mm[0]))
+    tg = sj.TwoGaussianMaterial([1, 1, 1], fit["w"], fit["sigma_near_mm"], fit["sigma_far_mm"])
+    patterns = F.image_patterns(24)
+    refs = [np.asarray(sj.reference(b, target, cam)) for b in patterns]
+    err = F.image_error(tg, target, cam, patterns, references=refs)
+    local = np.sqrt(sum(np.sum((np.asarray(b.irradiance) - r) ** 2) for b, r in zip(patterns, refs))
+                    / sum(np.sum(r**2) for r in refs))
+    pre = sj.separable  # the pre-integrated kernel of the target profile, for comparison
+    pre_err = np.sqrt(sum(np.sum((np.asarray(pre(b, target, cam, taps=25)) - r) ** 2) for b, r in zip(patterns, refs))
+                      / sum(np.sum(r**2) for r in refs))
+    print(f"image-space error: fitted two-Gaussian {err:.4f}, pre-integrated {pre_err:.4f}, local {local:.4f}")
+    assert err < 0.12 and local > 5 * err
+
+
+def test_inverse_fit_recovers_d_from_an_image():
+    rng = np.random.default_rng(0)
+    h = w = 20
+    e = np.zeros((h, w, 3))
+    e[:, : w // 2] = 1.0
+    e += rng.uniform(0, 0.3, (h, w, 3))
+    b = sj.Buffers(irradiance=jnp.asarray(e), depth=jnp.full((h, w), 10.0))
+    cam = sj.Camera(60.0, 10.0)
+    truth = np.array([5.0, 3.0, 1.5])
+    target = sj.burley(b, sj.BurleyMaterial([1, 1, 1], truth), cam, samples=16)
+    fit = F.fit_burley_from_image(b, target, cam, albedo=[1, 1, 1], d0_mm=[2.0, 2.0, 2.0], samples=16)
+    np.testing.assert_allclose(fit["d_mm"], truth, rtol=0.01)
+    assert fit["fit"]["error_relative_l2"] < 1e-3
+
+
+def test_sta_fit_reduces_the_error_against_slab_transmission():
+    d = np.array([3.0, 1.5, 0.8])
+    fit = F.fit_sta(d, solver="optimistix")
+    assert fit["fit"]["outcome"] == "successful"
+    # the thickness falloff orders like the scattering distances (red travels furthest)
+    assert fit["thickness_mm"][0] > fit["thickness_mm"][1] > fit["thickness_mm"][2]
+    assert fit["fit"]["error_relative_l2"] < 0.35
+    # target by hand: T(t) = (e^{-t/d} + 3 e^{-t/3d})/4 at t = d is (e^-1 + 3 e^{-1/3})/4
+    np.testing.assert_allclose(np.asarray(F.burley_slab_transmittance(np.array([3.0]), d))[0, 0],
+                               (np.exp(-1) + 3 * np.exp(-1 / 3)) / 4)
