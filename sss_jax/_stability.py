@@ -138,7 +138,8 @@ def _technique_fn(component: str, samples: int = 4, taps: int = 5, radius: int =
         elif component == "separable_burley":
             out = separable(b, BurleyMaterial(params["albedo"], params["d_mm"]), CAMERA, taps=taps)
         elif component == "reference":
-            out = reference(b, BurleyMaterial(params["albedo"], params["d_mm"]), CAMERA, radius_px=radius)
+            out = reference(b, BurleyMaterial(params["albedo"], params["d_mm"]), CAMERA, radius_px=radius,
+                            near_subsamples=2)
         elif component == "separable_two_gaussian":
             mat = TwoGaussianMaterial(params["albedo"], params["w"], params["sigma_near_mm"], params["sigma_far_mm"])
             out = separable(b, mat, CAMERA, taps=taps)
