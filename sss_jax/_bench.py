@@ -92,8 +92,8 @@ def run_bench(*, quick: bool = False, repeats: int = 3, progress: Callable[[str]
     say = progress or (lambda m: None)
     taps_grid = (9, 25) if quick else (5, 9, 17, 25, 33, 65)
     samples_grid = (8, 32) if quick else (4, 8, 16, 32, 64, 128)
-    res_grid = ((256, 256), (512, 512)) if quick else ((256, 256), (512, 512), (1280, 720), (1920, 1080))
-    ratio_res = (960, 540) if quick else (1920, 1080)
+    res_grid = ((256, 256), (384, 384)) if quick else ((256, 256), (512, 512), (1280, 720), (1920, 1080))
+    ratio_res = (640, 360) if quick else (1920, 1080)
     if grid:
         taps_grid = tuple(grid.get("taps", taps_grid))
         samples_grid = tuple(grid.get("samples", samples_grid))

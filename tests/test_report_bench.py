@@ -24,6 +24,8 @@ def test_demo_report_has_every_section_and_embeds_its_images(tmp_path):
     assert {"reference", "burley_4", "separable_preintegrated_5", "sta"} <= techniques
     trade = data["sections"]["Speed against accuracy"]["trade"]
     assert any(r["pareto"] for r in trade) and {r["technique"] for r in trade} == {"sta", "separable", "burley"}
+    mc = data["sections"]["Profiles and kernels"]["montecarlo_vs_burley"]
+    assert [r["albedo"] for r in mc] == [0.5, 0.9, 0.99] and all(r["rel_l2_rR"] < 0.2 for r in mc)
     energy = {r["technique"]: r for r in data["sections"]["Energy"]["energy"]}
     assert energy["sta"]["R"] > 1 and energy["sta"]["conserves"].startswith("no")
     assert not list(tmp_path.glob(".*tmp*"))
