@@ -208,8 +208,17 @@ def fit_two_gaussian_profile(profile: AbstractProfile, *, pixel_mm: float | None
     return out
 
 
+def _check_d(d_mm) -> np.ndarray:
+    d = np.asarray(d_mm, np.float64)
+    if d.shape != (3,) or not np.all(np.isfinite(d)) or not np.all(d > 0):
+        raise ValueError(f"d_mm must be 3 finite values > 0 to fit to (d = 0 is the identity: there is no kernel to "
+                         f"fit); got {d.tolist()}")
+    return d
+
+
 def fit_two_gaussian_to_burley(d_mm, *, pixel_mm: float | None = None, solver: str = "optimistix") -> dict[str, Any]:
     """Profile-space fit of the two-Gaussian kernel to a Burley profile."""
+    d_mm = _check_d(d_mm)
     return fit_two_gaussian_profile(BurleyProfile(jnp.asarray(np.asarray(d_mm, np.float64), dtype=jnp.result_type(float))),
                                     pixel_mm=pixel_mm,
                                     solver=solver)
@@ -305,7 +314,7 @@ def fit_sta(d_mm, *, solver: str = "jaxopt", transmittance: Callable | None = No
     face's normal opposite the view plane's, the light behind at theta_L, the view at theta_V.
     """
     _check_solver(solver)
-    d = np.asarray(d_mm, np.float64)
+    d = _check_d(d_mm)
     lo, hi = thickness_range or (0.05 * d.min(), 6.0 * d.max())
     t = np.geomspace(lo, hi, 16)
     angles = np.radians([0.0, 30.0, 60.0])

@@ -112,6 +112,9 @@ def sweep_cases(quick: bool = False) -> Iterator[Case]:
     for bad in (dict(albedo=-0.1), dict(albedo=np.nan), dict(albedo=0.5, g=1.0), dict(albedo=0.5, eta=0.5),
                 dict(albedo=0.5, slab_mfp=0.0)):
         yield Case("montecarlo", bad)
+    for d in ((1e-3, 1.0, 1e3) if quick else D_MM):
+        yield Case("fit_two_gaussian", dict(d_mm=d))
+        yield Case("fit_sta", dict(d_mm=d))
 
 
 # ------------------------------------------------------------------------------------------------------------------
@@ -245,6 +248,19 @@ def _run_small_case(case: Case) -> None:
         elif case.component == "spiral_samples":
             s = spiral_samples(p["n"])
             vals, grads = [s.unit_radii(), s.angles], []
+        elif case.component in ("fit_two_gaussian", "fit_sta"):
+            from ._fitting import fit_sta, fit_two_gaussian_to_burley
+
+            d = np.full(3, p["d_mm"])
+            if case.component == "fit_two_gaussian":
+                f = fit_two_gaussian_to_burley(d)
+                vals = [np.asarray(f[k]) for k in ("w", "sigma_near_mm", "sigma_far_mm")]
+                vals.append(np.asarray(f["fit"]["error_relative_l2"]))
+            else:
+                f = fit_sta(d, solver="optimistix")
+                vals = [np.asarray(f[k]) for k in ("distortion", "power", "scale", "ambient", "thickness_mm")]
+                vals.append(np.asarray(f["fit"]["error_relative_l2"]))
+            grads = []
         elif case.component == "montecarlo":
             from ._montecarlo import simulate
 
@@ -286,7 +302,7 @@ def run_sweep(*, quick: bool = False, progress: bool = True) -> dict[str, Any]:
     groups: dict[tuple, list[Case]] = {}
     for case in cases:
         if case.component in ("profile", "kernel_preintegrated", "kernel_two_gaussian", "spiral_samples",
-                              "invalid_parameter", "montecarlo"):
+                              "invalid_parameter", "montecarlo", "fit_two_gaussian", "fit_sta"):
             try:
                 _run_small_case(case)
             except Exception as exc:  # noqa: BLE001 - an unexpected error is a finding, recorded, not a crash
