@@ -8,7 +8,6 @@ same frames in the same run: OpenCV's ``sepFilter2D`` (plain separable filter wi
 
 from __future__ import annotations
 
-import math
 import platform
 import time
 from typing import Any, Callable

@@ -9,7 +9,6 @@ import OpenImageIO as oiio
 import pytest
 
 import sss_jax as sj
-from sss_jax import _io
 from sss_jax.cli import main
 
 MATERIAL = ["--technique", "burley", "--d-mm", "1,1,1", "--focal-px", "100"]

@@ -3,7 +3,6 @@
 import json
 import re
 
-import pytest
 
 from sss_jax._bench import GOALS, run_bench
 from sss_jax._demo import run_demo

@@ -3,10 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import glob
 import pathlib
 import sys
-import time
 
 EPILOG = """examples:
   sss-jax apply frame.exr -o out.exr --technique burley --albedo 0.8,0.6,0.5 --d-mm 3,1.4,0.8 --focal-px 1200 --mm-per-unit 10
@@ -75,19 +73,6 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def _expand(inputs: list[str]) -> list[pathlib.Path]:
-    paths: list[pathlib.Path] = []
-    for item in inputs:
-        if any(ch in item for ch in "*?["):
-            matches = sorted(glob.glob(item))
-            if not matches:
-                raise ValueError(f"no files match {item!r}")
-            paths.extend(pathlib.Path(m) for m in matches)
-        else:
-            paths.append(pathlib.Path(item))
-    return paths
-
-
 def _material(args):
     import jax.numpy as jnp
 
@@ -134,7 +119,9 @@ def run(args) -> int:
             v = getattr(args, name)
             if v is not None and not (v > 0 and v < float("inf")):
                 raise ValueError(f"--{name.replace('_', '-')} must be a finite positive number, got {v}")
-        inputs = _expand(args.inputs)
+        from .._batch import expand_inputs
+
+        inputs = expand_inputs(args.inputs)
         if args.output is not None and len(inputs) != 1:
             raise ValueError(f"-o takes one input, got {len(inputs)}: use --out-dir for many")
         material, light = _material(args)
