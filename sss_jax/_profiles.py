@@ -96,7 +96,9 @@ def burley_inverse_ccdf(v: ArrayLike, d_mm: ArrayLike) -> Array:
     """
     v = _float(v)
     d = _float(d_mm, v)
-    v_safe = jnp.clip(v, jnp.finfo(v.dtype).tiny, 1.0)
+    # floor v well inside the normal range: asinh(2v)/3 of the smallest normal is subnormal, which a CPU flushes
+    # to zero (log(0) = -inf); the floor's radius, ~-3 d log(v), is still far beyond any image
+    v_safe = jnp.clip(v, jnp.finfo(v.dtype).tiny * 2.0**24, 1.0)
     y = 2 * jnp.sinh(jnp.arcsinh(2 * v_safe) / 3)
     return -3 * d * jnp.log(jnp.minimum(y, 1.0))
 

@@ -199,7 +199,8 @@ def write_demo_report(result, out_dir: pathlib.Path, *, pareto: bool = True) -> 
         ax1.set_xlabel("r (mm)"), ax1.set_ylabel("r R(r)"), ax1.set_title(f"{name}: Burley r·R(r)", fontsize=9)
         ax2.set_xlabel("x (mm)"), ax2.set_yscale("log"), ax2.set_title(f"{name}: 1D kernels", fontsize=9)
         fig.tight_layout()
-        rep.figure(sec, fig, f"{name}: d = {np.round(mat.d_mm[i], 3).tolist()} mm, A = {np.round(mat.albedo[i], 3).tolist()}")
+        fmt = lambda a: ", ".join(f"{float(v):.3g}" for v in np.asarray(a))
+        rep.figure(sec, fig, f"{name}: d = ({fmt(mat.d_mm[i])}) mm, A = ({fmt(mat.albedo[i])})")
     rep.figure(sec, _mc_figure(rep), "Monte Carlo random walk (dots, ±1 standard error) against Christensen–Burley "
                "with the memo's searchlight s(A) (lines), index-matched semi-infinite medium, normal pencil beam")
     k = separable_kernel_from_profile(BurleyProfile(jnp.asarray(mat.d_mm[0])), taps=25)

@@ -120,3 +120,13 @@ def test_profile_gradients_finite_at_limits():
     assert np.isfinite(float(g))
     g = jax.grad(lambda d: sj.burley_inverse_ccdf(jnp.float64(1e-20), d))(jnp.float64(2.0))
     assert np.isfinite(float(g))
+
+
+def test_float32_tail_is_finite():
+    # in float32, 1 - (1 - 1e-9) is 0: the inverse CCDF must floor v where asinh(2v)/3 is still a normal number
+    # (a subnormal is flushed to zero on CPU and log(0) would give r = inf)
+    r = sj.burley_inverse_ccdf(jnp.float32(0.0), jnp.float32(2.0))
+    assert np.isfinite(float(r)) and float(r) > 100 * 2.0
+    p = sj.BurleyProfile(jnp.asarray([3.0, 1.4, 0.8], jnp.float32))
+    ap = np.asarray(sj.preintegrate(p, jnp.asarray([0.1, 1.0, 4.0], jnp.float32)))
+    assert np.all(np.isfinite(ap)) and np.all(ap > 0)
