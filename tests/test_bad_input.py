@@ -1,6 +1,8 @@
 """Bad input everywhere a user can reach it: each case checks the message, the exit status and that nothing was
 left behind."""
 
+import json
+import pathlib
 import re
 
 import jax.numpy as jnp
@@ -9,6 +11,7 @@ import OpenImageIO as oiio
 import pytest
 
 import sss_jax as sj
+from sss_jax import _io
 from sss_jax.cli import main
 
 MATERIAL = ["--technique", "burley", "--d-mm", "1,1,1", "--focal-px", "100"]
@@ -170,3 +173,192 @@ def test_glob_matching_nothing_and_too_many_for_o(tmp_path, capsys):
 def test_python_api_bad_input(make, message):
     with pytest.raises((ValueError, TypeError), match=message):
         make()
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# buffers of mismatched resolution and invalid values inside an EXR, read through the command line
+# ------------------------------------------------------------------------------------------------------------------
+
+
+def two_part_exr(path, first=(6, 7), second=(2, 3)):
+    """A multi-part EXR whose second part (depth) has another resolution than the first (colour)."""
+    specs = []
+    for (h, w), names, part in ((first, ("R", "G", "B"), "rgb"), (second, ("Z",), "depth")):
+        spec = oiio.ImageSpec(w, h, len(names), oiio.FLOAT)
+        spec.channelnames = names
+        spec.attribute("oiio:subimagename", part)
+        # OpenEXR requires one display window for all parts; the data windows are what differ
+        spec.full_width, spec.full_height = first[1], first[0]
+        specs.append(spec)
+    out = oiio.ImageOutput.create(str(path))
+    assert out.open(str(path), specs)
+    out.write_image(np.ones(first + (3,), np.float32))
+    assert out.open(str(path), specs[1], "AppendSubimage")
+    out.write_image(np.ones(second + (1,), np.float32))
+    out.close()
+    return path
+
+
+def exr_with(path, **overrides):
+    """A 6x7 EXR with R, G, B, Z (and id) where ``overrides`` replaces whole channels."""
+    h, w = 6, 7
+    ch = {"R": np.ones((h, w)), "G": np.ones((h, w)), "B": np.ones((h, w)), "Z": np.full((h, w), 10.0),
+          "id": np.ones((h, w))}
+    ch.update(overrides)
+    _io.write_exr(path, {k: np.asarray(v, np.float32) for k, v in ch.items()})
+    return path
+
+
+def _nan_r():
+    r = np.ones((6, 7))
+    r[2, 3] = np.nan
+    return r
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda p: two_part_exr(p), r"subimage 1 is 3x2, the first is 7x6"),
+    (lambda p: exr_with(p, R=_nan_r()), r"irradiance has 1 non-finite values"),
+    (lambda p: exr_with(p, id=-np.ones((6, 7))), r"id channel has negative ids \(min -1\)"),
+    (lambda p: exr_with(p, id=np.full((6, 7), np.inf)), r"id channel has non-finite values"),
+])
+def test_bad_buffers_in_a_file(tmp_path, capsys, make, message):
+    inp = make(tmp_path / "in.exr")
+    out = tmp_path / "out" / "o.exr"
+    out.parent.mkdir()
+    assert run_cli(["apply", str(inp), "-o", str(out)] + MATERIAL) == 1
+    err = capsys.readouterr().err
+    assert "in.exr" in err and re.search(message, err)  # names the file and what is wrong with it
+    assert list(out.parent.iterdir()) == []
+
+
+def test_depth_file_of_another_resolution(tmp_path):
+    colour = good_exr(tmp_path / "c.exr", 6, 7, channels=("R", "G", "B"))
+    depth = good_exr(tmp_path / "z.exr", 5, 7, channels=("Z",))
+    with pytest.raises(_io.SSSInputError, match=r"z.exr: depth is 7x5 but .*c.exr is 7x6"):
+        _io.read_frame(colour, depth_path=depth)
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# preset files that are not valid (cases beyond tests/test_batch.py's missing field / bad range / broken JSON)
+# ------------------------------------------------------------------------------------------------------------------
+
+GOOD_PRESET = {"name": "p", "albedo": [0.8, 0.6, 0.5], "burley": {"d_mm": [3.0, 1.4, 0.8]}}
+
+
+@pytest.mark.parametrize("content, technique, message", [
+    ("[1, 2, 3]", "burley", "a preset must be a JSON object"),
+    ("", "burley", "preset is not valid JSON"),
+    ('{"albedo": [0.8, 0.6, 0.5], "burley": {"d_mm": [NaN, 1, 1]}}', "burley", r"invalid preset: d_mm must lie in .*NaN"),
+    ('{"albedo": [0.8, "x", 0.5], "burley": {"d_mm": [1, 1, 1]}}', "burley", "albedo must be a list of 3 numbers"),
+    (json.dumps(dict(GOOD_PRESET, sta=3)), "burley", "sta must be an object of STA parameters"),
+    (json.dumps(dict(GOOD_PRESET, sta={"power": -1.0})), "burley", r"invalid preset: power must lie in"),
+])
+def test_invalid_preset_files(tmp_path, capsys, content, technique, message):
+    preset = tmp_path / "bad.json"
+    preset.write_text(content)
+    inp = good_exr(tmp_path / "good.exr")
+    out = tmp_path / "out" / "o.exr"
+    out.parent.mkdir()
+    rc = run_cli(["apply", str(inp), "-o", str(out), "--technique", technique, "--preset", str(preset),
+                  "--focal-px", "100"])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert "bad.json" in err and re.search(message, err)
+    assert list(out.parent.iterdir()) == []
+
+
+def test_preset_without_sta_parameters_for_sta(tmp_path):
+    from sss_jax._presets import load_preset, material_for
+
+    preset = tmp_path / "nosta.json"
+    preset.write_text(json.dumps(GOOD_PRESET))
+    with pytest.raises(_io.SSSInputError, match="nosta.json: preset has no sta parameters"):
+        material_for("sta", load_preset(preset))
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# in a batch, a bad frame fails alone: the other frames still complete, and nothing partial is left
+# ------------------------------------------------------------------------------------------------------------------
+
+
+def test_batch_bad_frames_fail_alone(tmp_path):
+    from sss_jax._batch import process_frames
+
+    src = tmp_path / "src"
+    src.mkdir()
+    exr_with(src / "a_good.exr")
+    exr_with(src / "b_nan.exr", R=_nan_r())
+    good_exr(src / "c_nodepth.exr", channels=("R", "G", "B"))
+    (src / "d_empty.exr").write_bytes(b"")
+    two_part_exr(src / "e_mismatch.exr")
+    exr_with(src / "f_good.exr", G=np.full((6, 7), 0.5))
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "g_blocked.exr").mkdir()  # the output path is taken by a directory: writing this frame fails
+    exr_with(src / "g_blocked.exr")
+    mat = sj.BurleyMaterial([0.8, 0.6, 0.5], [1.0, 1.0, 1.0])
+    r = process_frames(str(src / "*.exr"), "burley", mat, out_dir=out, samples=4, focal_px=100.0, progress=False,
+                       skip_existing=False)
+    status = {pathlib.Path(f.input).name: (f.status, f.message) for f in r.frames}
+    assert status["a_good.exr"][0] == "ok" and status["f_good.exr"][0] == "ok"
+    expected = {"b_nan.exr": "irradiance has 1 non-finite values", "c_nodepth.exr": r"missing depth channel",
+                "d_empty.exr": "file is empty", "e_mismatch.exr": "subimage 1 is 3x2", "g_blocked.exr": "directory"}
+    for name, message in expected.items():
+        st, msg = status[name]
+        assert st == "failed" and re.search(message, msg, re.IGNORECASE), (name, msg)
+    # only the finished frames are there: no temporary or partial files
+    assert sorted(p.name for p in out.iterdir()) == ["a_good.exr", "f_good.exr", "g_blocked.exr"]
+    assert list((out / "g_blocked.exr").iterdir()) == []
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# the Python API: more shapes, options and values
+# ------------------------------------------------------------------------------------------------------------------
+
+B44 = lambda: sj.Buffers(irradiance=jnp.ones((4, 4, 3)), depth=jnp.full((4, 4), 10.0))
+CAM = sj.Camera(100.0)
+
+
+@pytest.mark.parametrize("make, error, message", [
+    (lambda: sj.Buffers(irradiance=jnp.ones((4, 4, 3)), depth=jnp.ones((4, 4)), albedo=jnp.ones((4, 5, 3))),
+     ValueError, r"albedo shape \(4, 5, 3\) does not match irradiance \(4, 4, 3\)"),
+    (lambda: sj.Buffers(irradiance=jnp.ones((4, 4, 3)), depth=jnp.ones((4, 4)), thickness=jnp.ones((4,))),
+     ValueError, r"thickness shape \(4,\) does not match"),
+    (lambda: sj.validate_buffers(sj.Buffers(irradiance=jnp.ones((2, 2, 3)), depth=jnp.ones((2, 2)),
+                                            material_id=jnp.full((2, 2), 3)), materials=2),
+     ValueError, "material_id uses id 3 but only 2 materials were given"),
+    (lambda: sj.validate_buffers(sj.Buffers(irradiance=jnp.ones((2, 2, 3)), depth=jnp.ones((2, 2)),
+                                            thickness=-jnp.ones((2, 2)))),
+     ValueError, "thickness buffer must be >= 0"),
+    (lambda: sj.separable(B44(), sj.BurleyMaterial([1, 1, 1], [1, 1, 1]), CAM, taps=4),
+     ValueError, "taps must be an odd positive integer"),
+    (lambda: sj.burley(B44(), sj.BurleyMaterial([1, 1, 1], [1, 1, 1]), CAM, interpolation="cubic"),
+     ValueError, r"interpolation='cubic' is not one of"),
+    (lambda: sj.burley(B44(), sj.BurleyMaterial([1, 1, 1], [1, 1, 1]), CAM, albedo_mode="pre"),
+     ValueError, r"albedo_mode='pre' is not one of"),
+    (lambda: sj.STAParams(power=float("nan")), ValueError, r"power must lie in .*not be NaN"),
+    (lambda: sj.DirectionalLight([0.0, 0.0]), ValueError, r"light direction must have shape \(3,\)"),
+    (lambda: sj.BurleyMaterial([[0.5] * 3] * 2, [[1.0] * 3] * 3), ValueError, "same number of materials"),
+    (lambda: sj.two_gaussian_kernel(jnp.ones(3), jnp.ones(2), jnp.ones(3)), ValueError, "must all have shape"),
+    (lambda: sj.spiral_samples(0), ValueError, "samples must be a positive integer"),
+    (lambda: sj.reference(B44(), sj.BurleyMaterial([1, 1, 1], [1, 1, 1]), CAM, radius_px=-1),
+     ValueError, "radius_px must be a non-negative integer"),
+])
+def test_more_python_api_bad_input(make, error, message):
+    with pytest.raises(error, match=message):
+        make()
+
+
+def test_nan_parameter_inside_jit_is_an_error_not_a_nan_image():
+    # under jit the constructors cannot see values: the techniques' eqx.error_if checks must trip on NaN
+    import equinox as eqx
+
+    b = B44()
+
+    @eqx.filter_jit  # under plain jax.jit the same check raises too, with a less readable message
+    def run(d):
+        return sj.burley(b, sj.BurleyMaterial(jnp.ones(3), d), CAM, samples=4)
+
+    assert np.all(np.isfinite(np.asarray(run(jnp.ones(3)))))
+    with pytest.raises(eqx.EquinoxRuntimeError, match="d_mm must be finite and >= 0"):
+        run(jnp.asarray([1.0, jnp.nan, 1.0])).block_until_ready()

@@ -73,3 +73,46 @@ def test_zero_width_is_identity(seed):
     e = np.random.default_rng(seed).uniform(0, 5, (H, W, 3))
     for out in _passes(e, np.full((H, W), 30.0), jnp.zeros(3)):
         np.testing.assert_allclose(np.asarray(out), e, rtol=1e-12)
+
+
+# energy: a flat plane, light only in the middle, every kernel shorter than the dark margin (so no border effects)
+HE, WE, MARGIN = 16, 16, 5
+CAM_E = sj.Camera(focal_px=80.0, mm_per_unit=10.0)  # at depth 40: 0.2 px per mm, so 5 px are 25 mm
+
+
+@jax.jit
+def _energy_passes(e, d, w, s_near, s_far):
+    b = _buffers(e, jnp.full((HE, WE), 40.0))
+    burley_mat = sj.BurleyMaterial(jnp.ones(3), d)
+    tg = sj.TwoGaussianMaterial(jnp.ones(3), w, s_near, s_far)
+    return (sj.burley(b, burley_mat, CAM_E, samples=16), sj.separable(b, burley_mat, CAM_E, taps=9),
+            sj.separable(b, tg, CAM_E, taps=9))
+
+
+small = st.floats(min_value=1e-3, max_value=0.5, allow_nan=False)  # d in mm: 99.9% of the energy within ~2 px
+sigmas = st.floats(min_value=0.0, max_value=2.0, allow_nan=False)  # 3 sigma = 6 mm = 1.2 px
+
+
+@SETTINGS
+@given(st.integers(0, 2**31 - 1), st.tuples(small, small, small), st.floats(0, 1), sigmas, sigmas)
+def test_no_energy_created_on_a_flat_plane(seed, d, w, s_near, s_far):
+    e = np.zeros((HE, WE, 3))
+    inner = (slice(MARGIN, HE - MARGIN), slice(MARGIN, WE - MARGIN))
+    e[inner] = np.random.default_rng(seed).uniform(0, 10, (HE - 2 * MARGIN, WE - 2 * MARGIN, 3))
+    outs = _energy_passes(e, jnp.asarray(d), jnp.full(3, w), jnp.full(3, s_near), jnp.full(3, s_far))
+    for out in outs:
+        out = np.asarray(out)
+        # a normalised gather with the same weights at every pixel of a plane moves light, it never adds any
+        # (albedo 1): sum over the image out = sum in, up to rounding
+        assert np.all(out.sum(axis=(0, 1)) <= e.sum(axis=(0, 1)) * (1 + 1e-9) + 1e-12)
+        np.testing.assert_allclose(out.sum(axis=(0, 1)), e.sum(axis=(0, 1)), rtol=1e-6)
+        assert out.min() >= 0
+
+
+@SETTINGS
+@given(st.integers(0, 2**31 - 1), st.floats(0, 1))
+def test_zero_width_two_gaussian_is_identity(seed, w):
+    e = np.random.default_rng(seed).uniform(0, 5, (HE, WE, 3))
+    zero = jnp.zeros(3)
+    out = _energy_passes(e, jnp.full(3, 0.1), jnp.full(3, w), zero, zero)[2]
+    np.testing.assert_allclose(np.asarray(out), e, rtol=1e-12)
