@@ -11,16 +11,22 @@ single-scattering albedo (implicit capture) and Russian roulette ends weak photo
 are memoryless, a path that reaches a boundary stops there, the boundary decides (leave or reflect), and a fresh
 free path starts: no partial steps to carry.
 
-Streaming: each jitted call runs ``lanes`` photons in parallel inside a ``lax.while_loop`` and refills a lane the
-moment its photon leaves or dies, until that call's photon budget is spent, so dead photons cost nothing and memory
-is ``O(lanes + bins)`` whatever the photon count. Calls repeat (with a progress bar) until all photons ran; tallies
-(sums of weights and of squared weights per photon, for standard errors) accumulate on the host in float64.
+Streaming: each jitted call (a batch) runs ``lanes`` photons in parallel inside a ``lax.while_loop``. One iteration
+advances every lane by ``unroll`` events; at its end the photons that left are tallied with one histogram scatter and
+their lanes are refilled, until the batch's photon budget is spent, so dead photons cost (almost) nothing; the tail of a
+batch, when no photons remain to launch, runs in 1/8 as many lanes. Memory is ``O(lanes + bins)`` per batch whatever
+the photon count. Batches run on a few threads at once (one jitted call keeps one core busy; XLA releases the GIL),
+with a progress bar; tallies (sums of weights and of squared weights per photon, for standard errors) accumulate on
+the host in float64, in batch order, so a seed gives the same numbers whatever the number of threads.
 """
 
 from __future__ import annotations
 
+import collections
+import concurrent.futures
 import dataclasses
 import math
+import os
 import time
 from typing import Any
 
@@ -33,6 +39,9 @@ __all__ = ["MCResult", "simulate", "simulate_material", "fresnel_unpolarised", "
 
 _ROULETTE_WEIGHT = 1e-3
 _ROULETTE_SURVIVAL = 0.1
+# lane widths of a batch: all lanes while photons are launched, then the survivors in 1/8 as many (a third stage
+# gained another ~7% at albedo 0.99 and nothing at 0.9, for 1.2 s more compile time per configuration)
+_STAGES = 2
 
 
 def fresnel_unpolarised(cos_i, n1, n2):
@@ -47,6 +56,9 @@ def fresnel_unpolarised(cos_i, n1, n2):
     return jnp.where(tir, 1.0, 0.5 * (rs * rs + rp * rp))
 
 
+_ONE_BITS = 0x3F800000  # the bits of float32 1.0: OR-ing 23 random mantissa bits into it gives [1, 2)
+
+
 def _hg_cos(u, g):
     """Sample the Henyey–Greenstein cosine (isotropic when g = 0)."""
     safe_g = jnp.where(jnp.abs(g) < 1e-6, 1e-6, g)
@@ -55,10 +67,10 @@ def _hg_cos(u, g):
     return jnp.clip(jnp.where(jnp.abs(g) < 1e-6, 2 * u - 1, hg), -1.0, 1.0)
 
 
-def _rotate(ux, uy, uz, cos_t, phi):
-    """New direction at polar angle acos(cos_t), azimuth phi, relative to (ux, uy, uz) (MCML's formulas)."""
+def _rotate(ux, uy, uz, cos_t, cos_phi, sin_phi):
+    """New direction at polar angle acos(cos_t) and azimuth phi relative to (ux, uy, uz) (MCML's formulas)."""
     sin_t = jnp.sqrt(jnp.maximum(1 - cos_t * cos_t, 0.0))
-    cp, sp = jnp.cos(phi), jnp.sin(phi)
+    cp, sp = cos_phi, sin_phi
     near_pole = jnp.abs(uz) > 0.99999
     den = jnp.sqrt(jnp.maximum(1 - uz * uz, 1e-30))
     nx = sin_t * (ux * uz * cp - uy * sp) / den + ux * cos_t
@@ -66,6 +78,242 @@ def _rotate(ux, uy, uz, cos_t, phi):
     nz = -sin_t * cp * den + uz * cos_t
     px, py, pz = sin_t * cp, sin_t * sp, jnp.sign(uz) * cos_t
     return jnp.where(near_pole, px, nx), jnp.where(near_pole, py, ny), jnp.where(near_pole, pz, nz)
+
+
+# --- random numbers ---------------------------------------------------------------------------------------------------
+# Each lane owns four xoroshiro64* generators (Blackman & Vigna 2018: period 2^64 - 1, their recommendation for 32-bit
+# floating-point numbers; only the upper bits, the strong ones, are used here), one per kind of draw, seeded per batch
+# from the run's seed with jax.random (threefry). A draw is ~8 uint32 operations on two words that the event's loop
+# carries. One generator per kind keeps every draw one step from the carried state: chained steps of one generator
+# were fused by XLA into each consumer and recomputed there, and threefry through jax.random costs more than the whole
+# rest of a scattering event.
+_GENERATORS = 4  # step length, direction (or Fresnel decision), azimuth, roulette
+
+
+def _xoroshiro_next(s0, s1):
+    out = s0 * jnp.uint32(0x9E3779BB)
+    s1 = s1 ^ s0
+    return out, ((s0 << 26) | (s0 >> 6)) ^ s1 ^ (s1 << 9), (s1 << 13) | (s1 >> 19)
+
+
+def _draw(rng, which):
+    """One draw of generator ``which`` of every lane; returns the bits and the advanced states."""
+    out, s0, s1 = _xoroshiro_next(rng[2 * which], rng[2 * which + 1])
+    return out, rng[:2 * which] + (s0, s1) + rng[2 * which + 2:]
+
+
+def _unit(bits):
+    """Uniform in [0, 1) from the upper 23 bits of a uint32 (float32 resolution)."""
+    return jax.lax.bitcast_convert_type((bits >> 9) | jnp.uint32(_ONE_BITS), jnp.float32) - 1.0
+
+
+def _cos_sin_turn(bits):
+    """(cos 2 pi u, sin 2 pi u) for the uniform u of a uint32: the top two bits pick the quadrant, 23 more the angle in
+    it. Polynomials on [-pi/4, pi/4] (Taylor to degree 8 and 9: error < 3e-8, below float32 resolution) instead of
+    general-argument cos/sin, which cost 3x a log here."""
+    f = jax.lax.bitcast_convert_type(((bits >> 7) & jnp.uint32(0x7FFFFF)) | jnp.uint32(_ONE_BITS), jnp.float32) - 1.5
+    b = f * (math.pi / 2)
+    b2 = b * b
+    cb = 1 + b2 * (-1 / 2 + b2 * (1 / 24 + b2 * (-1 / 720 + b2 * (1 / 40320))))
+    sb = b * (1 + b2 * (-1 / 6 + b2 * (1 / 120 + b2 * (-1 / 5040 + b2 * (1 / 362880)))))
+    half = math.sqrt(0.5)
+    c, s = (cb - sb) * half, (cb + sb) * half  # angle b + pi/4 in [0, pi/2)
+    odd = (bits >> 30) & jnp.uint32(1) == 1
+    c, s = jnp.where(odd, -s, c), jnp.where(odd, c, s)  # + 90 degrees
+    upper = (bits >> 31) == 1
+    return jnp.where(upper, -c, c), jnp.where(upper, -s, s)  # + 180 degrees
+
+
+def _kahan_add(total, compensation, x):
+    """Compensated (Kahan) float32 summation: a batch's tallies do not drift however many photons they add; the host
+    adds the batches in float64."""
+    y = x - compensation
+    t = total + y
+    return t, (t - total) - y
+
+
+_STATE = ("x", "y", "z", "ux", "uy", "uz", "w", "n", "events", "active")
+
+
+def _make_kernel(lanes: int, bins: int, r_max: float, max_events: int, slab: bool, diffuse: bool, isotropic: bool,
+                 index_matched: bool, unroll: int):
+    """The jitted batch runner for one static configuration.
+
+    One iteration of the while loop advances every lane by ``unroll`` events (boundary hits or scatterings); a lane
+    whose photon leaves, dies or is capped stops where it is until the end of the iteration, where all exits are
+    tallied with one histogram scatter and freed lanes are refilled. Once the budget is launched and few photons are
+    left, the survivors are compacted into 1/8 as many lanes, so the long tail of a batch runs narrow."""
+    f32, i32, u32 = jnp.float32, jnp.int32, jnp.uint32
+    n_cells = bins + 1  # the last bin collects r >= r_max
+    inv_dr = bins / r_max
+    widths = [lanes]
+    while len(widths) < _STAGES and widths[-1] // 8 >= 64:
+        widths.append(widths[-1] // 8)
+
+    @jax.jit
+    def run(key, budget, albedo, g, eta, thickness):
+        r_sp = ((eta - 1) / (eta + 1)) ** 2
+
+        def launch(rng, width):
+            """Fresh photons in every lane (the caller keeps them where a lane is refilled); diffuse incidence draws
+            from the step and azimuth generators."""
+            zeros = jnp.zeros(width, f32)
+            if diffuse:
+                b1, rng = _draw(rng, 0)
+                b2, rng = _draw(rng, 2)
+                cos_out = jnp.sqrt(_unit(b1))  # cosine-weighted directions outside
+                weight = 1 - fresnel_unpolarised(cos_out, 1.0, eta)
+                sin_in = jnp.sqrt(jnp.maximum(1 - cos_out * cos_out, 0.0)) / eta
+                cp, sp = _cos_sin_turn(b2)
+                uz = jnp.sqrt(jnp.maximum(1 - sin_in * sin_in, 0.0))
+                ux, uy = sin_in * cp, sin_in * sp
+            else:
+                weight = jnp.full(width, 1 - r_sp, f32)
+                ux, uy, uz = zeros, zeros, jnp.ones(width, f32)
+            fresh = dict(x=zeros, y=zeros, z=zeros, ux=ux, uy=uy, uz=uz, w=weight.astype(f32),
+                         n=jnp.zeros(width, i32))
+            return fresh, rng
+
+        def event(st, rng, done):
+            """One free path for every active lane: to the next scattering, or to the boundary and its decision."""
+            x, y, z, ux, uy, uz, w, n, events, active = (st[s] for s in _STATE)
+            b_step, rng = _draw(rng, 0)
+            b_dir, rng = _draw(rng, 1)  # the scattering cosine, or the Fresnel decision at a boundary
+            b_phi, rng = _draw(rng, 2)
+            b_rr, rng = _draw(rng, 3)
+            step = -jnp.log(1.0 - _unit(b_step))  # 1 - u lies in (0, 1]
+            z_new = z + uz * step
+            hits_top = z_new < 0
+            hits_bottom = (z_new > thickness) if slab else jnp.zeros_like(hits_top)
+            crosses = hits_top | hits_bottom
+            boundary = active & crosses
+            scatter = active & ~crosses
+            # memoryless free paths: stop at the boundary crossed, decide there, restart
+            t_b = jnp.where(hits_top, -z / jnp.where(uz < 0, uz, -1.0), (thickness - z) / jnp.where(uz > 0, uz, 1.0))
+            t = jnp.where(boundary, t_b, jnp.where(scatter, step, 0.0))
+            x, y = x + ux * t, y + uy * t
+            if slab:
+                z_b = jnp.where(hits_top, 0.0, thickness).astype(f32)
+            else:
+                z_b = jnp.zeros_like(z)
+            z = jnp.where(boundary, z_b, jnp.where(scatter, z_new, z))
+            u_dir = _unit(b_dir)
+            if index_matched:
+                leaves = boundary
+            else:
+                reflect = u_dir < fresnel_unpolarised(jnp.abs(uz), eta, 1.0)
+                leaves = boundary & ~reflect
+                uz = jnp.where(boundary & reflect, -uz, uz)
+            cp, sp = _cos_sin_turn(b_phi)
+            if isotropic:
+                cos_t = 2 * u_dir - 1
+                sin_t = jnp.sqrt(jnp.maximum(1 - cos_t * cos_t, 0.0))
+                nx, ny, nz = sin_t * cp, sin_t * sp, cos_t
+            else:
+                nx, ny, nz = _rotate(ux, uy, uz, _hg_cos(u_dir, g), cp, sp)
+            ux, uy, uz = (jnp.where(scatter, a, b) for a, b in ((nx, ux), (ny, uy), (nz, uz)))
+            w = jnp.where(scatter, w * albedo, w)
+            n = n + scatter.astype(i32)
+            events = events + scatter.astype(i32)
+            # Russian roulette on weak photons, and the event cap
+            weak = active & ~leaves & (w < _ROULETTE_WEIGHT)
+            survive = _unit(b_rr) < _ROULETTE_SURVIVAL
+            w = jnp.where(weak, jnp.where(survive, w / _ROULETTE_SURVIVAL, 0.0), w)
+            died = weak & ~survive
+            capped = active & ~leaves & ~died & (n >= max_events)
+            exit_top, exit_bottom, was_capped = done
+            done = (exit_top | (leaves & hits_top), exit_bottom | (leaves & hits_bottom), was_capped | capped)
+            active = active & ~leaves & ~died & ~capped
+            st = dict(x=x, y=y, z=z, ux=ux, uy=uy, uz=uz, w=w.astype(f32), n=n, events=events, active=active)
+            return st, rng, done
+
+        def tally(st, done, acc):
+            """All exits of one iteration in one histogram scatter; rows R, R^2, T, T^2 per radial bin."""
+            exit_top, exit_bottom, capped = done
+            x, y, w, n = st["x"], st["y"], st["w"], st["n"]
+            r = jnp.sqrt(x * x + y * y)
+            cell = jnp.minimum((r * inv_dr).astype(i32), bins) + jnp.where(exit_bottom, n_cells, 0)
+            exit_w = jnp.where(exit_top | exit_bottom, w, 0.0)
+            h = jnp.zeros(2 * n_cells, f32).at[cell].add(exit_w, mode="promise_in_bounds")
+            h2 = jnp.zeros(2 * n_cells, f32).at[cell].add(exit_w * exit_w, mode="promise_in_bounds")
+            hist = jnp.stack([h[:n_cells], h2[:n_cells], h[n_cells:], h2[n_cells:]])
+            single = jnp.where(exit_top & (n == 1), w, 0.0)
+            sums = jnp.stack([jnp.sum(single), jnp.sum(single * single), jnp.sum(jnp.where(capped, w, 0.0))])
+            hist_acc, hist_c, sums_acc, sums_c, n_capped = acc
+            hist_acc, hist_c = _kahan_add(hist_acc, hist_c, hist)
+            sums_acc, sums_c = _kahan_add(sums_acc, sums_c, sums)
+            return hist_acc, hist_c, sums_acc, sums_c, n_capped + jnp.sum(capped, dtype=i32)
+
+        def iterate(st, rng, acc):
+            width = st["x"].shape[0]
+            false = jnp.zeros(width, bool)
+            done = (false, false, false)
+            st, rng, done = jax.lax.fori_loop(0, unroll, lambda _, c: event(*c), (st, rng, done))
+            return st, rng, tally(st, done, acc)
+
+        def refill(st, rng, launched):
+            free = ~st["active"]
+            n_free = jnp.sum(free, dtype=i32)
+            remaining = budget - launched
+
+            def ranked():
+                rank = jnp.cumsum(free, dtype=i32) - 1
+                return free & (rank < remaining)
+
+            # the rank of each free lane is needed only while the budget runs out, not in the bulk of the batch
+            new = jax.lax.cond(n_free <= remaining, lambda: free,
+                               lambda: jax.lax.cond(remaining > 0, ranked, lambda: jnp.zeros_like(free)))
+            fresh, rng = launch(rng, free.shape[0])
+            st = dict(st, **{s: jnp.where(new, fresh[s], st[s]) for s in fresh}, active=st["active"] | new)
+            n_new = jnp.sum(new, dtype=i32)
+            return st, rng, launched + n_new, free.shape[0] - n_free + n_new
+
+        words = jax.random.bits(key, (2 * _GENERATORS, lanes), u32)
+        rng = ()
+        for s0, s1 in zip(words[0::2], words[1::2]):
+            rng += (s0 | ((s0 | s1) == 0).astype(u32), s1)  # never the all-zero state
+        st = {s: jnp.zeros(lanes, f32) for s in ("x", "y", "z", "ux", "uy", "uz", "w")}
+        st.update(n=jnp.zeros(lanes, i32), events=jnp.zeros(lanes, i32), active=jnp.zeros(lanes, bool))
+        st, rng, launched, n_active = refill(st, rng, jnp.int32(0))
+        acc = (jnp.zeros((4, n_cells), f32), jnp.zeros((4, n_cells), f32), jnp.zeros(3, f32), jnp.zeros(3, f32),
+               jnp.zeros((), i32))
+        events = []
+        for stage, width in enumerate(widths):
+            last = stage == len(widths) - 1
+            next_width = 0 if last else widths[stage + 1]
+            if stage == 0:
+                def cond(c, next_width=next_width):
+                    return (c[3] < budget) | (c[4] > next_width)
+
+                def body(c):
+                    st, rng, acc, launched, _ = c
+                    st, rng, acc = iterate(st, rng, acc)
+                    st, rng, launched, n_active = refill(st, rng, launched)
+                    return st, rng, acc, launched, n_active
+            else:
+                def cond(c, next_width=next_width):
+                    return c[4] > next_width
+
+                def body(c):
+                    st, rng, acc, launched, _ = c
+                    st, rng, acc = iterate(st, rng, acc)
+                    return st, rng, acc, launched, jnp.sum(st["active"], dtype=i32)
+
+            st, rng, acc, launched, n_active = jax.lax.while_loop(cond, body, (st, rng, acc, launched, n_active))
+            events.append(st["events"])
+            if not last:
+                # the survivors (at most next_width of them) move to the first lanes of a narrower stage
+                keep = jnp.nonzero(st["active"], size=next_width, fill_value=0)[0]
+                st = {s: v[keep] for s, v in st.items()}
+                st["active"] = jnp.arange(next_width, dtype=i32) < n_active
+                st["events"] = jnp.zeros(next_width, i32)
+                rng = tuple(v[keep] for v in rng)
+        hist_acc, hist_c, sums_acc, sums_c, n_capped = acc
+        hist, sums = hist_acc - hist_c, sums_acc - sums_c
+        return dict(R=hist[0], R2=hist[1], T=hist[2], T2=hist[3], R1=sums[0], R1sq=sums[1], capped_w=sums[2],
+                    capped=n_capped, events=jnp.concatenate(events))
+
+    return run
 
 
 @dataclasses.dataclass
@@ -122,117 +370,6 @@ class MCResult:
         return out
 
 
-def _make_kernel(lanes: int, bins: int, r_max: float, max_events: int, slab: bool, diffuse: bool):
-    """The jitted batch runner for one static configuration."""
-
-    @jax.jit
-    def run(key, budget, albedo, g, eta, thickness):
-        f32 = jnp.float32
-        n_bins = bins
-        inv_dr = n_bins / r_max
-        r_sp = ((eta - 1) / (eta + 1)) ** 2
-
-        def launch(key, count):
-            """``count``-shaped fresh photon states."""
-            k1, k2 = jax.random.split(key)
-            if diffuse:
-                u = jax.random.uniform(k1, count, f32)
-                cos_out = jnp.sqrt(u)  # cosine-weighted directions outside
-                weight = 1 - fresnel_unpolarised(cos_out, 1.0, eta)
-                sin_in = jnp.sqrt(jnp.maximum(1 - cos_out**2, 0.0)) / eta
-                phi = 2 * math.pi * jax.random.uniform(k2, count, f32)
-                uz = jnp.sqrt(jnp.maximum(1 - sin_in**2, 0.0))
-                ux, uy = sin_in * jnp.cos(phi), sin_in * jnp.sin(phi)
-            else:
-                weight = jnp.full(count, 1 - r_sp, f32)
-                ux = jnp.zeros(count, f32)
-                uy = jnp.zeros(count, f32)
-                uz = jnp.ones(count, f32)
-            zeros = jnp.zeros(count, f32)
-            return dict(x=zeros, y=zeros, z=zeros, ux=ux, uy=uy, uz=uz, w=weight.astype(f32),
-                        n=jnp.zeros(count, jnp.int32))
-
-        state = launch(jax.random.fold_in(key, 0), (lanes,))
-        alive = jnp.arange(lanes) < budget
-        tallies = dict(
-            hist=jnp.zeros((4, n_bins + 1), f32),
-            R1=jnp.zeros((), f32), R1sq=jnp.zeros((), f32),
-            capped=jnp.zeros((), jnp.int32), capped_w=jnp.zeros((), f32), events=jnp.zeros((), jnp.int32),
-        )
-        launched = jnp.minimum(budget, lanes)
-
-        def cond(carry):
-            _, alive, _, _, _ = carry
-            return jnp.any(alive)
-
-        def body(carry):
-            state, alive, launched, tallies, it = carry
-            k = jax.random.fold_in(key, it + 1)
-            u_step, u_fres, u_cos, u_phi, u_rr = jax.random.uniform(k, (5, lanes), f32)
-            x, y, z, ux, uy, uz, w, n = (state[s] for s in ("x", "y", "z", "ux", "uy", "uz", "w", "n"))
-            step = -jnp.log(jnp.maximum(u_step, 1e-30))
-            z_new = z + uz * step
-            hits_top = z_new < 0
-            hits_bottom = (z_new > thickness) if slab else jnp.zeros_like(hits_top)
-            boundary = hits_top | hits_bottom
-            # distance to the boundary crossed (memoryless free paths: stop there, decide, restart)
-            t_b = jnp.where(hits_top, -z / jnp.where(uz < 0, uz, -1.0),
-                            (thickness - z) / jnp.where(uz > 0, uz, 1.0))
-            t = jnp.where(boundary, t_b, step)
-            x, y = x + ux * t, y + uy * t
-            z = jnp.where(hits_top, 0.0, jnp.where(hits_bottom, thickness, z_new))
-            reflect = u_fres < fresnel_unpolarised(jnp.abs(uz), eta, 1.0)
-            leaves = boundary & ~reflect & alive
-            uz = jnp.where(boundary & reflect, -uz, uz)
-            # scattering where no boundary was met
-            scatter = ~boundary & alive
-            cos_t = _hg_cos(u_cos, g)
-            nx, ny, nz = _rotate(ux, uy, uz, cos_t, 2 * math.pi * u_phi)
-            ux, uy, uz = (jnp.where(scatter, a, b) for a, b in ((nx, ux), (ny, uy), (nz, uz)))
-            w = jnp.where(scatter, w * albedo, w)
-            n = n + scatter.astype(jnp.int32)
-            # tallies of the photons leaving now
-            r = jnp.sqrt(x * x + y * y)
-            bin_idx = jnp.minimum((r * inv_dr).astype(jnp.int32), n_bins)  # the last bin collects r >= r_max
-            top_w = jnp.where(leaves & hits_top, w, 0.0)
-            bot_w = jnp.where(leaves & hits_bottom, w, 0.0)
-            tallies = dict(tallies)
-            # one scatter-add for all four histograms: rows R, R^2, T, T^2
-            exit_w = top_w + bot_w
-            row = jnp.where(hits_bottom, 2, 0)
-            hist = tallies["hist"].at[row, bin_idx].add(exit_w).at[row + 1, bin_idx].add(exit_w * exit_w)
-            tallies["hist"] = hist
-            single = jnp.where(n == 1, top_w, 0.0)
-            tallies["R1"] = tallies["R1"] + jnp.sum(single)
-            tallies["R1sq"] = tallies["R1sq"] + jnp.sum(single * single)
-            tallies["events"] = tallies["events"] + jnp.sum(scatter, dtype=jnp.int32)
-            # Russian roulette on weak photons, and the event cap
-            weak = alive & ~leaves & (w < _ROULETTE_WEIGHT)
-            survive = u_rr < _ROULETTE_SURVIVAL
-            w = jnp.where(weak, jnp.where(survive, w / _ROULETTE_SURVIVAL, 0.0), w)
-            died = weak & ~survive
-            capped = alive & ~leaves & ~died & (n >= max_events)
-            tallies["capped"] = tallies["capped"] + jnp.sum(capped, dtype=jnp.int32)
-            tallies["capped_w"] = tallies["capped_w"] + jnp.sum(jnp.where(capped, w, 0.0))
-            alive = alive & ~leaves & ~died & ~capped
-            # refill finished lanes with new photons while the budget lasts
-            free = ~alive
-            rank = jnp.cumsum(free, dtype=jnp.int32) - 1
-            refill = free & (launched + rank < budget)
-            fresh = launch(jax.random.fold_in(k, 7), (lanes,))
-            state = dict(x=x, y=y, z=z, ux=ux, uy=uy, uz=uz, w=w, n=n)
-            state = {s: jnp.where(refill, fresh[s], v) for s, v in state.items()}
-            launched = launched + jnp.sum(refill, dtype=jnp.int32)
-            alive = alive | refill
-            return state, alive, launched, tallies, it + 1
-
-        _, _, _, tallies, _ = jax.lax.while_loop(cond, body, (state, alive, launched, tallies, jnp.int32(0)))
-        hist = tallies.pop("hist")
-        return dict(tallies, R=hist[0], R2=hist[1], T=hist[2], T2=hist[3])
-
-    return run
-
-
 _KERNELS: dict[tuple, Any] = {}
 
 
@@ -247,10 +384,12 @@ def simulate(
     seed: int = 0,
     bins: int = 200,
     r_max_mfp: float = 20.0,
-    lanes: int = 1 << 15,
-    batch_photons: int = 1 << 20,
+    lanes: int = 1 << 12,
+    batch_photons: int = 1 << 16,
     max_events: int = 100_000,
     progress: bool = False,
+    workers: int | None = None,
+    unroll: int | None = None,
 ) -> MCResult:
     """Random-walk reflectance (and slab transmittance) of a homogeneous medium, in mean free paths.
 
@@ -258,6 +397,13 @@ def simulate(
     relative index of refraction (>= 1); ``slab_mfp``: slab thickness (None: semi-infinite); ``incidence``:
     ``"pencil"`` (normal) or ``"diffuse"``. Returns tallies with standard errors (per photon, so bins and totals
     carry their own statistical error).
+
+    Execution (none of it changes the physics; the numbers depend on ``seed``, ``photons``, ``batch_photons``,
+    ``lanes`` and ``unroll``, never on ``workers``): photons run in batches of at most ``batch_photons`` (split evenly),
+    each a jitted walk over ``lanes`` parallel photons advancing ``unroll`` events per loop iteration (default 4 at
+    albedo >= 0.8, else 2); ``workers`` threads (default: one per CPU core) run batches side by side, at most
+    ``workers`` at a time, so memory stays ``O(workers * (lanes + bins))`` for any photon count; ``progress`` shows a
+    bar advancing per batch.
     """
     if not (0.0 <= albedo <= 1.0):
         raise ValueError(f"albedo must lie in [0, 1], got {albedo}")
@@ -271,8 +417,18 @@ def simulate(
         raise ValueError(f"slab thickness must be a finite positive length, got {slab_mfp}")
     if incidence not in ("pencil", "diffuse"):
         raise ValueError(f"incidence must be 'pencil' or 'diffuse', got {incidence!r}")
-    lanes = int(min(lanes, photons))
-    key_cfg = (lanes, bins, float(r_max_mfp), int(max_events), slab_mfp is not None, incidence == "diffuse")
+    batch_photons = int(batch_photons)
+    if batch_photons < 1:
+        raise ValueError(f"batch_photons must be a positive integer, got {batch_photons!r}")
+    lanes = int(min(lanes, photons, batch_photons))
+    if unroll is None:
+        # events per iteration: more amortise the tally and refill, but a photon that ends mid-iteration leaves its
+        # lane idle for the rest of it, which costs most where photons live few events (low albedo)
+        unroll = 4 if albedo >= 0.8 else 2
+    if int(unroll) < 1:
+        raise ValueError(f"unroll must be a positive integer, got {unroll!r}")
+    key_cfg = (lanes, bins, float(r_max_mfp), int(max_events), slab_mfp is not None, incidence == "diffuse",
+               g == 0.0, eta == 1.0, int(unroll))
     if key_cfg not in _KERNELS:
         _KERNELS[key_cfg] = _make_kernel(*key_cfg)
     run = _KERNELS[key_cfg]
@@ -283,24 +439,47 @@ def simulate(
         from tqdm.auto import tqdm
 
         bar = tqdm(total=photons, unit="photon", unit_scale=True, desc="montecarlo")
-    t0 = time.perf_counter()
-    done, call = 0, 0
     thickness = np.float32(slab_mfp if slab_mfp is not None else np.inf)
-    while done < photons:
-        n = min(batch_photons, photons - done)
-        key = jax.random.fold_in(jax.random.PRNGKey(seed), call)
-        t = run(key, jnp.int32(n), jnp.float32(albedo), jnp.float32(g), jnp.float32(eta), thickness)
-        t = jax.tree.map(np.asarray, t)
-        for k in hist:
-            hist[k] += t[k].astype(np.float64)
-        for k in totals:
-            totals[k] += float(t[k])
-        done += n
-        call += 1
-        if bar is not None:
-            bar.update(n)
-    if bar is not None:
-        bar.close()
+    params = (jnp.float32(albedo), jnp.float32(g), jnp.float32(eta), thickness)
+    # the batches and their keys depend on the photon count and batch size only, never on the number of threads, and
+    # tallies add up in batch order: the same seed gives the same numbers on any machine
+    n_batches = -(-photons // batch_photons)
+    sizes = [photons // n_batches + (i < photons % n_batches) for i in range(n_batches)]  # as even as can be
+    root = jax.random.PRNGKey(seed)
+
+    def one_batch(call: int):
+        t = run(jax.random.fold_in(root, call), jnp.int32(sizes[call]), *params)
+        return jax.tree.map(np.asarray, t)
+
+    if workers is None:
+        workers = os.cpu_count() or 1
+    workers = max(1, min(int(workers), len(sizes)))
+    t0 = time.perf_counter()
+    # each jitted call runs on one core; calls from several threads run side by side (XLA releases the GIL), at most
+    # `workers` batches in flight so memory stays O(workers * (lanes + bins))
+    with concurrent.futures.ThreadPoolExecutor(workers) as pool:
+        pending = collections.deque((c, pool.submit(one_batch, c)) for c in range(workers))
+        next_call = workers
+        try:
+            while pending:
+                call, future = pending.popleft()
+                t = future.result()
+                if next_call < len(sizes):
+                    pending.append((next_call, pool.submit(one_batch, next_call)))
+                    next_call += 1
+                for k in hist:
+                    hist[k] += t[k].astype(np.float64)
+                for k in ("R1", "R1sq", "capped_w"):
+                    totals[k] += float(t[k])
+                totals["capped"] += int(t["capped"])
+                totals["events"] += int(t["events"].sum(dtype=np.int64))
+                if bar is not None:
+                    bar.update(sizes[call])
+        finally:
+            for _, f in pending:
+                f.cancel()
+            if bar is not None:
+                bar.close()
     seconds = time.perf_counter() - t0
     N = float(photons)
 
