@@ -34,7 +34,7 @@ from ._scene import Buffers, Camera, normals_from_depth, surface_mask, camera_po
 from ._units import px_per_mm
 
 __all__ = ["translucency", "separable", "burley", "reference", "TECHNIQUES", "get_technique", "reference_radius_px",
-           "ENERGY_CONSERVING"]
+           "ENERGY_CONSERVING", "thin_transmittance", "TRANSLUCENCY_MODELS"]
 
 ALBEDO_MODES = ("post", "pre_post")
 
@@ -169,9 +169,17 @@ def _burley_weight_kernel(x: Array) -> Array:
     return jnp.where(finite, (jnp.exp(-xs) + jnp.exp(-xs / 3)) / xs, 0.0)
 
 
+# Footprint below which a pixel keeps its local shading (px): the paper's Fig. 1, scattering narrower than a pixel
+# is invisible. The footprint is the radius holding 99% of the widest channel's energy, projected at the pixel.
+MIN_FOOTPRINT_PX = 0.5
+
+# radius holding 99% of a Burley profile's energy, in units of d (the footprint the skip and compaction test)
+_BURLEY_R99 = float(np.asarray(burley_inverse_ccdf(np.float64(0.01), np.float64(1.0))))
+
+
 @eqx.filter_jit
 def _burley_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, samples: int, albedo_mode: str,
-                 interpolation: str) -> Array:
+                 interpolation: str, capacity: int | None, min_footprint_px: float) -> Array:
     dtype = _work_dtype(buffers.irradiance.dtype)
     d_table = _checked(material.d_mm.astype(dtype), "d_mm")
     prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
@@ -181,29 +189,38 @@ def _burley_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, sam
     d_max = jnp.max(d_pix, axis=-1)
     ppm = px_per_mm(prep.depth, focal_px=camera.focal_px.astype(dtype), mm_per_unit=mm_per_unit)
     ppm = jnp.where(prep.valid, ppm, 0.0)
+    # pixels whose footprint is below min_footprint_px keep their local shading (no samples are taken for them)
+    active = prep.valid & (d_max * ppm * _BURLEY_R99 >= min_footprint_px)
+    flat = _pack(prep.irradiance, prep.depth, prep.valid)
+    # Cost follows the scene: with a capacity, only the active pixels (compacted into a buffer of that many slots,
+    # unused slots pointing past the image) are computed and scattered back; without one every pixel is.
+    if capacity is None:
+        idx = jnp.arange(h * w, dtype=jnp.int32)
+        take = lambda a: a.reshape(h * w, *a.shape[2:])
+    else:
+        idx = jnp.nonzero(active.reshape(-1), size=capacity, fill_value=h * w)[0].astype(jnp.int32)
+        take = lambda a: jnp.take(a.reshape(h * w, *a.shape[2:]), idx, axis=0, mode="fill", fill_value=0)
+    e_c, z, d_c, ppm_c, dmax_c = take(prep.irradiance), take(prep.depth), take(d_pix), take(ppm), take(d_max)
+    rows_i = (idx // w).astype(dtype)
+    cols_i = (idx % w).astype(dtype)
     # Samples beyond the image diagonal can never land: sample the profile truncated there (huge d clamps to the
     # image instead of losing every sample).
     diag_px = math.hypot(h, w)
-    r_clip = jnp.where(ppm > 0, diag_px / jnp.where(ppm > 0, ppm, 1.0), jnp.inf)
-    inside_fraction = jnp.where(d_max > 0, burley_cdf(jnp.minimum(r_clip, 1e30), d_max), 1.0)
-
-    flat = _pack(prep.irradiance, prep.depth, prep.valid)
-    rows_i = jnp.arange(h, dtype=dtype)[:, None]
-    cols_i = jnp.arange(w, dtype=dtype)[None, :]
-    z = prep.depth
+    r_clip = jnp.where(ppm_c > 0, diag_px / jnp.where(ppm_c > 0, ppm_c, 1.0), jnp.inf)
+    inside_fraction = jnp.where(dmax_c > 0, burley_cdf(jnp.minimum(r_clip, 1e30), dmax_c), 1.0)
+    ok_d = d_c > 0
+    inv_d = jnp.where(ok_d, 1.0 / jnp.where(ok_d, d_c, 1.0), 0.0)
 
     def body(i, acc):
         num, den = acc
         fi = jnp.asarray(i, dtype)
         v = 1 - (fi + 0.5) / samples * inside_fraction  # stratified CCDF, truncated to the image
         rho = burley_inverse_ccdf(v, jnp.ones_like(v))  # radius in units of d_max
-        r_mm = rho * d_max
-        off = r_mm * ppm
+        r_mm = rho * dmax_c
+        off = r_mm * ppm_c
         theta = fi * GOLDEN_ANGLE
         # 1 / pdf of this sample (area density of the d_max profile at r), up to the per-pixel factor 8 pi d_max^2
         inv_pdf = rho / (jnp.exp(-rho) + jnp.exp(-rho / 3))
-        ok_d = d_pix > 0
-        inv_d = jnp.where(ok_d, 1.0 / jnp.where(ok_d, d_pix, 1.0), 0.0)
         # each pixel the fetch reads is its own point on the surface, with its own depth: weighting the corners
         # separately keeps light from leaking across a depth step through the interpolation
         for val, bw in _corners(flat, h, w, rows_i + off * jnp.sin(theta), cols_i + off * jnp.cos(theta),
@@ -217,11 +234,40 @@ def _burley_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, sam
             den = den + wgt
         return num, den
 
-    zeros = jnp.zeros_like(prep.irradiance)
+    zeros = jnp.zeros_like(e_c)
     num, den = jax.lax.fori_loop(0, samples, body, (zeros, zeros))
     ok = den > 0
-    scattered = jnp.where(ok, num / jnp.where(ok, den, 1.0), prep.irradiance)
+    result = jnp.where(ok, num / jnp.where(ok, den, 1.0), e_c)
+    if capacity is None:
+        scattered = result.reshape(h, w, 3)
+    else:
+        scattered = prep.irradiance.reshape(h * w, 3).at[idx].set(result, mode="drop").reshape(h, w, 3)
+    scattered = jnp.where(active[..., None], scattered, prep.irradiance)
     return _finish(buffers, prep, scattered)
+
+
+def _is_concrete(*trees) -> bool:
+    return not any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(trees))
+
+
+def compaction_capacity(active_count: int, pixels: int, *, minimum: int = 256) -> int | None:
+    """Slots of the compacted buffer for ``active_count`` active pixels out of ``pixels``: the next power of two (so
+    a sequence of frames compiles once per bucket, not once per count), or ``None`` (dense) where that would hold at
+    least half the frame anyway."""
+    capacity = max(minimum, 1 << max(0, int(active_count) - 1).bit_length())
+    return None if capacity * 2 > pixels else capacity
+
+
+def burley_active_count(buffers: Buffers, material: BurleyMaterial, camera: Camera, *,
+                        min_footprint_px: float = MIN_FOOTPRINT_PX) -> int:
+    """Host side: how many pixels ``burley`` computes (SSS pixels whose footprint reaches ``min_footprint_px``)."""
+    depth = np.asarray(buffers.depth, np.float64)
+    valid = np.asarray(_sss_mask(buffers))
+    d = np.asarray(material.d_mm, np.float64).reshape(-1, 3).max(axis=-1)
+    rows = np.asarray(_material_rows(buffers, d.shape[0]))
+    safe = np.where(valid & np.isfinite(depth) & (depth > 0), depth, np.inf)
+    ppm = float(camera.focal_px) / (safe * float(camera.mm_per_unit))
+    return int(np.count_nonzero(valid & (d[rows] * ppm * _BURLEY_R99 >= min_footprint_px)))
 
 
 def burley(
@@ -232,6 +278,8 @@ def burley(
     samples: int = 32,
     albedo_mode: str = "post",
     interpolation: str = "bilinear",
+    min_footprint_px: float = MIN_FOOTPRINT_PX,
+    compact: bool | None = None,
 ) -> Float[Array, "H W 3"]:
     """Screen-space Christensen–Burley normalised diffusion (one pass, ``samples`` spiral samples per pixel).
 
@@ -241,6 +289,14 @@ def burley(
     difference dz makes light fall off across depth steps), and the weights are normalised per channel so flat
     lighting stays flat: energy is redistributed, not created. ``interpolation="bilinear"`` (default) makes the
     result continuous in d and depth (smooth for fitting); ``"nearest"`` fetches one pixel per sample.
+
+    Cost follows the scene: pixels without SSS, and pixels whose footprint (the radius holding 99% of the widest
+    channel's energy, in px) is below ``min_footprint_px`` (they keep their local shading, the paper's Fig. 1; 0
+    disables that), take no samples. With concrete (not traced) inputs the active pixels are counted on the host and
+    compacted into a buffer of the next power-of-two size (one compilation per size bucket), computed, and scattered
+    back; ``compact=None`` (default) does so where the bucket holds under half the frame, ``True`` always, ``False``
+    never. Under ``jit``/``vmap`` every pixel is computed (one compilation per shape). Compacted and dense results
+    agree to rounding.
     """
     _check_albedo_mode(albedo_mode)
     if interpolation not in ("bilinear", "nearest"):
@@ -249,7 +305,17 @@ def burley(
         raise TypeError(f"burley needs a BurleyMaterial, got {type(material).__name__}")
     if not isinstance(samples, (int, np.integer)) or samples < 1:
         raise ValueError(f"samples must be a positive integer, got {samples!r}")
-    return _burley_impl(buffers, material, camera, int(samples), albedo_mode, interpolation)
+    if not (float(min_footprint_px) >= 0):
+        raise ValueError(f"min_footprint_px must be >= 0, got {min_footprint_px!r}")
+    capacity = None
+    if compact is not False and _is_concrete(buffers, material, camera):
+        h, w = buffers.depth.shape[-2:]
+        count = burley_active_count(buffers, material, camera, min_footprint_px=float(min_footprint_px))
+        capacity = compaction_capacity(count, h * w)
+        if compact and capacity is None:
+            capacity = 1 << max(0, count - 1).bit_length()
+    return _burley_impl(buffers, material, camera, int(samples), albedo_mode, interpolation, capacity,
+                        float(min_footprint_px))
 
 
 # ------------------------------------------------------------------------------------------------------------------
@@ -277,48 +343,145 @@ def _kernel_table(material, taps: int, dtype) -> tuple[Array, Array]:
     return kernels.offsets_mm.astype(dtype), kernels.weights.astype(dtype)
 
 
-def _separable_pass(e: Array, z: Array, valid: Array, ppm: Array, offsets_px: Array, weights: Array,
-                    reach_mm: Array, mm_per_unit: Array, follow_surface: bool, interpolation: str) -> Array:
-    """One horizontal 1D pass (transpose for vertical). ``offsets_px (n, H, W)``, ``weights (n, H, W, 3)``."""
-    h, w = z.shape
-    flat = _pack(e, z, valid)
-    rows_i = jnp.broadcast_to(jnp.arange(h, dtype=e.dtype)[:, None], (h, w))
-    cols_i = jnp.arange(w, dtype=e.dtype)[None, :]
+# Pixel-scale levels of the separable pass: each level is one shifted-slice pass at a constant reach; a pixel
+# blends the two levels that bracket its own reach (in log scale), so the result stays continuous in d and depth.
+SCALE_LEVELS = 4
+
+_TAP_UNROLL = 5
+
+
+def _unit_tap_offsets(taps: int) -> np.ndarray:
+    """The tap pattern in units of the kernel's reach (``tap_offsets`` with range 1): every kernel shares it."""
+    o = np.linspace(-1.0, 1.0, taps) if taps > 1 else np.zeros(1)
+    u = np.sign(o) * np.abs(o) ** 2.0
+    order = [taps // 2] + [i for i in range(taps) if i != taps // 2]
+    return u[order]
+
+
+def _safe_log(x: Array) -> Array:
+    pos = x > 0
+    return jnp.where(pos, jnp.log(jnp.where(pos, x, 1.0)), 0.0)
+
+
+def _separable_level(ev_pad: Array, z_pad: Array, v_pad: Array, e: Array, z: Array, reach_px: Array, inv_reach_mm: Array,
+                     tap_weight: Callable[[Array], Array], unit_offsets: Array, mm_per_unit: Array, pad: int,
+                     follow_surface: bool, interpolation: str) -> Array:
+    """One horizontal 1D pass at one constant reach ``reach_px`` (a scalar): every tap is a constant shift of the
+    padded planes (``dynamic_slice``), so XLA fuses each tap into one loop over the image. Planar layout:
+    ``ev_pad (3, H, W + 2 pad)`` holds irradiance times validity, ``z_pad`` depth times validity, ``v_pad`` validity."""
+    _, h, w = e.shape
+
+    def fetch(start):
+        o = jnp.zeros_like(start)  # index arguments of one type (int64 under x64)
+        ev = jax.lax.dynamic_slice(ev_pad, (o, o, start), (3, h, w))
+        zv = jax.lax.dynamic_slice(z_pad, (o, start), (h, w))
+        vv = jax.lax.dynamic_slice(v_pad, (o, start), (h, w))
+        return ev, zv, vv
 
     def body(i, acc):
-        fetched = _gather(flat, h, w, rows_i, cols_i + offsets_px[i], interpolation=interpolation)
-        e_q, z_q, v_q = _unpack(fetched)
+        # offsets beyond the image land in the zero padding: nothing valid there, the tap counts as the centre
+        off = jnp.clip(unit_offsets[i] * reach_px, -(w + 1.0), w + 1.0)
+        if interpolation == "nearest":
+            ev, zv, vv = fetch((jnp.round(off) + pad).astype(jnp.int32))
+        else:
+            x0 = jnp.floor(off)
+            f = off - x0
+            start = (x0 + pad).astype(jnp.int32)
+            ev0, zv0, vv0 = fetch(start)
+            ev1, zv1, vv1 = fetch(start + 1)
+            ev, zv, vv = (1 - f) * ev0 + f * ev1, (1 - f) * zv0 + f * zv1, (1 - f) * vv0 + f * vv1
+        ok = vv > 1e-6
+        inv = jnp.where(ok, 1.0 / jnp.where(ok, vv, 1.0), 0.0)
+        e_q, z_q, keep = ev * inv[None], zv * inv, jnp.where(ok, vv, 0.0)
         # Jimenez's "follow the surface": blend the fetched colour towards the centre's as the depth difference grows
         # relative to how far this kernel carries light; invalid or off-image fetches count as the centre.
-        keep = v_q
         if follow_surface:
-            ok = reach_mm > 0
-            ratio = jnp.abs(z_q - z) * mm_per_unit / jnp.where(ok, reach_mm, 1.0)
-            keep = keep * (1 - jnp.clip(jnp.where(ok, ratio, 0.0), 0.0, 1.0))
-        sample = keep[..., None] * e_q + (1 - keep)[..., None] * e
-        return acc + weights[i] * sample
+            keep = keep * (1 - jnp.clip(jnp.abs(z_q - z) * mm_per_unit * inv_reach_mm, 0.0, 1.0))
+        sample = keep[None] * e_q + (1 - keep)[None] * e
+        return acc + tap_weight(i) * sample
 
-    return jax.lax.fori_loop(0, offsets_px.shape[0], body, jnp.zeros_like(e))
+    taps = unit_offsets.shape[0]
+    return jax.lax.fori_loop(0, taps, body, jnp.zeros_like(e), unroll=_TAP_UNROLL)
+
+
+def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, level_reach_px: Array, skip: Array,
+                    tap_weight: Callable[[Array], Array], inv_reach_mm: Array, unit_offsets: Array, mm_per_unit: Array,
+                    follow_surface: bool, interpolation: str) -> Array:
+    """One horizontal 1D pass (transpose for vertical), planar ``e (3, H, W)``: the levels' shifted-slice passes,
+    blended per pixel by ``level_weights (L, H, W)``; levels no pixel uses are not computed; ``skip`` pixels keep
+    their own value."""
+    pad = e.shape[-1] + 2
+    v = valid.astype(e.dtype)
+    padw = lambda a: jnp.pad(a, [(0, 0)] * (a.ndim - 1) + [(pad, pad)])
+    ev_pad = padw(e * v[None])
+    z_pad = padw(z * v)
+    v_pad = padw(v)
+    def level(j, out):
+        lw = level_weights[j]
+        run = lambda: _separable_level(ev_pad, z_pad, v_pad, e, z, level_reach_px[j], inv_reach_mm, tap_weight,
+                                       unit_offsets, mm_per_unit, pad, follow_surface, interpolation)
+        return out + lw[None] * jax.lax.cond(jnp.any(lw > 0), run, lambda: jnp.zeros_like(e))
+
+    # a loop, not unrolled: the compile time does not grow with the number of levels
+    out = jax.lax.fori_loop(0, level_reach_px.shape[0], level, jnp.zeros_like(e))
+    return jnp.where(skip[None], e, out)
 
 
 @eqx.filter_jit
 def _separable_impl(buffers: Buffers, material, camera: Camera, taps: int, albedo_mode: str, follow_surface: bool,
-                    interpolation: str) -> Array:
+                    interpolation: str, scale_levels: int, min_footprint_px: float) -> Array:
     dtype = _work_dtype(buffers.irradiance.dtype)
-    offsets, weights = _kernel_table(material, taps, dtype)
+    offsets, weights = _kernel_table(material, taps, dtype)  # (M, n) mm, (M, n, 3)
     prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
-    ppm = px_per_mm(prep.depth, focal_px=camera.focal_px.astype(dtype), mm_per_unit=camera.mm_per_unit.astype(dtype))
-    ppm = jnp.where(prep.valid, ppm, 0.0)
-    offsets_px = jnp.moveaxis(offsets[prep.rows], -1, 0) * ppm[None]  # (n, H, W)
-    w_pix = jnp.moveaxis(weights[prep.rows], -2, 0)  # (n, H, W, 3)
-    reach_mm = jnp.max(jnp.abs(offsets), axis=-1)[prep.rows]  # (H, W)
     mm_per_unit = camera.mm_per_unit.astype(dtype)
-    common = dict(follow_surface=follow_surface, interpolation=interpolation, mm_per_unit=mm_per_unit)
-    e = _separable_pass(prep.irradiance, prep.depth, prep.valid, ppm, offsets_px, w_pix, reach_mm, **common)
-    t = lambda a: jnp.swapaxes(a, 0, 1)
-    tn = lambda a: jnp.swapaxes(a, 1, 2)
-    e = t(_separable_pass(t(e), t(prep.depth), t(prep.valid), t(ppm), tn(offsets_px), tn(w_pix), t(reach_mm), **common))
-    return _finish(buffers, prep, e)
+    ppm = px_per_mm(prep.depth, focal_px=camera.focal_px.astype(dtype), mm_per_unit=mm_per_unit)
+    ppm = jnp.where(prep.valid, ppm, 0.0)
+    table_reach_mm = jnp.max(jnp.abs(offsets), axis=-1)  # (M,): every kernel is its reach times one tap pattern
+    count = offsets.shape[0]
+    onehot = [(prep.rows == m).astype(dtype) for m in range(count)] if count > 1 else None
+    per_pixel = lambda table: table[0] if count == 1 else sum(onehot[m] * table[m] for m in range(count))
+    reach_mm = jnp.broadcast_to(per_pixel(table_reach_mm), ppm.shape)  # (H, W)
+    reach_px = reach_mm * ppm
+    ok_reach = reach_mm > 0
+    inv_reach_mm = jnp.where(ok_reach, 1.0 / jnp.where(ok_reach, reach_mm, 1.0), 0.0)
+    # pixels whose footprint is below min_footprint_px keep their local shading: no pass runs for them
+    active = prep.valid & (reach_px >= min_footprint_px) & (reach_px > 0)
+    skip = ~active
+    # levels: geometric between the smallest and the largest reach among active pixels
+    log_r = _safe_log(reach_px)
+    big = jnp.asarray(jnp.finfo(dtype).max, dtype)
+    lo = jnp.min(jnp.where(active, log_r, big))
+    hi = jnp.max(jnp.where(active, log_r, -big))
+    any_active = jnp.any(active)
+    lo, hi = jnp.where(any_active, lo, 0.0), jnp.where(any_active, hi, 0.0)
+    span = hi - lo
+    ok_span = span > 0
+    nlev = scale_levels
+    t = jnp.where(ok_span, (log_r - lo) / jnp.where(ok_span, span, 1.0), 0.0) * (nlev - 1)
+    t = jnp.clip(t, 0.0, nlev - 1)
+    levels = jnp.arange(nlev, dtype=dtype)
+    level_weights = jnp.maximum(0.0, 1 - jnp.abs(t[None] - levels[:, None, None]))
+    level_weights = jnp.where(active[None], level_weights, 0.0)
+    level_reach_px = jnp.exp(lo + span * levels / max(nlev - 1, 1))
+    level_reach_px = jnp.where(any_active, level_reach_px, 0.0)
+    unit_offsets = jnp.asarray(_unit_tap_offsets(taps), dtype)
+    if count == 1:
+        tap_weight = lambda i: weights[0, i][:, None, None]
+        tap_weight_t = tap_weight
+    else:
+        w_planes = [jnp.moveaxis(weights[m], -1, 0) for m in range(count)]  # (3, n) each
+        onehot_t = [jnp.swapaxes(o, 0, 1) for o in onehot]
+        tap_weight = lambda i: sum(onehot[m][None] * w_planes[m][:, i][:, None, None] for m in range(count))
+        tap_weight_t = lambda i: sum(onehot_t[m][None] * w_planes[m][:, i][:, None, None] for m in range(count))
+    common = dict(unit_offsets=unit_offsets, mm_per_unit=mm_per_unit, follow_surface=follow_surface,
+                  interpolation=interpolation)
+    e = jnp.moveaxis(prep.irradiance, -1, 0)  # planar (3, H, W): the fused loops run along rows
+    e = _separable_pass(e, prep.depth, prep.valid, level_weights, level_reach_px, skip, tap_weight, inv_reach_mm,
+                        **common)
+    t2 = lambda a: jnp.swapaxes(a, -1, -2)
+    e = t2(_separable_pass(t2(e), t2(prep.depth), t2(prep.valid), t2(level_weights), level_reach_px, t2(skip),
+                           tap_weight_t, t2(inv_reach_mm), **common))
+    return _finish(buffers, prep, jnp.moveaxis(e, 0, -1))
 
 
 def separable(
@@ -330,6 +493,8 @@ def separable(
     albedo_mode: str = "post",
     follow_surface: bool = True,
     interpolation: str = "linear",
+    min_footprint_px: float = MIN_FOOTPRINT_PX,
+    scale_levels: int = SCALE_LEVELS,
 ) -> Float[Array, "H W 3"]:
     """Separable subsurface scattering (Jimenez et al. 2015): a horizontal then a vertical 1D pass.
 
@@ -339,14 +504,26 @@ def separable(
     ``follow_surface`` a tap whose depth differs from the centre's by as much as the kernel's reach counts as the
     centre colour, so light does not cross depth discontinuities. ``interpolation``: "linear" (continuous in the
     offsets, for fitting) or "nearest".
+
+    Cost: each pass is ``taps`` constant shifts of the padded image per reach level (fused loops, no per-pixel
+    gathers). The reach in px varies with depth and material; it is quantised into ``scale_levels`` geometric levels
+    between the frame's smallest and largest reach, and each pixel blends the two levels bracketing its own reach
+    (exact where every pixel has the same reach; levels no pixel uses are skipped). Pixels whose footprint (the radius
+    holding 99% of the widest channel's energy, in px) is below ``min_footprint_px`` keep their local shading
+    (``albedo * irradiance``, the paper's Fig. 1); 0 disables that.
     """
     _check_albedo_mode(albedo_mode)
     if interpolation not in ("linear", "nearest"):
         raise ValueError(f"interpolation={interpolation!r} is not one of ('linear', 'nearest')")
     if not isinstance(taps, (int, np.integer)) or taps < 1 or taps % 2 == 0:
         raise ValueError(f"taps must be an odd positive integer, got {taps!r}")
+    if not isinstance(scale_levels, (int, np.integer)) or scale_levels < 1:
+        raise ValueError(f"scale_levels must be a positive integer, got {scale_levels!r}")
+    if not (float(min_footprint_px) >= 0):
+        raise ValueError(f"min_footprint_px must be >= 0, got {min_footprint_px!r}")
     mode = "bilinear" if interpolation == "linear" else "nearest"
-    return _separable_impl(buffers, material, camera, int(taps), albedo_mode, bool(follow_surface), mode)
+    return _separable_impl(buffers, material, camera, int(taps), albedo_mode, bool(follow_surface), mode,
+                           int(scale_levels), float(min_footprint_px))
 
 
 # ------------------------------------------------------------------------------------------------------------------
@@ -534,26 +711,78 @@ def _translucency_impl(buffers: Buffers, params: STAParams, camera: Camera, ligh
     return out.astype(buffers.irradiance.dtype)
 
 
+def thin_transmittance(thickness_mm: Array, d_mm: Array) -> Array:
+    """Thin-object transmittance of the normalised Burley profile: ``(exp(-t/d) + 3 exp(-t/(3d))) / 4``.
+
+    The fraction of the profile's energy beyond radius t, ``1 - CDF(t)``, i.e. the integral of the profile over a
+    plane at distance t (Unity HDRP ``ComputeTransmittanceDisney`` in ``SubsurfaceScattering.hlsl``, which HDRP
+    multiplies by ``0.25 * transmissionTint`` and later by the albedo; UE5 ``GetBurleyTransmissionProfile``:
+    ``0.25 A (exp(-s r) + 3 exp(-s r / 3))`` with ``r = t / dmfp``). Elementwise in (t, d), both in mm; d = 0 gives 0
+    for t > 0. See docs/engines.md for how it compares with Monte Carlo slab transmission.
+    """
+    return 1.0 - burley_cdf(thickness_mm, d_mm)
+
+
+@eqx.filter_jit
+def _thin_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, light: DirectionalLight,
+               thickness: Array | None) -> Array:
+    dtype = _work_dtype(buffers.irradiance.dtype)
+    prep = _prepare(buffers, material.albedo, "post", dtype)
+    normal = buffers.normal.astype(dtype) if buffers.normal is not None else normals_from_depth(prep.depth, camera)
+    if buffers.thickness is not None:
+        thick_units = buffers.thickness.astype(dtype)
+    elif thickness is not None:
+        thick_units = jnp.broadcast_to(jnp.asarray(thickness, dtype), prep.depth.shape)
+    else:
+        thick_units = jnp.zeros(prep.depth.shape, dtype)
+    thick_mm = jnp.maximum(thick_units * camera.mm_per_unit.astype(dtype), 0.0)
+    d = _checked(material.d_mm.astype(dtype), "d_mm")[prep.rows]  # (H, W, 3)
+    t = jnp.where(jnp.isfinite(thick_mm), thick_mm, 0.0)[..., None]
+    transmitted = jnp.where(jnp.isfinite(thick_mm)[..., None], thin_transmittance(t, d), 0.0)
+    # light reaching the back face: the cosine between the back-facing normal and the light
+    back_cos = jnp.clip(jnp.sum(-normal * light.direction.astype(dtype).reshape(1, 1, 3), axis=-1), 0.0, 1.0)
+    added = light.colour.astype(dtype).reshape(1, 1, 3) * transmitted * back_cos[..., None]
+    out = prep.albedo_out * (prep.irradiance + added)
+    out = jnp.where(prep.valid[..., None], out, buffers.irradiance.astype(dtype))
+    return out.astype(buffers.irradiance.dtype)
+
+
+TRANSLUCENCY_MODELS = ("sta", "thin")
+
+
 def translucency(
     buffers: Buffers,
-    params: STAParams,
+    params: STAParams | BurleyMaterial,
     camera: Camera,
     light: DirectionalLight,
     *,
     albedo: Array | None = None,
     thickness: float | None = None,
+    model: str = "sta",
 ) -> Float[Array, "H W 3"]:
-    """The simple translucency approximation: ``albedo * (irradiance + STA light)`` on SSS pixels.
+    """Back-lighting through thin parts: ``albedo * (irradiance + transmitted light)`` on SSS pixels.
 
     ADDS light (not energy conserving): the back-light through the object's thickness is added on top of local
     diffuse shading. Thickness (scene units) comes from ``buffers.thickness``, else the constant ``thickness``, else
-    0 (paper-thin). Normals come from ``buffers.normal`` (camera space) or are derived from depth. ``albedo (3,)`` is
-    used where the buffers carry none (default white).
+    0 (paper-thin). Normals come from ``buffers.normal`` (camera space) or are derived from depth.
+
+    - ``model="sta"`` (default): the simple translucency approximation with ``STAParams``; ``albedo (3,)`` is used
+      where the buffers carry none (default white).
+    - ``model="thin"``: the physically based thin-object transmission that follows from the profile, as HDRP's thin
+      mode computes it: ``light * thin_transmittance(thickness_mm, d) * max(0, -N . L)`` with ``params`` a
+      ``BurleyMaterial`` (its d per material id, its albedo where the buffers carry none). HDRP wraps the cosine;
+      this uses the plain clamped cosine.
     """
-    if not isinstance(params, STAParams):
-        raise TypeError(f"translucency needs STAParams, got {type(params).__name__}")
+    if model not in TRANSLUCENCY_MODELS:
+        raise ValueError(f"model={model!r} is not one of {TRANSLUCENCY_MODELS}")
     if not isinstance(light, DirectionalLight):
         raise TypeError(f"translucency needs a DirectionalLight, got {type(light).__name__}")
+    if model == "thin":
+        if not isinstance(params, BurleyMaterial):
+            raise TypeError(f"translucency(model='thin') needs a BurleyMaterial, got {type(params).__name__}")
+        return _thin_impl(buffers, params, camera, light, thickness)
+    if not isinstance(params, STAParams):
+        raise TypeError(f"translucency needs STAParams, got {type(params).__name__}")
     table = jnp.ones((1, 3), buffers.irradiance.dtype) if albedo is None else jnp.reshape(jnp.asarray(albedo), (-1, 3))
     return _translucency_impl(buffers, params, camera, light, thickness, table)
 

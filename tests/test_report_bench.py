@@ -3,7 +3,6 @@
 import json
 import re
 
-
 from sss_jax._bench import GOALS, run_bench
 from sss_jax._demo import run_demo
 from sss_jax._reporting import write_demo_report
@@ -44,3 +43,9 @@ def test_bench_reports_every_ratio_with_its_goal():
         assert set(r["errors"]) == {"demo", "shadow_edge", "thin_line", "point_light"}
         assert r["ms_per_frame"] > 0
     assert res["pareto"] and res["pareto"][0]["ms_per_frame"] == min(r["ms_per_frame"] for r in res["rows"])
+    assert set(res["other_ratios"]) == {"separable_coverage10_vs_full", "burley_three_materials_vs_one"}
+    skips = res["footprint_skip"]
+    assert [r["d_scale"] for r in skips] == [1 / 8, 1 / 32, 1 / 64]
+    assert skips[0]["skipped_fraction"] < skips[-1]["skipped_fraction"]  # smaller d: more pixels under half a pixel
+    for r in skips:
+        assert 0 <= r["skipped_fraction"] <= 1 and r["rel_l2_with_skip"] >= 0 and r["rel_l2_without_skip"] >= 0

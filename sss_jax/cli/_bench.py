@@ -58,6 +58,13 @@ def run(args) -> int:
     for k, v in result["ratios"].items():
         met = "n/a" if v["met"] is None else ("met" if v["met"] else "NOT met")
         print(f"  {k:26s} {v['value']!s:>10}   goal {v['goal']:8s} {met}")
+    for k, v in result.get("other_ratios", {}).items():
+        print(f"  {k:26s} {v!s:>10}   (shown, no goal)")
+    if result.get("footprint_skip"):
+        print("footprint skip (pixels under half a pixel keep local shading), rel L2 against the reference:")
+        for r in result["footprint_skip"]:
+            print(f"  d x {r['d_scale']:<8.4g} skipped {100 * r['skipped_fraction']:5.1f}%   with skip "
+                  f"{r['rel_l2_with_skip']:.4f}   without {r['rel_l2_without_skip']:.4f}")
     if args.json:
         write_json_atomic(args.json, result)
     if args.out_dir:

@@ -1,0 +1,205 @@
+"""The advisor: the cheapest technique and sample count whose measured error stays under a colour-difference budget.
+
+Every candidate (local shading, ``separable`` at several tap counts, ``burley`` at several sample counts) is run on
+the scene (the demo scene with every object made of the material, or the caller's buffers), timed on this machine
+(median after a compile run) and compared with ``reference``: the error is the mean CIEDE2000 over the SSS pixels
+(colour-science, on the host, linear sRGB at exposure 0). The choice is the fastest candidate whose ΔE is within the
+budget. Errors depend on the material's scattering distance against the scene's scale in pixels, so the scene scale
+matters as much as the material: ``scene_scale`` multiplies the size of a scene unit in millimetres.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._materials import BurleyMaterial
+from ._scene import Buffers, Camera, demo_scene
+from ._techniques import burley, reference, separable
+
+__all__ = [
+    "DEFAULT_CANDIDATES",
+    "Advice",
+    "Candidate",
+    "advise",
+    "choose",
+    "known_materials",
+    "measure_candidates",
+    "resolve_material",
+]
+
+DEFAULT_CANDIDATES: tuple[tuple[str, int | None], ...] = (
+    ("local", None), ("separable", 5), ("separable", 9), ("separable", 17), ("separable", 25),
+    ("burley", 4), ("burley", 8), ("burley", 16), ("burley", 32), ("burley", 64),
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class Candidate:
+    technique: str  # "local" (albedo * irradiance, no scattering), "separable" or "burley"
+    count: int | None  # taps or samples
+    ms: float  # median time per frame on this machine
+    delta_e: float  # mean CIEDE2000 against the reference over SSS pixels
+
+    @property
+    def label(self) -> str:
+        return self.technique if self.count is None else f"{self.technique} {self.count}"
+
+
+@dataclasses.dataclass(frozen=True)
+class Advice:
+    material: str
+    max_delta_e: float
+    choice: Candidate | None
+    candidates: list[Candidate]
+    reason: str
+
+    def table(self) -> str:
+        lines = [f"{'candidate':14s} {'ms/frame':>10s} {'mean dE2000':>12s}  within budget"]
+        for c in sorted(self.candidates, key=lambda c: c.ms):
+            mark = "yes" if c.delta_e <= self.max_delta_e else "no"
+            pick = "  <- choice" if c == self.choice else ""
+            lines.append(f"{c.label:14s} {c.ms:10.2f} {c.delta_e:12.3f}  {mark}{pick}")
+        return "\n".join(lines + [self.reason])
+
+    def to_json(self) -> dict:
+        as_dict = lambda c: None if c is None else {"technique": c.technique, "count": c.count, "ms": c.ms,
+                                                        "delta_e": c.delta_e}
+        return {"material": self.material, "max_delta_e": self.max_delta_e, "choice": as_dict(self.choice),
+                    "candidates": [as_dict(c) for c in self.candidates], "reason": self.reason}
+
+
+def known_materials() -> list[str]:
+    """The demo's materials and the presets found (``fits/`` and ``$SSS_JAX_PRESETS``)."""
+    from ._demo import DEMO_MATERIALS
+    from ._presets import preset_dirs
+
+    presets = {c.stem for d in preset_dirs() if d.is_dir() for c in d.glob("*.json") if c.stem != "schema"}
+    return sorted(set(DEMO_MATERIALS) | presets)
+
+
+def resolve_material(material: str | BurleyMaterial) -> tuple[str, BurleyMaterial]:
+    """A name (a demo material, else a preset by name or file) or a ``BurleyMaterial`` -> (name, material)."""
+    if isinstance(material, BurleyMaterial):
+        return "custom", material
+    from ._demo import DEMO_MATERIALS
+
+    if material in DEMO_MATERIALS:
+        m = DEMO_MATERIALS[material]
+        return material, BurleyMaterial(np.asarray(m["albedo"], np.float32), np.asarray(m["d_mm"], np.float32))
+    from ._io import SSSInputError
+    from ._presets import load_preset
+
+    try:
+        preset = load_preset(material)
+    except SSSInputError as exc:
+        raise ValueError(f"unknown material {material!r}; known materials: {', '.join(known_materials())} "
+                         f"({exc})") from None
+    b = preset.burley
+    return preset.name, BurleyMaterial(np.asarray(b.albedo, np.float32), np.asarray(b.d_mm, np.float32))
+
+
+def _median_ms(fn: Callable[[], jax.Array], repeats: int) -> float:
+    fn().block_until_ready()  # compile
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn().block_until_ready()
+        times.append(time.perf_counter() - t0)
+    return 1e3 * float(np.median(times))
+
+
+def _scene(size: tuple[int, int], scene_scale: float) -> tuple[Buffers, Camera]:
+    scene = demo_scene(*size)
+    b = scene.buffers
+    ids = (np.asarray(b.material_id) > 0).astype(np.int32)  # every object made of the one material
+    buffers = Buffers(irradiance=b.irradiance, depth=b.depth, material_id=jnp.asarray(ids))
+    cam = Camera(float(scene.camera.focal_px), float(scene.camera.mm_per_unit) * scene_scale)
+    return buffers, cam
+
+
+def measure_candidates(material: BurleyMaterial, *, buffers: Buffers | None = None, camera: Camera | None = None,
+                       size: tuple[int, int] = (72, 96), scene_scale: float = 1.0,
+                       candidates: Sequence[tuple[str, int | None]] = DEFAULT_CANDIDATES, repeats: int = 2,
+                       progress: Callable[[str], None] | None = None) -> list[Candidate]:
+    """Time and ΔE2000 (against ``reference``) of each candidate on the scene; host-side ΔE via colour-science."""
+    from ._metrics import delta_e_2000
+    from ._techniques import _sss_mask
+
+    say = progress or (lambda m: None)
+    if (buffers is None) != (camera is None):
+        raise ValueError("pass both buffers and camera, or neither (the demo scene)")
+    if buffers is None:
+        buffers, camera = _scene(size, scene_scale)
+    if not scene_scale > 0:
+        raise ValueError(f"scene_scale must be > 0, got {scene_scale!r}")
+    mask = np.asarray(_sss_mask(buffers))
+    if not mask.any():
+        raise ValueError("the scene has no SSS pixels to measure")
+    say(f"reference ({buffers.depth.shape[1]}x{buffers.depth.shape[0]}) ...")
+    ref = np.asarray(reference(buffers, material, camera))
+    albedo = np.asarray(buffers.albedo if buffers.albedo is not None else
+                        np.broadcast_to(np.asarray(material.albedo).reshape(-1, 3)[0], ref.shape))
+    local_fn = jax.jit(lambda e, m, a: jnp.where(m[..., None], a * e, e))
+    runs: dict[str, Callable[[int | None], Callable[[], jax.Array]]] = {
+        "local": lambda n: lambda: local_fn(buffers.irradiance, jnp.asarray(mask), jnp.asarray(albedo)),
+        "separable": lambda n: lambda: separable(buffers, material, camera, taps=n),
+        "burley": lambda n: lambda: burley(buffers, material, camera, samples=n),
+    }
+    out = []
+    for i, (tech, n) in enumerate(candidates):
+        if tech not in runs:
+            raise ValueError(f"unknown candidate technique {tech!r}; valid: {', '.join(runs)}")
+        say(f"[{i + 1}/{len(candidates)}] {tech} {n or ''}")
+        fn = runs[tech](n)
+        ms = _median_ms(fn, repeats)
+        de = delta_e_2000(np.asarray(fn()), ref, mask=mask)["mean"]
+        out.append(Candidate(tech, n, round(ms, 3), round(float(de), 4)))
+    return out
+
+
+def choose(candidates: Sequence[Candidate], max_delta_e: float) -> tuple[Candidate | None, str]:
+    """The fastest candidate whose ΔE is within the budget (ties: the more accurate), and why."""
+    within = [c for c in candidates if c.delta_e <= max_delta_e]
+    if not within:
+        best = min(candidates, key=lambda c: (c.delta_e, c.ms))
+        return None, (f"no candidate stays within mean dE2000 {max_delta_e:g}; the most accurate is {best.label} "
+                      f"(dE {best.delta_e:.3f}, {best.ms:.2f} ms): raise the budget or use the reference")
+    pick = min(within, key=lambda c: (c.ms, c.delta_e))
+    slower_better = [c for c in within if c is not pick]
+    why = (f"choice: {pick.label}, the fastest of the {len(within)} candidates within mean dE2000 {max_delta_e:g} "
+           f"({pick.ms:.2f} ms, dE {pick.delta_e:.3f})")
+    if slower_better:
+        runner = min(slower_better, key=lambda c: (c.ms, c.delta_e))
+        why += f"; next: {runner.label} ({runner.ms:.2f} ms, dE {runner.delta_e:.3f})"
+    cheaper = [c for c in candidates if c.ms < pick.ms]
+    if cheaper:
+        c = min(cheaper, key=lambda c: c.delta_e)
+        why += f"; the best cheaper one, {c.label}, misses the budget (dE {c.delta_e:.3f})"
+    return pick, why
+
+
+def advise(material: str | BurleyMaterial, *, max_delta_e: float = 1.0, buffers: Buffers | None = None,
+           camera: Camera | None = None, size: tuple[int, int] = (72, 96), scene_scale: float = 1.0,
+           candidates: Sequence[tuple[str, int | None]] = DEFAULT_CANDIDATES, repeats: int = 2,
+           progress: Callable[[str], None] | None = None,
+           measure: Callable[..., list[Candidate]] | None = None) -> Advice:
+    """Measure the candidates for ``material`` on the scene and pick the cheapest within ``max_delta_e``.
+
+    ``material``: a demo material name (``sss_jax._demo.DEMO_MATERIALS``), a preset name or file, or a
+    ``BurleyMaterial``. The scene is the demo scene at ``size`` (H, W) with every object made of the material and
+    ``scene_scale`` times its size in mm, or the given ``buffers``/``camera``. ``measure`` replaces the measurement
+    (same keywords as ``measure_candidates``; tests stub it).
+    """
+    if not (max_delta_e >= 0):
+        raise ValueError(f"max_delta_e must be >= 0, got {max_delta_e!r}")
+    name, mat = resolve_material(material)
+    cands = (measure or measure_candidates)(mat, buffers=buffers, camera=camera, size=size, scene_scale=scene_scale,
+                                            candidates=candidates, repeats=repeats, progress=progress)
+    choice, reason = choose(cands, max_delta_e)
+    return Advice(material=name, max_delta_e=float(max_delta_e), choice=choice, candidates=list(cands), reason=reason)

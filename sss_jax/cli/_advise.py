@@ -1,0 +1,72 @@
+"""``sss-jax advise``: the cheapest technique and sample count within a ΔE budget, from the measured trade."""
+
+from __future__ import annotations
+
+import argparse
+import pathlib
+import sys
+
+EPILOG = """examples:
+  sss-jax advise --material skin --max-delta-e 1.0
+  sss-jax advise --material marble --scene demo --scene-scale 4 --size 96x128 --max-delta-e 0.5 --json advice.json
+"""
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        h, w = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--size must be HxW (e.g. 72x96), got {text!r}") from None
+    if h < 8 or w < 8:
+        raise argparse.ArgumentTypeError(f"--size must be at least 8x8, got {text!r}")
+    return h, w
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "advise",
+        help="pick the cheapest technique and sample count whose error stays within a dE2000 budget",
+        description="Run local shading, separable (5..25 taps) and Burley (4..64 samples) on the scene made of the "
+        "material, time each on this machine, measure the mean CIEDE2000 against the reference, and pick the fastest "
+        "within --max-delta-e. Prints the table and the reason.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--material", required=True, help="a demo material (skin, marble, wax) or a preset name or file")
+    p.add_argument("--scene", default="demo", choices=["demo"], help="the scene measured on (default: demo)")
+    p.add_argument("--scene-scale", type=float, default=1.0,
+                   help="size of the scene's objects relative to the demo's (scales mm per scene unit; default 1)")
+    p.add_argument("--size", type=_size, default=(72, 96), help="scene size HxW in pixels (default 72x96, cheap)")
+    p.add_argument("--max-delta-e", type=float, required=True, help="budget: mean CIEDE2000 against the reference")
+    p.add_argument("--repeats", type=int, default=2, help="timed runs per candidate, median (default 2)")
+    p.add_argument("--json", type=pathlib.Path, help="write the table and the choice as JSON")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from .._advise import advise, resolve_material
+
+    try:
+        if not (args.max_delta_e >= 0):
+            raise ValueError(f"--max-delta-e must be >= 0, got {args.max_delta_e}")
+        if not (args.scene_scale > 0 and args.scene_scale < float("inf")):
+            raise ValueError(f"--scene-scale must be a finite positive number, got {args.scene_scale}")
+        if args.repeats < 1:
+            raise ValueError(f"--repeats must be >= 1, got {args.repeats}")
+        if args.json is not None and not args.json.parent.exists():
+            raise ValueError(f"directory {args.json.parent} does not exist")
+        resolve_material(args.material)
+    except ValueError as exc:
+        print(f"sss-jax advise: {exc}", file=sys.stderr)
+        return 2
+    advice = advise(args.material, max_delta_e=args.max_delta_e, size=args.size, scene_scale=args.scene_scale,
+                    repeats=args.repeats, progress=lambda m: print(m, file=sys.stderr, flush=True))
+    h, w = args.size
+    print(f"material {advice.material}, scene {args.scene} {w}x{h} x{args.scene_scale:g}, "
+          f"budget mean dE2000 <= {args.max_delta_e:g}")
+    print(advice.table())
+    if args.json:
+        from .._io import write_json_atomic
+
+        write_json_atomic(args.json, advice.to_json())
+    return 0 if advice.choice is not None else 1
