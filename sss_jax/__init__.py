@@ -75,3 +75,4 @@ from ._engines import (
     to_engine as to_engine,
     unreal_to_burley as unreal_to_burley,
 )
+from ._advise import advise as advise
