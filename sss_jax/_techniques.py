@@ -690,6 +690,17 @@ def sta_term(normal: Array, view: Array, light: DirectionalLight, params: STAPar
     return light.colour.astype(dtype).reshape(1, 1, 3) * atten * (t_dir + params.ambient.astype(dtype).reshape(1, 1, 3))
 
 
+def _thickness_mm(buffers: Buffers, thickness: Array | None, camera: Camera, shape: tuple[int, ...], dtype) -> Array:
+    """Per-pixel thickness in mm: the thickness buffer, else the constant ``thickness`` (scene units), else 0."""
+    if buffers.thickness is not None:
+        thick_units = buffers.thickness.astype(dtype)
+    elif thickness is not None:
+        thick_units = jnp.broadcast_to(jnp.asarray(thickness, dtype), shape)
+    else:
+        thick_units = jnp.zeros(shape, dtype)
+    return thick_units * camera.mm_per_unit.astype(dtype)
+
+
 @eqx.filter_jit
 def _translucency_impl(buffers: Buffers, params: STAParams, camera: Camera, light: DirectionalLight,
                        thickness: Array | None, material_albedo: Array) -> Array:
@@ -698,13 +709,7 @@ def _translucency_impl(buffers: Buffers, params: STAParams, camera: Camera, ligh
     normal = buffers.normal.astype(dtype) if buffers.normal is not None else normals_from_depth(prep.depth, camera)
     pos = camera_positions(prep.depth, camera)
     view = -pos / jnp.linalg.norm(pos, axis=-1, keepdims=True)
-    if buffers.thickness is not None:
-        thick_units = buffers.thickness.astype(dtype)
-    elif thickness is not None:
-        thick_units = jnp.broadcast_to(jnp.asarray(thickness, dtype), prep.depth.shape)
-    else:
-        thick_units = jnp.zeros(prep.depth.shape, dtype)
-    thick_mm = thick_units * camera.mm_per_unit.astype(dtype)
+    thick_mm = _thickness_mm(buffers, thickness, camera, prep.depth.shape, dtype)
     added = sta_term(normal, view, light, params, thick_mm)
     out = prep.albedo_out * (prep.irradiance + added)
     out = jnp.where(prep.valid[..., None], out, buffers.irradiance.astype(dtype))
@@ -729,13 +734,7 @@ def _thin_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, light
     dtype = _work_dtype(buffers.irradiance.dtype)
     prep = _prepare(buffers, material.albedo, "post", dtype)
     normal = buffers.normal.astype(dtype) if buffers.normal is not None else normals_from_depth(prep.depth, camera)
-    if buffers.thickness is not None:
-        thick_units = buffers.thickness.astype(dtype)
-    elif thickness is not None:
-        thick_units = jnp.broadcast_to(jnp.asarray(thickness, dtype), prep.depth.shape)
-    else:
-        thick_units = jnp.zeros(prep.depth.shape, dtype)
-    thick_mm = jnp.maximum(thick_units * camera.mm_per_unit.astype(dtype), 0.0)
+    thick_mm = jnp.maximum(_thickness_mm(buffers, thickness, camera, prep.depth.shape, dtype), 0.0)
     d = _checked(material.d_mm.astype(dtype), "d_mm")[prep.rows]  # (H, W, 3)
     t = jnp.where(jnp.isfinite(thick_mm), thick_mm, 0.0)[..., None]
     transmitted = jnp.where(jnp.isfinite(thick_mm)[..., None], thin_transmittance(t, d), 0.0)

@@ -6,6 +6,8 @@ import argparse
 import pathlib
 import sys
 
+from . import rgb_triple
+
 EPILOG = """examples:
   sss-jax apply frame.exr -o out.exr --technique burley --albedo 0.8,0.6,0.5 --d-mm 3,1.4,0.8 --focal-px 1200 --mm-per-unit 10
   sss-jax apply render.exr -o sss.exr --technique separable --albedo 0.85,0.75,0.55 --mfp-mm 400,250,150
@@ -18,18 +20,6 @@ thickness, id (0 = no SSS: passes through untouched). A Blender multi-layer EXR 
 Depth, DiffCol, IndexOB); --albedo overrides the albedo pass. The focal length and scene unit come from the flags,
 the EXR header (sss_jax:focal_px, sss_jax:mm_per_unit) or a sidecar <name>.json (camera.focal_px, scene_unit_mm).
 """
-
-
-def _triple(text: str) -> tuple[float, float, float]:
-    try:
-        values = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected three comma-separated numbers R,G,B, got {text!r}") from None
-    if len(values) == 1:
-        values = values * 3
-    if len(values) != 3:
-        raise argparse.ArgumentTypeError(f"expected three comma-separated numbers R,G,B, got {text!r}")
-    return values
 
 
 def register(subparsers) -> None:
@@ -45,9 +35,9 @@ def register(subparsers) -> None:
     where.add_argument("-o", "--output", type=pathlib.Path, help="output EXR (one input)")
     where.add_argument("--out-dir", type=pathlib.Path, help="output directory: each output is named after its input")
     p.add_argument("--technique", required=True, help="sta, separable, burley or reference")
-    p.add_argument("--albedo", type=_triple, help="surface albedo R,G,B in [0,1] (overrides an albedo pass)")
-    p.add_argument("--d-mm", type=_triple, help="Burley scattering distance d per channel, mm")
-    p.add_argument("--mfp-mm", type=_triple, help="mean free path per channel, mm (d = mfp / s(A), diffuse-transmission fit)")
+    p.add_argument("--albedo", type=rgb_triple, help="surface albedo R,G,B in [0,1] (overrides an albedo pass)")
+    p.add_argument("--d-mm", type=rgb_triple, help="Burley scattering distance d per channel, mm")
+    p.add_argument("--mfp-mm", type=rgb_triple, help="mean free path per channel, mm (d = mfp / s(A), diffuse-transmission fit)")
     p.add_argument("--preset", help="material preset: a name (fits/<name>.json, or a directory in SSS_JAX_PRESETS) "
                    "or a preset JSON file")
     p.add_argument("--focal-px", type=float, help="focal length in pixels")
@@ -59,13 +49,13 @@ def register(subparsers) -> None:
     p.add_argument("--taps", type=int, default=25, help="separable taps per pass (default 25)")
     p.add_argument("--radius-px", type=int, help="reference window radius in pixels (default: 99.9%% of the energy)")
     sta = p.add_argument_group("STA")
-    sta.add_argument("--light-dir", type=_triple, help="direction towards the light, camera space (x right, y down, z forward)")
-    sta.add_argument("--light-colour", type=_triple, default=(1.0, 1.0, 1.0), help="light irradiance R,G,B (default 1)")
+    sta.add_argument("--light-dir", type=rgb_triple, help="direction towards the light, camera space (x right, y down, z forward)")
+    sta.add_argument("--light-colour", type=rgb_triple, default=(1.0, 1.0, 1.0), help="light irradiance R,G,B (default 1)")
     sta.add_argument("--sta-distortion", type=float, default=0.2)
     sta.add_argument("--sta-power", type=float, default=4.0)
-    sta.add_argument("--sta-scale", type=_triple, default=(1.0, 1.0, 1.0))
-    sta.add_argument("--sta-ambient", type=_triple, default=(0.0, 0.0, 0.0))
-    sta.add_argument("--sta-thickness-mm", type=_triple, default=(1.0, 1.0, 1.0),
+    sta.add_argument("--sta-scale", type=rgb_triple, default=(1.0, 1.0, 1.0))
+    sta.add_argument("--sta-ambient", type=rgb_triple, default=(0.0, 0.0, 0.0))
+    sta.add_argument("--sta-thickness-mm", type=rgb_triple, default=(1.0, 1.0, 1.0),
                      help="thickness falloff per channel, mm: t = exp(-thickness / this)")
     sta.add_argument("--thickness", type=float, help="constant thickness in scene units where there is no thickness channel")
     p.add_argument("--half", action="store_true", help="write half-float EXR")

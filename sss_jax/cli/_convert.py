@@ -7,6 +7,8 @@ import json
 import pathlib
 import sys
 
+from . import rgb_triple
+
 EPILOG = """examples:
   sss-jax convert --from sss_jax --to blender --albedo 0.8,0.6,0.5 --d-mm 3,1.4,0.8
   sss-jax convert --from blender --to unreal --albedo 0.8,0.6,0.5 --radius 1,0.2,0.1 --scale 0.05 --json ue.json
@@ -28,18 +30,6 @@ _ENGINES = ("sss_jax", "blender", "eevee", "hdrp", "unreal", "jimenez")
 _DEFAULT_UNIT = {"sss_jax": 1.0, "blender": 1000.0, "eevee": 1000.0, "hdrp": 1000.0, "unreal": 10.0, "jimenez": 1000.0}
 
 
-def _triple(text: str) -> tuple[float, float, float]:
-    try:
-        values = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected three comma-separated numbers R,G,B, got {text!r}") from None
-    if len(values) == 1:
-        values = values * 3
-    if len(values) != 3:
-        raise argparse.ArgumentTypeError(f"expected three comma-separated numbers R,G,B, got {text!r}")
-    return values
-
-
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "convert",
@@ -51,22 +41,22 @@ def register(subparsers) -> None:
     )
     p.add_argument("--from", dest="source", required=True, choices=_ENGINES, help="engine of the given parameters")
     p.add_argument("--to", dest="target", required=True, choices=_ENGINES, help="engine to convert to")
-    p.add_argument("--albedo", type=_triple, help="surface albedo R,G,B in [0,1] (each engine's colour input)")
-    p.add_argument("--d-mm", type=_triple, help="sss_jax: Burley d per channel, mm")
-    p.add_argument("--mfp-mm", type=_triple, help="sss_jax: mean free path per channel, mm (d = mfp / s(A))")
-    p.add_argument("--radius", type=_triple, help="blender/eevee: Subsurface Radius, scene units")
+    p.add_argument("--albedo", type=rgb_triple, help="surface albedo R,G,B in [0,1] (each engine's colour input)")
+    p.add_argument("--d-mm", type=rgb_triple, help="sss_jax: Burley d per channel, mm")
+    p.add_argument("--mfp-mm", type=rgb_triple, help="sss_jax: mean free path per channel, mm (d = mfp / s(A))")
+    p.add_argument("--radius", type=rgb_triple, help="blender/eevee: Subsurface Radius, scene units")
     p.add_argument("--scale", type=float, default=1.0, help="blender/eevee: Subsurface Scale (default 1)")
     p.add_argument("--cycles", choices=("3.0+", "2.8"), default="3.0+",
                    help="blender: Cycles version family (2.80-2.93 divide by s(A); default 3.0+)")
-    p.add_argument("--scattering-color", type=_triple, help="hdrp: Scattering Color (linear)")
+    p.add_argument("--scattering-color", type=rgb_triple, help="hdrp: Scattering Color (linear)")
     p.add_argument("--multiplier", type=float, default=1.0, help="hdrp: scattering distance Multiplier (default 1)")
     p.add_argument("--world-scale", type=float, default=1.0, help="hdrp: World Scale, metres per unit (default 1)")
-    p.add_argument("--mfp-color", type=_triple, help="unreal: Mean Free Path Color")
+    p.add_argument("--mfp-color", type=rgb_triple, help="unreal: Mean Free Path Color")
     p.add_argument("--mfp-distance", type=float, help="unreal: Mean Free Path Distance, cm")
     p.add_argument("--world-unit-scale", type=float, default=0.1, help="unreal: World Unit Scale (default 0.1)")
     p.add_argument("--sss-width", type=float, help="jimenez: sssWidth, scene units")
-    p.add_argument("--strength", type=_triple, help="jimenez: strength R,G,B in [0,1]")
-    p.add_argument("--falloff", type=_triple, help="jimenez: falloff R,G,B in [0,1]")
+    p.add_argument("--strength", type=rgb_triple, help="jimenez: strength R,G,B in [0,1]")
+    p.add_argument("--falloff", type=rgb_triple, help="jimenez: falloff R,G,B in [0,1]")
     p.add_argument("--samples", type=int, default=17, help="jimenez: kernel taps (default 17)")
     p.add_argument("--mm-per-unit", type=float, help="scene unit in mm (default: the engine's usual unit)")
     p.add_argument("--json", type=pathlib.Path, help="write the result as JSON here (default: print a table)")
