@@ -369,6 +369,31 @@ class MCResult:
                                            "rT_stderr": (r * self.T_stderr).tolist()}
         return out
 
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> "MCResult":
+        """The result that ``to_json`` wrote (bins, totals, profiles and provenance; per-bin tallies come back from
+        ``r R`` so a cached run serves as a ``to_tabulated_profile`` input exactly as the live one did)."""
+        prof = data["profile"]
+        r = np.asarray(prof["r_mfp"], np.float64)
+        width = 2 * r[0]
+        edges = np.arange(r.size + 1) * width
+        trans = data.get("transmission_profile")
+        nan = float("nan")
+        T = np.asarray(trans["rT"]) / r if trans else np.zeros_like(r)
+        T_err = np.asarray(trans["rT_stderr"]) / r if trans else np.zeros_like(r)
+        return cls(
+            albedo=data["albedo"], g=data["g"], eta=data["eta"], slab_mfp=data["slab_mfp"], incidence=data["incidence"],
+            photons=data["photons"], seed=data["seed"], bin_edges_mfp=edges,
+            total_reflectance=data["total_reflectance"], total_reflectance_stderr=data["total_reflectance_stderr"],
+            total_transmittance=data.get("total_transmittance", 0.0),
+            total_transmittance_stderr=data.get("total_transmittance_stderr", 0.0),
+            specular_reflectance=data["specular_reflectance"],
+            single_scatter_reflectance=data["single_scatter_reflectance"], single_scatter_reflectance_stderr=nan,
+            R=np.asarray(prof["rR"]) / r, R_stderr=np.asarray(prof["rR_stderr"]) / r, T=T, T_stderr=T_err,
+            capped_photons=data["capped_photons"], capped_weight=data["capped_weight"],
+            scattering_events=data["scattering_events"], seconds=data["seconds"],
+        )
+
 
 _KERNELS: dict[tuple, Any] = {}
 
@@ -534,7 +559,8 @@ def to_tabulated_profile(results: MCResult | list[MCResult], mfp_mm: float | lis
 
     results = [results] if isinstance(results, MCResult) else list(results)
     mfps = np.broadcast_to(np.asarray(mfp_mm, np.float64), (len(results),))
-    # one radius grid: the first channel's, every channel's R resampled onto it (in 1/mm^2)
-    r0 = results[0].r_mfp * mfps[0]
+    # one radius grid, the union of every channel's bin centres (so a channel with a short mean free path keeps its
+    # own resolution), every channel's R (1/mm^2) interpolated onto it and 0 beyond its own range
+    r0 = np.unique(np.concatenate([res.r_mfp * m for res, m in zip(results, mfps)]))
     cols = [np.interp(r0, res.r_mfp * m, res.R / (m * m), right=0.0) for res, m in zip(results, mfps)]
     return TabulatedProfile(r0, np.stack(cols, axis=-1))
