@@ -666,8 +666,13 @@ def engine_profile_error(albedo, d_mm, **options) -> dict[str, dict[str, list[fl
     version: the converted radius gives the same d).
     """
     marg = engine_marginals(albedo, d_mm, **options)
-    ref = marg["reference"]
-    a_ref = np.asarray(marg["albedo"]["reference"])
+    return engine_errors_against(marg, marg["reference"], marg["albedo"]["reference"])
+
+
+def engine_errors_against(marg: dict[str, Any], ref: np.ndarray, ref_albedo) -> dict[str, dict[str, list[float]]]:
+    """Each engine's marginal masses of ``engine_marginals`` against reference masses ``ref (3, 163)`` on the same
+    bins (Burley's, or a Monte Carlo profile's) with that reference's albedo (3,): relative L2 and energy lost."""
+    a_ref = np.asarray(ref_albedo, np.float64)
     out = {}
     for engine in ("cycles", "eevee", "hdrp", "unreal", "jimenez"):
         m = marg[engine]

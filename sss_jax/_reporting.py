@@ -5,7 +5,6 @@ from __future__ import annotations
 import base64
 import html
 import io
-import json
 import pathlib
 import time
 from typing import Any
@@ -248,17 +247,27 @@ def write_demo_report(result, out_dir: pathlib.Path, *, pareto: bool = True) -> 
         fig.tight_layout()
         rep.figure(sec, fig, "Pareto plot on the demo scene")
 
-    # 7. presets
-    sec = rep.section("Presets", "Fitted presets in fits/ (none is shipped yet: fitting lands with its own issue).")
-    presets = []
+    # 7. presets and what every engine renders for them
+    from ._fit_presets import engine_rows, load_presets, preset_rows
+
     fits = pathlib.Path(__file__).resolve().parents[1] / "fits"
-    for p in sorted(fits.glob("*.json")) if fits.exists() else []:
-        try:
-            d = json.loads(p.read_text())
-            presets.append(dict(name=d.get("name", p.stem), d_mm=d.get("burley", {}).get("d_mm")))
-        except (OSError, ValueError):
-            continue
-    rep.table(sec, presets, "presets", key="presets")
+    try:
+        presets = load_presets(fits) if fits.is_dir() else []
+        rows, eng = preset_rows(presets), engine_rows(presets)
+    except (OSError, ValueError, KeyError, TypeError) as exc:  # a damaged preset must not cost the whole report
+        presets, rows, eng = [], [], []
+        problem = f" (fits/ could not be read: {html.escape(str(exc))})"
+    else:
+        problem = ""
+    sec = rep.section("Presets", f"{len(presets)} fitted presets in fits/ (<code>sss-jax fit</code>), their parameters "
+                      "and the error of each cheap model against the Burley profile and against Monte Carlo; "
+                      f"fits/README.md has the metrics and a profile plot per preset.{problem}")
+    rep.table(sec, rows, "presets", key="presets")
+    sec = rep.section("Engines", "What each engine renders for every preset: its kernel as that engine builds it, "
+                      "as a 1D marginal against the Burley and Monte Carlo references. Cells: relative L2 vs Burley / "
+                      "vs Monte Carlo / energy lost vs Monte Carlo (largest channel). STA and the closed-form thin "
+                      "transmission against Monte Carlo slabs are in the presets table.")
+    rep.table(sec, eng, "engines", key="engines")
 
     html_path = out_dir / "report.html"
     rep.write(html_path, out_dir / "report.json")
