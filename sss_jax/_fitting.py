@@ -32,7 +32,7 @@ import numpy as np
 from ._materials import BurleyMaterial, STAParams, TwoGaussianMaterial
 from ._profiles import AbstractProfile, BurleyProfile
 from ._scene import Buffers, Camera
-from ._techniques import burley, reference, separable, sta_term
+from ._techniques import burley, reference, separable, sta_term, thin_transmittance
 
 __all__ = ["SOLVERS", "fit_two_gaussian_profile", "fit_two_gaussian_to_burley", "fit_two_gaussian_image",
            "fit_sta", "fit_burley_from_image", "image_patterns", "profile_pixel_mass", "two_gaussian_pixel_mass",
@@ -301,8 +301,7 @@ def burley_slab_transmittance(thickness_mm, d_mm):
     ``(exp(-t/d) + 3 exp(-t/(3d))) / 4`` per channel (HDRP's thin-object transmission for the same profile)."""
     t = jnp.asarray(thickness_mm)[..., None]
     d = jnp.asarray(d_mm)
-    d = d.reshape((1,) * (t.ndim - 1) + d.shape)
-    return (jnp.exp(-t / d) + 3 * jnp.exp(-t / (3 * d))) / 4
+    return thin_transmittance(t, d.reshape((1,) * (t.ndim - 1) + d.shape))
 
 
 def sta_slab_response(params: STAParams, thickness_mm, light_dir, view_dir):
