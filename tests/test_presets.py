@@ -29,8 +29,10 @@ def _measured_rows(shared_dir) -> dict[str, dict[str, float]]:
 
 
 def _without_seconds(x):
+    # timings differ run to run; iteration counts may differ across CPUs (another rounding of the last bits sends
+    # Levenberg-Marquardt down another path to the same optimum), which the parameters' tolerance below checks
     if isinstance(x, dict):
-        return {k: _without_seconds(v) for k, v in x.items() if k != "seconds"}
+        return {k: _without_seconds(v) for k, v in x.items() if k not in ("seconds", "iterations")}
     if isinstance(x, list):
         return [_without_seconds(v) for v in x]
     return x
@@ -192,7 +194,7 @@ def _assert_close(a, b, where):
         for i, (x, y) in enumerate(zip(a, b)):
             _assert_close(x, y, f"{where}[{i}]")
     elif isinstance(a, float):
-        assert math.isclose(a, b, rel_tol=1e-6, abs_tol=1e-9), (where, a, b)
+        assert math.isclose(a, b, rel_tol=1e-5, abs_tol=1e-9), (where, a, b)
     elif isinstance(a, str) and where.endswith(("hlsl", "glsl")):
         assert a.splitlines()[0] == b.splitlines()[0], where  # digits beyond 1e-6 may differ across CPUs
     else:
