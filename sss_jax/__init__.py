@@ -53,6 +53,7 @@ from ._techniques import (
     reference as reference,
     reference_radius_px as reference_radius_px,
     separable as separable,
+    slab_transmittance as slab_transmittance,
     thin_transmittance as thin_transmittance,
     translucency as translucency,
 )

@@ -31,10 +31,11 @@ from ._kernels import GOLDEN_ANGLE, SeparableKernel, separable_kernel_from_profi
 from ._materials import BurleyMaterial, DirectionalLight, ProfileMaterial, STAParams, TwoGaussianMaterial
 from ._profiles import BurleyProfile, burley_cdf, burley_inverse_ccdf, burley_R
 from ._scene import Buffers, Camera, normals_from_depth, surface_mask, camera_positions
+from ._slab import slab_transmittance
 from ._units import px_per_mm
 
 __all__ = ["translucency", "separable", "burley", "reference", "TECHNIQUES", "get_technique", "reference_radius_px",
-           "ENERGY_CONSERVING", "thin_transmittance", "TRANSLUCENCY_MODELS"]
+           "ENERGY_CONSERVING", "thin_transmittance", "slab_transmittance", "TRANSLUCENCY_MODELS"]
 
 ALBEDO_MODES = ("post", "pre_post")
 
@@ -728,16 +729,27 @@ def thin_transmittance(thickness_mm: Array, d_mm: Array) -> Array:
     return 1.0 - burley_cdf(thickness_mm, d_mm)
 
 
+def _thin_model(thickness_mm: Array, albedo: Array, d_mm: Array) -> Array:
+    return thin_transmittance(thickness_mm, d_mm)  # the profile's CCDF: the albedo plays no part
+
+
+# transmittance T(thickness_mm, medium albedo, d_mm) of each physically based model, elementwise per channel
+_TRANSMITTANCE: dict[str, Callable[[Array, Array, Array], Array]] = {"thin": _thin_model, "slab": slab_transmittance}
+
+
 @eqx.filter_jit
-def _thin_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, light: DirectionalLight,
-               thickness: Array | None) -> Array:
+def _transmission_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, light: DirectionalLight,
+                       thickness: Array | None, model: str) -> Array:
+    """``albedo * (irradiance + light * T * max(0, -N . L))``: the models differ only in T (``model`` is static)."""
     dtype = _work_dtype(buffers.irradiance.dtype)
     prep = _prepare(buffers, material.albedo, "post", dtype)
     normal = buffers.normal.astype(dtype) if buffers.normal is not None else normals_from_depth(prep.depth, camera)
     thick_mm = jnp.maximum(_thickness_mm(buffers, thickness, camera, prep.depth.shape, dtype), 0.0)
     d = _checked(material.d_mm.astype(dtype), "d_mm")[prep.rows]  # (H, W, 3)
+    # the medium is the material's (its A and d per material id), not the albedo texture's, which only tints
+    medium_albedo = jnp.clip(material.albedo.astype(dtype), 0.0, 1.0)[prep.rows]
     t = jnp.where(jnp.isfinite(thick_mm), thick_mm, 0.0)[..., None]
-    transmitted = jnp.where(jnp.isfinite(thick_mm)[..., None], thin_transmittance(t, d), 0.0)
+    transmitted = jnp.where(jnp.isfinite(thick_mm)[..., None], _TRANSMITTANCE[model](t, medium_albedo, d), 0.0)
     # light reaching the back face: the cosine between the back-facing normal and the light
     back_cos = jnp.clip(jnp.sum(-normal * light.direction.astype(dtype).reshape(1, 1, 3), axis=-1), 0.0, 1.0)
     added = light.colour.astype(dtype).reshape(1, 1, 3) * transmitted * back_cos[..., None]
@@ -746,7 +758,7 @@ def _thin_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, light
     return out.astype(buffers.irradiance.dtype)
 
 
-TRANSLUCENCY_MODELS = ("sta", "thin")
+TRANSLUCENCY_MODELS = ("sta", "thin", "slab")
 
 
 def translucency(
@@ -771,15 +783,18 @@ def translucency(
       mode computes it: ``light * thin_transmittance(thickness_mm, d) * max(0, -N . L)`` with ``params`` a
       ``BurleyMaterial`` (its d per material id, its albedo where the buffers carry none). HDRP wraps the cosine;
       this uses the plain clamped cosine.
+    - ``model="slab"``: as ``"thin"`` with ``slab_transmittance(thickness_mm, A, d)`` for T: the Monte Carlo
+      transmittance of a slab of the medium behind the material (A and d of the ``BurleyMaterial`` per material id),
+      which agrees with transport where the profile's CCDF does not (docs/engines.md).
     """
     if model not in TRANSLUCENCY_MODELS:
         raise ValueError(f"model={model!r} is not one of {TRANSLUCENCY_MODELS}")
     if not isinstance(light, DirectionalLight):
         raise TypeError(f"translucency needs a DirectionalLight, got {type(light).__name__}")
-    if model == "thin":
+    if model in _TRANSMITTANCE:
         if not isinstance(params, BurleyMaterial):
-            raise TypeError(f"translucency(model='thin') needs a BurleyMaterial, got {type(params).__name__}")
-        return _thin_impl(buffers, params, camera, light, thickness)
+            raise TypeError(f"translucency(model={model!r}) needs a BurleyMaterial, got {type(params).__name__}")
+        return _transmission_impl(buffers, params, camera, light, thickness, model)
     if not isinstance(params, STAParams):
         raise TypeError(f"translucency needs STAParams, got {type(params).__name__}")
     table = jnp.ones((1, 3), buffers.irradiance.dtype) if albedo is None else jnp.reshape(jnp.asarray(albedo), (-1, 3))

@@ -1,0 +1,142 @@
+"""``model="slab"``: thin-object transmission from a Monte Carlo slab table, checked against fresh Monte Carlo.
+
+References come from outside the code under test: fresh ``_montecarlo.simulate`` runs (seeds the table never used),
+the H-function of ``_fit_presets`` inverted here by Brent's method, the ballistic law ``exp(-tau)`` at alpha = 0, and
+the searchlight fit written out by hand.
+"""
+
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.optimize import brentq
+
+import sss_jax as sj
+from sss_jax import _slab
+from sss_jax._fit_presets import chandrasekhar_h
+from sss_jax._montecarlo import simulate
+
+# Interpolation allowance, measured (docs/engines.md, "The slab model"; stored in the table's JSON): against 40 fresh
+# 1.2M-photon Monte Carlo points at cell centres (the farthest from the nodes) the interpolant shows no error above
+# the Monte Carlo noise (rms z 0.78, max 2.25), and the spline of a deterministic (Nystrom) solution's node values
+# misses that solution at the 320 cell centres by at most 1.4e-4 (alpha = 0.99976, tau = 45; 0.76 table standard
+# errors, rms 0.13). 2e-4 covers it.
+INTERPOLATION_ALLOWANCE = 2e-4
+PHOTONS = 200_000  # per point: standard errors <= 1.1e-3; the tolerance is in standard errors, so fewer stay valid
+
+
+def _plane_albedo(alpha: float) -> float:
+    # Chandrasekhar (1960) Ch. V: reflectance of the index-matched isotropic half-space, 1 - H(1) sqrt(1 - alpha)
+    return 1.0 - chandrasekhar_h(alpha, 1.0)[0] * math.sqrt(max(0.0, 1.0 - alpha))
+
+
+@functools.lru_cache
+def _alpha_of(A: float) -> float:
+    """The medium's single-scattering albedo, solved on the host (Brent) independently of the table's A(w) map."""
+    return brentq(lambda a: _plane_albedo(a) - A, 0.0, 1.0, xtol=1e-13)
+
+
+def _searchlight(A: float) -> float:
+    # Christensen & Burley 2015, Eq. 6: s(A) = 1.85 - A + 7 |A - 0.8|^3 (mean free path = d s(A))
+    return 1.85 - A + 7 * abs(A - 0.8) ** 3
+
+
+# off-grid (A, t/d) points spanning t/d 0.1-10 and albedos from dark to bright; seeds 900+ (the table: 1,000,000+)
+POINTS = [(A, td) for A in (0.1, 0.4, 0.7, 0.9) for td in (0.1, 1.0, 3.0, 10.0)]
+
+
+def test_slab_model_against_fresh_monte_carlo():
+    for k, (A, t_over_d) in enumerate(POINTS):
+        alpha = _alpha_of(A)
+        tau = t_over_d / _searchlight(A)  # d = 1 mm: l = s(A) mm
+        r = simulate(alpha, photons=PHOTONS, slab_mfp=tau, eta=1.0, seed=900 + k, bins=8, r_max_mfp=1.0, unroll=4)
+        model = float(sj.slab_transmittance(t_over_d, A, 1.0))
+        sigma = math.hypot(r.total_transmittance_stderr, _slab.table_stderr(alpha, tau))
+        # 4 combined standard errors (a 1-in-15,000 false alarm per point) plus the measured interpolation error
+        assert abs(model - r.total_transmittance) < 4 * sigma + INTERPOLATION_ALLOWANCE, (A, t_over_d, model, r)
+
+
+def test_ballistic_limit_and_zero_thickness():
+    # alpha = 0 (A = 0): nothing scatters, T = exp(-tau) exactly, tau = t / (d s(0)); t = 0 transmits everything
+    td = np.array([0.1, 0.5, 1.0, 3.0, 10.0, 20.0])
+    tau = td / _searchlight(0.0)
+    model = np.asarray(sj.slab_transmittance(td, 0.0, 1.0))
+    bound = np.array([4 * _slab.table_stderr(0.0, x) + INTERPOLATION_ALLOWANCE for x in tau])
+    assert np.all(np.abs(model - np.exp(-tau)) < bound)
+    np.testing.assert_array_equal(np.asarray(sj.slab_transmittance(0.0, jnp.linspace(0.0, 1.0, 7), 2.0)), 1.0)
+    # d = 0: an opaque medium for any t > 0
+    assert float(sj.slab_transmittance(1.0, 0.5, 0.0)) == 0.0
+
+
+def test_albedo_inversion_matches_the_h_function():
+    # the differentiable alpha(A) against the host H-function: A(alpha(A)) within 1e-5
+    for A in (0.0, 0.05, 0.3, 0.6, 0.8, 0.95, 0.99, 1.0):
+        alpha = float(_slab.single_scattering_albedo(A))
+        assert abs(_plane_albedo(alpha) - A) < 1e-5, (A, alpha)
+
+
+def test_monotone_in_thickness():
+    t = jnp.linspace(0.0, 60.0, 2401)
+    for A in (0.0, 0.2, 0.5, 0.8, 0.95, 1.0):
+        T = np.asarray(sj.slab_transmittance(t, A, 1.0))
+        assert T[0] == 1.0
+        assert np.all(np.diff(T) <= 0.0), A
+        assert np.all(T[:-1] > 0.0)
+
+
+def test_jit_vmap_grad_finite():
+    f = jax.jit(sj.slab_transmittance)
+    t = jnp.array([0.0, 0.05, 1.0, 40.0])
+    A = jnp.array([0.0, 0.3, 1.0, 0.6])
+    mapped = jax.vmap(sj.slab_transmittance)(t, A, jnp.full(4, 1.5))
+    np.testing.assert_allclose(np.asarray(f(t, A, 1.5)), np.asarray(mapped), rtol=1e-12)
+    grad = jax.jit(jax.grad(lambda t, A, d: sj.slab_transmittance(t, A, d), argnums=(0, 1, 2)))
+    for args in [(0.0, 0.5, 1.0), (0.0, 0.0, 1.0), (1.0, 0.0, 1.0), (1.0, 1.0, 1.0), (0.5, 0.8, 2.0),
+                 (100.0, 0.9, 1.0)]:
+        g = np.asarray(grad(*(jnp.asarray(x, jnp.float64) for x in args)))
+        assert np.all(np.isfinite(g)), (args, g)
+    # thicker transmits less, a longer scattering distance more
+    g = np.asarray(grad(1.0, 0.5, 1.0))
+    assert g[0] < 0 < g[2]
+
+
+def _flat_scene(thickness_units: float, mm_per_unit: float = 1.0):
+    shape = (4, 5)
+    b = sj.Buffers(irradiance=jnp.full(shape + (3,), 0.25), depth=jnp.full(shape, 100.0),
+                   normal=jnp.broadcast_to(jnp.array([0.0, 0.0, -1.0]), shape + (3,)),
+                   thickness=jnp.full(shape, thickness_units))
+    return b, sj.Camera(500.0, mm_per_unit=mm_per_unit)
+
+
+def test_translucency_slab_adds_albedo_times_transmittance():
+    albedo, d_mm = np.array([0.8, 0.6, 0.3]), np.array([3.0, 1.4, 0.8])
+    b, cam = _flat_scene(4.0, mm_per_unit=0.5)  # t = 2 mm
+    mat = sj.BurleyMaterial(albedo, d_mm)
+    direction = np.array([0.0, 0.6, 0.8])  # behind the surface: -N . L = 0.8
+    light = sj.DirectionalLight(jnp.asarray(direction), (2.0, 1.0, 0.5))
+    out = np.asarray(sj.translucency(b, mat, cam, light, model="slab"))
+    T = np.asarray(sj.slab_transmittance(2.0, albedo, d_mm))
+    expected = albedo * (0.25 + np.array([2.0, 1.0, 0.5]) * T * 0.8)
+    np.testing.assert_allclose(out, np.broadcast_to(expected, out.shape), rtol=1e-12)
+    # the slab model passes more light than the profile's CCDF at this thickness (docs/engines.md)
+    assert np.all(T > np.asarray(sj.thin_transmittance(2.0, d_mm)))
+    # grads through the technique are finite, at A = 0 too
+    def loss(a, d):
+        return jnp.sum(sj.translucency(b, sj.BurleyMaterial(a, d), cam, light, model="slab"))
+
+    for a in (jnp.asarray(albedo), jnp.zeros(3)):
+        ga, gd = jax.grad(loss, argnums=(0, 1))(a, jnp.asarray(d_mm))
+        assert np.all(np.isfinite(np.asarray(ga))) and np.all(np.isfinite(np.asarray(gd)))
+
+
+def test_bad_model_and_params():
+    b, cam = _flat_scene(1.0)
+    mat = sj.BurleyMaterial([0.5, 0.5, 0.5], [1.0, 1.0, 1.0])
+    light = sj.DirectionalLight(jnp.array([0.0, 0.0, 1.0]))
+    with pytest.raises(ValueError, match=r"model='slabs' is not one of \('sta', 'thin', 'slab'\)"):
+        sj.translucency(b, mat, cam, light, model="slabs")
+    with pytest.raises(TypeError, match=r"translucency\(model='slab'\) needs a BurleyMaterial, got STAParams"):
+        sj.translucency(b, sj.STAParams(), cam, light, model="slab")
