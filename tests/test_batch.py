@@ -31,24 +31,33 @@ def read_rgb(path):
     return _io.read_frame(path, channel_map={"irradiance": ["R", "G", "B"], "depth": "R"}).irradiance
 
 
-def test_four_devices_give_the_pixels_of_one(frames, tmp_path):
+@pytest.fixture(scope="module")
+def one_device_run(frames, tmp_path_factory):
+    """Every frame through burley on one device, uninterrupted: the reference of the sharded run and of the resumed
+    one (each ``process_frames`` call compiles its own program, so one run less is one compilation less)."""
+    out = tmp_path_factory.mktemp("one_device")
+    result = process_frames(str(frames / "*.exr"), "burley", MAT, out_dir=out, samples=8, progress=False,
+                            devices=jax.devices()[:1])
+    return result, out
+
+
+def test_four_devices_give_the_pixels_of_one(frames, one_device_run, tmp_path):
     assert len(jax.devices()) == 4  # tests/conftest.py splits the host into 4 CPU devices
     r4 = process_frames(str(frames / "*.exr"), "burley", MAT, out_dir=tmp_path / "o4", samples=8, progress=False)
-    r1 = process_frames(str(frames / "*.exr"), "burley", MAT, out_dir=tmp_path / "o1", samples=8, progress=False,
-                        devices=jax.devices()[:1])
+    r1, o1 = one_device_run
     assert r4.ok and r1.ok and len(r4.frames) == 5
     assert r4.compilations == 1  # one frame shape, one compilation, 5 frames in 2 sharded groups
     for i in range(5):
-        np.testing.assert_array_equal(read_rgb(tmp_path / "o4" / f"f{i}.exr"), read_rgb(tmp_path / "o1" / f"f{i}.exr"))
+        np.testing.assert_array_equal(read_rgb(tmp_path / "o4" / f"f{i}.exr"), read_rgb(o1 / f"f{i}.exr"))
     # and each frame equals the single-frame API
     f = _io.read_frame(frames / "f3.exr")
     single = np.asarray(sj.burley(f.to_buffers(), MAT, sj.Camera(f.focal_px, 10.0), samples=8))
     np.testing.assert_allclose(read_rgb(tmp_path / "o4" / "f3.exr"), single, rtol=1e-6, atol=1e-6)
 
 
-def test_interrupted_batch_resumes_with_identical_output(frames, tmp_path):
-    full = process_frames(str(frames / "*.exr"), "separable", MAT, out_dir=tmp_path / "ref", taps=7, progress=False,
-                          devices=jax.devices()[:1])
+def test_interrupted_batch_resumes_with_identical_output(frames, one_device_run, tmp_path):
+    # the same technique and device as the uninterrupted one-device run, whose frames are the reference
+    full, ref = one_device_run
     assert full.ok
     done = []
 
@@ -58,15 +67,15 @@ def test_interrupted_batch_resumes_with_identical_output(frames, tmp_path):
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        process_frames(str(frames / "*.exr"), "separable", MAT, out_dir=tmp_path / "run", taps=7, progress=False,
+        process_frames(str(frames / "*.exr"), "burley", MAT, out_dir=tmp_path / "run", samples=8, progress=False,
                        devices=jax.devices()[:1], on_frame_done=stop_after_two)
     names = sorted(p.name for p in (tmp_path / "run").iterdir())
     assert names == ["f0.exr", "f1.exr"]  # complete frames only: no temp or partial files
-    again = process_frames(str(frames / "*.exr"), "separable", MAT, out_dir=tmp_path / "run", taps=7, progress=False,
+    again = process_frames(str(frames / "*.exr"), "burley", MAT, out_dir=tmp_path / "run", samples=8, progress=False,
                            devices=jax.devices()[:1])
     assert [f.status for f in again.frames] == ["skipped", "skipped", "ok", "ok", "ok"]
     for i in range(5):
-        np.testing.assert_array_equal(read_rgb(tmp_path / "run" / f"f{i}.exr"), read_rgb(tmp_path / "ref" / f"f{i}.exr"))
+        np.testing.assert_array_equal(read_rgb(tmp_path / "run" / f"f{i}.exr"), read_rgb(ref / f"f{i}.exr"))
     assert sorted(p.name for p in (tmp_path / "run").iterdir()) == [f"f{i}.exr" for i in range(5)]
 
 

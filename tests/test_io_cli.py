@@ -182,9 +182,10 @@ def test_burley_on_blender_render_is_closer_to_cycles_than_local_shading(shared_
 
 
 def test_cli_demo_writes_images_and_summary(tmp_path, capsys):
+    # the size and counts of tests/test_report_bench.py's demo: one set of compiled passes serves both
     out = tmp_path / "demo"
-    assert main(["demo", "--out", str(out), "--size", "48x32", "--samples", "8", "--taps", "7", "--no-report"]) == 0
-    for name in ("reference", "burley_8", "separable_preintegrated_7", "sta", "irradiance", "overview"):
+    assert main(["demo", "--out", str(out), "--size", "64x48", "--samples", "8", "--taps", "9", "--no-report"]) == 0
+    for name in ("reference", "burley_8", "separable_preintegrated_9", "sta", "irradiance", "overview"):
         assert (out / f"{name}.png").exists(), name
     summary = json.loads((out / "summary.json").read_text())
     rows = {r["technique"]: r for r in summary["rows"]}

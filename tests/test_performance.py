@@ -79,7 +79,8 @@ def test_footprint_below_half_a_pixel_keeps_local_shading(technique):
 def test_separable_levels_exact_for_one_reach_and_close_otherwise():
     rng = np.random.default_rng(1)
     e = jnp.asarray(rng.uniform(0, 2, (16, 20, 3)))
-    flat = sj.Buffers(irradiance=e, depth=jnp.full((16, 20), 50.0))
+    # a strongly typed depth, like the tilted plane's below: the two share each level count's compilation
+    flat = sj.Buffers(irradiance=e, depth=jnp.full((16, 20), 50.0, jnp.float64))
     one, four = (np.asarray(sj.separable(flat, MAT, CAM, taps=9, scale_levels=n)) for n in (1, 3))
     np.testing.assert_allclose(four, one, rtol=1e-12)  # every pixel has the same reach: the levels coincide
     # a tilted plane (reach varying by 30% across the frame): more levels follow the per-pixel reach more closely

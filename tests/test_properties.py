@@ -22,14 +22,22 @@ def _buffers(e, depth):
 def _passes(e, depth, d):
     b = _buffers(e, depth)
     mat = sj.BurleyMaterial(jnp.ones(3), d)
+    # 2x2 sub-pixel rule near the centre (as in tests/test_techniques.py): the invariants below hold for any rule,
+    # and the 6x6 default triples this function's compile time
     return (sj.burley(b, mat, CAM, samples=8), sj.separable(b, mat, CAM, taps=7),
-            sj.reference(b, mat, CAM, radius_px=4))
+            sj.reference(b, mat, CAM, radius_px=4, near_subsamples=2))
+
+
+# the kernel builders jitted (taps static, one compilation per tap count): eagerly, every example would dispatch
+# (and on first use compile) each of their operations one by one, ~270 compilations for the six tap counts
+_preintegrated_kernel = jax.jit(sj.separable_kernel_from_profile, static_argnames="taps")
+_two_gaussian_kernel = jax.jit(sj.two_gaussian_kernel, static_argnames="taps")
 
 
 @SETTINGS
 @given(triples, st.sampled_from([5, 9, 25]))
 def test_preintegrated_weights_sum_to_one(d, taps):
-    k = sj.separable_kernel_from_profile(sj.BurleyProfile(jnp.asarray(d)), taps=taps)
+    k = _preintegrated_kernel(sj.BurleyProfile(jnp.asarray(d)), taps=taps)
     np.testing.assert_allclose(np.asarray(k.weights).sum(0), 1.0, rtol=1e-9)
     assert np.all(np.asarray(k.weights) >= 0)
 
@@ -37,7 +45,7 @@ def test_preintegrated_weights_sum_to_one(d, taps):
 @SETTINGS
 @given(st.tuples(*[st.floats(0, 1)] * 3), triples, triples, st.sampled_from([3, 7, 33]))
 def test_two_gaussian_weights_sum_to_one(w, s_near, s_far, taps):
-    k = sj.two_gaussian_kernel(jnp.asarray(w), jnp.asarray(s_near), jnp.asarray(s_far), taps=taps)
+    k = _two_gaussian_kernel(jnp.asarray(w), jnp.asarray(s_near), jnp.asarray(s_far), taps=taps)
     np.testing.assert_allclose(np.asarray(k.weights).sum(0), 1.0, rtol=1e-9)
 
 
@@ -89,6 +97,12 @@ def _energy_passes(e, d, w, s_near, s_far):
             sj.separable(b, tg, CAM_E, taps=9))
 
 
+def _vec(x: float) -> jnp.ndarray:
+    """(3,) float64, strongly typed: ``jnp.full(3, x)`` alone is weakly typed, and a weak argument of
+    ``_energy_passes`` where another test passes a strong one would compile it a second time."""
+    return jnp.full(3, x, jnp.float64)
+
+
 small = st.floats(min_value=1e-3, max_value=0.5, allow_nan=False)  # d in mm: 99.9% of the energy within ~2 px
 sigmas = st.floats(min_value=0.0, max_value=2.0, allow_nan=False)  # 3 sigma = 6 mm = 1.2 px
 
@@ -99,7 +113,7 @@ def test_no_energy_created_on_a_flat_plane(seed, d, w, s_near, s_far):
     e = np.zeros((HE, WE, 3))
     inner = (slice(MARGIN, HE - MARGIN), slice(MARGIN, WE - MARGIN))
     e[inner] = np.random.default_rng(seed).uniform(0, 10, (HE - 2 * MARGIN, WE - 2 * MARGIN, 3))
-    outs = _energy_passes(e, jnp.asarray(d), jnp.full(3, w), jnp.full(3, s_near), jnp.full(3, s_far))
+    outs = _energy_passes(e, jnp.asarray(d), _vec(w), _vec(s_near), _vec(s_far))
     for out in outs:
         out = np.asarray(out)
         # a normalised gather with the same weights at every pixel of a plane moves light, it never adds any
@@ -113,6 +127,6 @@ def test_no_energy_created_on_a_flat_plane(seed, d, w, s_near, s_far):
 @given(st.integers(0, 2**31 - 1), st.floats(0, 1))
 def test_zero_width_two_gaussian_is_identity(seed, w):
     e = np.random.default_rng(seed).uniform(0, 5, (HE, WE, 3))
-    zero = jnp.zeros(3)
-    out = _energy_passes(e, jnp.full(3, 0.1), jnp.full(3, w), zero, zero)[2]
+    zero = _vec(0.0)
+    out = _energy_passes(e, _vec(0.1), _vec(w), zero, zero)[2]
     np.testing.assert_allclose(np.asarray(out), e, rtol=1e-12)

@@ -7,9 +7,15 @@ from sss_jax._bench import GOALS, run_bench
 from sss_jax._demo import run_demo
 from sss_jax._reporting import write_demo_report
 
+# One frame size and one sample/tap count for the demo, the report and the bench (and `sss-jax demo` in
+# tests/test_io_cli.py): the report's trade table (burley 8/16/32/64, separable 9/17/25) and the bench's error scene
+# (48x64) and ratio passes (burley 32, separable 25) then reuse the passes compiled for the demo instead of compiling
+# their own. The checks below are about structure and bounds that hold at any of these sizes.
+DEMO_H, DEMO_W, DEMO_SAMPLES, DEMO_TAPS = 48, 64, 8, 9
+
 
 def test_demo_report_has_every_section_and_embeds_its_images(tmp_path):
-    result = run_demo(height=24, width=32, samples=4, taps=5, repeats=1)
+    result = run_demo(height=DEMO_H, width=DEMO_W, samples=DEMO_SAMPLES, taps=DEMO_TAPS, repeats=1)
     html_path = write_demo_report(result, tmp_path)
     page = html_path.read_text()
     for title in ("Summary", "Renders", "Difference maps", "Profiles and kernels", "Energy",
@@ -19,7 +25,7 @@ def test_demo_report_has_every_section_and_embeds_its_images(tmp_path):
     assert not re.search(r"(src|href)=['\"](http|file:|/)", page)  # self-contained
     data = json.loads((tmp_path / "report.json").read_text())
     techniques = {r["technique"] for r in data["sections"]["Summary"]["techniques"]}
-    assert {"reference", "burley_4", "separable_preintegrated_5", "sta"} <= techniques
+    assert {"reference", f"burley_{DEMO_SAMPLES}", f"separable_preintegrated_{DEMO_TAPS}", "sta"} <= techniques
     trade = data["sections"]["Speed against accuracy"]["trade"]
     assert any(r["pareto"] for r in trade) and {r["technique"] for r in trade} == {"sta", "separable", "burley"}
     mc = data["sections"]["Profiles and kernels"]["montecarlo_vs_burley"]
@@ -30,7 +36,10 @@ def test_demo_report_has_every_section_and_embeds_its_images(tmp_path):
 
 
 def test_bench_reports_every_ratio_with_its_goal():
-    res = run_bench(repeats=1, grid=dict(taps=(5,), samples=(4,), resolutions=[(32, 24)], ratio_resolution=(64, 48)))
+    # rows at the ratio resolution, which is also the error scene's (48x64): one shape for every pass. The burley row
+    # uses 4 samples, a count nothing else compiles at this shape, so at least one compile time is measured (> 0).
+    res = run_bench(repeats=1, grid=dict(taps=(DEMO_TAPS,), samples=(4,), resolutions=[(DEMO_W, DEMO_H)],
+                                         ratio_resolution=(DEMO_W, DEMO_H)))
     assert set(res["ratios"]) == set(GOALS) == {"separable_vs_sepFilter2D", "burley_vs_filter2D",
                                                 "coverage10_vs_full", "compile_seconds", "peak_memory_vs_input"}
     for name, r in res["ratios"].items():
@@ -38,7 +47,7 @@ def test_bench_reports_every_ratio_with_its_goal():
         assert r["value"] is None or r["value"] > 0
     assert {"cv2.sepFilter2D_25", "cv2.filter2D_25x25", "scipy.fftconvolve_25x25"} == set(res["peers_ms"])
     techniques = {(r["technique"], r["count"]) for r in res["rows"]}
-    assert techniques == {("sta", None), ("separable", 5), ("burley", 4)}
+    assert techniques == {("sta", None), ("separable", DEMO_TAPS), ("burley", 4)}
     for r in res["rows"]:
         assert set(r["errors"]) == {"demo", "shadow_edge", "thin_line", "point_light"}
         assert r["ms_per_frame"] > 0

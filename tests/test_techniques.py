@@ -33,6 +33,12 @@ SCATTERING = {
 }
 
 
+# the small frame of test_jit_equals_eager and the gradient tests (they share its compilations). Square: the
+# vertical pass then has the horizontal one's shapes, so eagerly its operations compile once, not twice (the
+# non-square frames above are what check the passes keep rows and columns apart)
+HS, WS = 8, 8
+
+
 def random_irradiance(seed=0, shape=(H, W, 3)):
     return np.random.default_rng(seed).uniform(0.0, 2.0, shape)
 
@@ -55,24 +61,27 @@ def test_linear_in_irradiance(name):
 
 
 def test_zero_width_is_identity():
+    # the static settings of SCATTERING on the same frame shape: the compiled passes are reused, only d differs
     e = random_irradiance(3)
     b = plane(e)
-    zero = sj.BurleyMaterial(albedo=[1, 1, 1], d_mm=[0.0, 0.0, 0.0])
-    np.testing.assert_allclose(np.asarray(sj.burley(b, zero, CAM, samples=8)), e, rtol=1e-12)
-    np.testing.assert_allclose(np.asarray(sj.separable(b, zero, CAM, taps=9)), e, rtol=1e-12)
-    np.testing.assert_allclose(np.asarray(sj.reference(b, zero, CAM, radius_px=3)), e, rtol=1e-12)
-    tg = sj.TwoGaussianMaterial([1, 1, 1], [0.5] * 3, [0.0] * 3, [0.0] * 3)
-    np.testing.assert_allclose(np.asarray(sj.separable(b, tg, CAM, taps=9)), e, rtol=1e-12)
+    zero = sj.BurleyMaterial(albedo=[1.0, 1.0, 1.0], d_mm=[0.0, 0.0, 0.0])
+    np.testing.assert_allclose(np.asarray(sj.burley(b, zero, CAM, samples=24)), e, rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(sj.separable(b, zero, CAM, taps=15)), e, rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(sj.reference(b, zero, CAM, radius_px=8, near_subsamples=2)), e, rtol=1e-12)
+    tg = sj.TwoGaussianMaterial([1.0, 1.0, 1.0], [0.5] * 3, [0.0] * 3, [0.0] * 3)
+    np.testing.assert_allclose(np.asarray(sj.separable(b, tg, CAM, taps=15)), e, rtol=1e-12)
 
 
 def test_tiny_width_approaches_identity():
     # d = 1e-6 mm at 0.2 px/mm: the reference keeps all but exp(-5 mm / 3e-6 mm) of the mass in the centre pixel;
     # spiral samples and taps land within ~2e-5 px of the centre, so interpolation mixes in at most that fraction of
     # a neighbour (|e| <= 2): the limit is approached continuously
+    # (SCATTERING's static settings, so the compiled passes are reused)
     e = random_irradiance(4)
-    tiny = sj.BurleyMaterial(albedo=[1, 1, 1], d_mm=[1e-6] * 3)
-    np.testing.assert_allclose(np.asarray(sj.reference(plane(e), tiny, CAM, radius_px=2)), e, rtol=1e-12)
-    for out in (sj.burley(plane(e), tiny, CAM, samples=8), sj.separable(plane(e), tiny, CAM, taps=9)):
+    tiny = sj.BurleyMaterial(albedo=[1.0, 1.0, 1.0], d_mm=[1e-6] * 3)
+    out = sj.reference(plane(e), tiny, CAM, radius_px=8, near_subsamples=2)
+    np.testing.assert_allclose(np.asarray(out), e, rtol=1e-12)
+    for out in (sj.burley(plane(e), tiny, CAM, samples=24), sj.separable(plane(e), tiny, CAM, taps=15)):
         np.testing.assert_allclose(np.asarray(out), e, atol=1e-4)
 
 
@@ -158,11 +167,12 @@ def test_albedo_modes():
     e = random_irradiance(10)
     alb = np.random.default_rng(11).uniform(0.2, 0.9, (H, W, 3))
     b = sj.Buffers(irradiance=jnp.asarray(e), depth=jnp.full((H, W), 50.0), albedo=jnp.asarray(alb))
-    post = np.asarray(sj.burley(b, BURLEY, CAM, samples=16))
-    scattered = np.asarray(sj.burley(plane(e), BURLEY, CAM, samples=16))
+    # SCATTERING's sample count: the passes over plain planes reuse its compilation
+    post = np.asarray(sj.burley(b, BURLEY, CAM, samples=24))
+    scattered = np.asarray(sj.burley(plane(e), BURLEY, CAM, samples=24))
     np.testing.assert_allclose(post, alb * scattered, rtol=1e-9)
-    pre_post = np.asarray(sj.burley(b, BURLEY, CAM, samples=16, albedo_mode="pre_post"))
-    inner = np.asarray(sj.burley(plane(e * np.sqrt(alb)), BURLEY, CAM, samples=16))
+    pre_post = np.asarray(sj.burley(b, BURLEY, CAM, samples=24, albedo_mode="pre_post"))
+    inner = np.asarray(sj.burley(plane(e * np.sqrt(alb)), BURLEY, CAM, samples=24))
     np.testing.assert_allclose(pre_post, np.sqrt(alb) * inner, rtol=1e-9)
     with pytest.raises(ValueError, match="albedo_mode='both' is not one of"):
         sj.burley(b, BURLEY, CAM, albedo_mode="both")
@@ -182,13 +192,14 @@ def test_material_ids_select_parameters_in_one_pass():
 
 
 def test_jit_equals_eager():
-    e = random_irradiance(13, (8, 9, 3))
+    # the frame shape and static settings of the gradient tests below, so the jitted passes compile once for both
+    e = random_irradiance(13, (HS, WS, 3))
     b = plane(e)
     small = {
-        "burley": lambda b: sj.burley(b, BURLEY, CAM, samples=5),
+        "burley": lambda b: sj.burley(b, BURLEY, CAM, samples=6),
         "separable": lambda b: sj.separable(b, TWO_G, CAM, taps=5),
         "separable_burley": lambda b: sj.separable(b, BURLEY, CAM, taps=5),
-        "reference": lambda b: sj.reference(b, BURLEY, CAM, radius_px=2, near_subsamples=2),
+        "reference": lambda b: sj.reference(b, BURLEY, CAM, radius_px=3, near_subsamples=2),
     }
     for name, f in small.items():
         jitted = np.asarray(f(b))
@@ -211,8 +222,6 @@ def test_vmap_equals_loop():
 # gradients (float64, small images)
 # ------------------------------------------------------------------------------------------------------------------
 
-HS, WS = 8, 9
-
 
 def _small():
     rng = np.random.default_rng(30)
@@ -230,7 +239,7 @@ def test_check_grads_separable_w_sigma():
     b = _small()
 
     def f(w, sn, sf):
-        return jnp.sum(sj.separable(b, sj.TwoGaussianMaterial([1, 1, 1], w, sn, sf), CAM, taps=7) ** 2)
+        return jnp.sum(sj.separable(b, sj.TwoGaussianMaterial([1, 1, 1], w, sn, sf), CAM, taps=5) ** 2)
 
     args = (jnp.asarray([0.3, 0.5, 0.7]), jnp.asarray([4.0, 3.0, 2.0]), jnp.asarray([12.0, 9.0, 7.0]))
     check_grads(f, args, order=1, modes=["rev"], atol=1e-4, rtol=1e-4)
@@ -240,7 +249,7 @@ def test_check_grads_reference_and_separable_burley_d():
     b = _small()
     f = lambda d: jnp.sum(sj.reference(b, sj.BurleyMaterial([1, 1, 1], d), CAM, radius_px=3, near_subsamples=2) ** 2)
     check_grads(f, (jnp.asarray([9.0, 6.0, 4.0]),), order=1, modes=["rev"], atol=1e-4, rtol=1e-4)
-    g = lambda d: jnp.sum(sj.separable(b, sj.BurleyMaterial([1, 1, 1], d), CAM, taps=7) ** 2)
+    g = lambda d: jnp.sum(sj.separable(b, sj.BurleyMaterial([1, 1, 1], d), CAM, taps=5) ** 2)
     check_grads(g, (jnp.asarray([9.0, 6.0, 4.0]),), order=1, modes=["rev"], atol=1e-3, rtol=1e-3)
 
 
@@ -265,11 +274,13 @@ def test_gradients_finite_at_degenerate_inputs():
     depth[1, :3] = 0.0
     depth[2, :3] = np.nan
     b = sj.Buffers(irradiance=jnp.asarray(e), depth=jnp.asarray(depth))
-    passes = (lambda dd: sj.burley(b, sj.BurleyMaterial([1, 1, 1], dd), CAM, samples=4),
+    # the static settings of the check_grads tests above on the same frame shape: the passes' forward, linearised
+    # and transposed programs compiled there are reused (the outer grad is not jitted, so nothing is recompiled)
+    passes = (lambda dd: sj.burley(b, sj.BurleyMaterial([1, 1, 1], dd), CAM, samples=6),
               lambda dd: sj.separable(b, sj.BurleyMaterial([1, 1, 1], dd), CAM, taps=5),
-              lambda dd: sj.reference(b, sj.BurleyMaterial([1, 1, 1], dd), CAM, radius_px=2, near_subsamples=2))
+              lambda dd: sj.reference(b, sj.BurleyMaterial([1, 1, 1], dd), CAM, radius_px=3, near_subsamples=2))
     for f in passes:
-        grad = jax.jit(jax.grad(lambda dd: jnp.sum(f(dd) * 1e-30)))  # one compile per pass, reused for every d
+        grad = jax.grad(lambda dd: jnp.sum(f(dd) * 1e-30))
         for d in ([0.0, 0.0, 0.0], [1e-6] * 3, [1e6] * 3):
             assert np.all(np.isfinite(np.asarray(f(jnp.asarray(d)))))
             assert np.all(np.isfinite(np.asarray(grad(jnp.asarray(d))))), d
