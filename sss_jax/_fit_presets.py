@@ -428,6 +428,41 @@ def sta_errors(sta: dict, d_mm: np.ndarray, slab: dict) -> dict[str, Any]:
             "burley_vs_montecarlo": _rel_l2(b_v, mc_v)}
 
 
+def transmission_curves(preset: dict, slab: dict, *, points: int = 60) -> dict[str, Any]:
+    """A preset's slab transmittance at normal light and view from its fitted STA, the closed-form thin model and the
+    tabulated slab model, against its cached Monte Carlo ``slab`` block: the values at the Monte Carlo thicknesses,
+    their relative L2 over all channels, and fine curves over t/d for plots."""
+    from ._slab import slab_transmittance
+
+    sta = preset["sta"]
+    f64 = jax.dtypes.canonicalize_dtype(jnp.float64)  # float32 unless x64 is on (the preset script turns it on)
+    params = STAParams(**{k: sta[k] for k in ("distortion", "power", "scale", "ambient", "thickness_mm")}, dtype=f64)
+    albedo = np.asarray(preset["albedo"], np.float64)
+    d = np.asarray(preset["burley"]["d_mm"], np.float64)
+    light, view = jnp.asarray([0.0, 0.0, 1.0]), jnp.asarray([0.0, 0.0, -1.0])
+
+    def models(t_mm: np.ndarray, c: int) -> dict[str, np.ndarray]:
+        t = jnp.asarray(t_mm, f64)
+        return {"sta": np.asarray(sta_slab_response(params, t, light, view))[:, c],
+                "thin": np.asarray(burley_slab_transmittance(t, d))[:, c],
+                "slab": np.asarray(slab_transmittance(t, albedo[c], d[c]))}
+
+    at_mc = {m: [] for m in ("sta", "thin", "slab")}
+    fine_t_over_d = np.geomspace(0.1, 5.0, points)
+    fine = {m: [] for m in at_mc}
+    for c in range(3):
+        for m, v in models(np.asarray(slab["thickness_mm"][c], np.float64), c).items():
+            at_mc[m].append(v)
+        for m, v in models(fine_t_over_d * d[c], c).items():
+            fine[m].append(v.tolist())
+    mc = np.concatenate([np.asarray(v, np.float64) for v in slab["T"]])
+    return {"t_over_d": [(np.asarray(t) / d[c]).tolist() for c, t in enumerate(slab["thickness_mm"])],
+            "montecarlo": slab["T"], "montecarlo_stderr": slab["T_stderr"],
+            "models": {m: [v.tolist() for v in vals] for m, vals in at_mc.items()},
+            "rel_l2": {m: _rel_l2(np.concatenate(vals), mc) for m, vals in at_mc.items()},
+            "fine_t_over_d": fine_t_over_d.tolist(), "fine": fine}
+
+
 def engine_errors(albedo, d_mm: np.ndarray, mc_profile, mc_albedo) -> dict[str, Any]:
     """What each engine renders for the preset (``_engines.engine_marginals``: its kernel as that engine builds it)
     against the Burley profile and against the Monte Carlo profile, as 1D-marginal bin masses (bins of d/4 out to

@@ -1,6 +1,7 @@
 """The HTML report and the bench: every section and field present, everything embedded, goals beside ratios."""
 
 import json
+import pathlib
 import re
 
 from sss_jax._bench import GOALS, run_bench
@@ -12,6 +13,7 @@ from sss_jax._reporting import write_demo_report
 # (48x64) and ratio passes (burley 32, separable 25) then reuse the passes compiled for the demo instead of compiling
 # their own. The checks below are about structure and bounds that hold at any of these sizes.
 DEMO_H, DEMO_W, DEMO_SAMPLES, DEMO_TAPS = 48, 64, 8, 9
+PRESETS = pathlib.Path(__file__).resolve().parents[1] / "fits"
 
 
 def test_demo_report_has_every_section_and_embeds_its_images(tmp_path):
@@ -19,7 +21,7 @@ def test_demo_report_has_every_section_and_embeds_its_images(tmp_path):
     html_path = write_demo_report(result, tmp_path)
     page = html_path.read_text()
     for title in ("Summary", "Renders", "Difference maps", "Profiles and kernels", "Energy",
-                  "Speed against accuracy", "Presets"):
+                  "Speed against accuracy", "Presets", "Engines", "Transmission"):
         assert f">{title}</h2>" in page, title
     assert len(re.findall(r"data:image/png;base64,", page)) >= 15
     assert not re.search(r"(src|href)=['\"](http|file:|/)", page)  # self-contained
@@ -32,6 +34,13 @@ def test_demo_report_has_every_section_and_embeds_its_images(tmp_path):
     assert [r["albedo"] for r in mc] == [0.5, 0.9, 0.99] and all(r["rel_l2_rR"] < 0.2 for r in mc)
     energy = {r["technique"]: r for r in data["sections"]["Energy"]["energy"]}
     assert energy["sta"]["R"] > 1 and energy["sta"]["conserves"].startswith("no")
+    # transmission: every shipped preset compared, and for the index-matched ones (eta 1) the tabulated slab model
+    # agrees with the preset's own Monte Carlo slabs far better than the closed form (docs/engines.md: table within
+    # ~1% of Monte Carlo, the closed form 7-10% off), whatever the preset
+    trans = data["sections"]["Transmission"]["transmission"]
+    assert len(trans) == len(list(PRESETS.glob("*.json"))) - 1  # all but the schema
+    matched = [r for r in trans if r["eta"] == 1.0]
+    assert matched and all(r["slab vs MC"] < 0.02 < r["thin vs MC"] for r in matched)
     assert not list(tmp_path.glob(".*tmp*"))
 
 
