@@ -167,7 +167,8 @@ def _burley_weight_kernel(x: Array) -> Array:
     the per-channel normalisation. ``x = inf`` (d = 0 or no overlap) gives 0; x is never 0 here (r > 0)."""
     finite = jnp.isfinite(x) & (x > 0)
     xs = jnp.where(finite, x, 1.0)
-    return jnp.where(finite, (jnp.exp(-xs) + jnp.exp(-xs / 3)) / xs, 0.0)
+    e3 = jnp.exp(-xs / 3)  # exp(-x) = e3^3: one exponential, not two
+    return jnp.where(finite, e3 * (e3 * e3 + 1) / xs, 0.0)
 
 
 # Footprint below which a pixel keeps its local shading (px): the paper's Fig. 1, scattering narrower than a pixel
@@ -180,7 +181,8 @@ _BURLEY_R99 = float(np.asarray(burley_inverse_ccdf(np.float64(0.01), np.float64(
 
 @eqx.filter_jit
 def _burley_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, samples: int, albedo_mode: str,
-                 interpolation: str, capacity: int | None, min_footprint_px: float) -> Array:
+                 interpolation: str, capacity: int | None, min_footprint_px: float, weight_channels: int = 3,
+                 truncate: bool = True) -> Array:
     dtype = _work_dtype(buffers.irradiance.dtype)
     d_table = _checked(material.d_mm.astype(dtype), "d_mm")
     prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
@@ -209,14 +211,23 @@ def _burley_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, sam
     diag_px = math.hypot(h, w)
     r_clip = jnp.where(ppm_c > 0, diag_px / jnp.where(ppm_c > 0, ppm_c, 1.0), jnp.inf)
     inside_fraction = jnp.where(dmax_c > 0, burley_cdf(jnp.minimum(r_clip, 1e30), dmax_c), 1.0)
-    ok_d = d_c > 0
-    inv_d = jnp.where(ok_d, 1.0 / jnp.where(ok_d, d_c, 1.0), 0.0)
+    # channels with one d (grey materials) share one weight: the kernel is evaluated once, not per channel
+    d_w = d_c[..., :weight_channels]
+    ok_d = d_w > 0
+    inv_d = jnp.where(ok_d, 1.0 / jnp.where(ok_d, d_w, 1.0), 0.0)
+
+    # Where no pixel's profile reaches past the image diagonal by more than rounding (``truncate`` False, decided on
+    # the host) every pixel shares the sample radius in units of d_max: one scalar inverse CDF per sample, not one
+    # per pixel and sample.
 
     def body(i, acc):
         num, den = acc
         fi = jnp.asarray(i, dtype)
-        v = 1 - (fi + 0.5) / samples * inside_fraction  # stratified CCDF, truncated to the image
-        rho = burley_inverse_ccdf(v, jnp.ones_like(v))  # radius in units of d_max
+        if truncate:
+            v = 1 - (fi + 0.5) / samples * inside_fraction  # stratified CCDF, truncated to the image
+            rho = burley_inverse_ccdf(v, jnp.ones_like(v))  # radius in units of d_max
+        else:
+            rho = burley_inverse_ccdf(1 - (fi + 0.5) / samples, jnp.ones((), dtype))  # scalar
         r_mm = rho * dmax_c
         off = r_mm * ppm_c
         theta = fi * GOLDEN_ANGLE
@@ -235,9 +246,8 @@ def _burley_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, sam
             den = den + wgt
         return num, den
 
-    zeros = jnp.zeros_like(e_c)
-    num, den = jax.lax.fori_loop(0, samples, body, (zeros, zeros))
-    ok = den > 0
+    num, den = jax.lax.fori_loop(0, samples, body, (jnp.zeros_like(e_c), jnp.zeros_like(d_w)))
+    ok = jnp.broadcast_to(den > 0, num.shape)
     result = jnp.where(ok, num / jnp.where(ok, den, 1.0), e_c)
     if capacity is None:
         scattered = result.reshape(h, w, 3)
@@ -262,13 +272,20 @@ def compaction_capacity(active_count: int, pixels: int, *, minimum: int = 256) -
 def burley_active_count(buffers: Buffers, material: BurleyMaterial, camera: Camera, *,
                         min_footprint_px: float = MIN_FOOTPRINT_PX) -> int:
     """Host side: how many pixels ``burley`` computes (SSS pixels whose footprint reaches ``min_footprint_px``)."""
+    return _burley_active(buffers, material, camera, min_footprint_px)[0]
+
+
+def _burley_active(buffers: Buffers, material: BurleyMaterial, camera: Camera, min_footprint_px: float):
+    """Host side: the number of active pixels and the largest widest-channel d among them, in px (0 if none)."""
     depth = np.asarray(buffers.depth, np.float64)
     valid = np.asarray(_sss_mask(buffers))
     d = np.asarray(material.d_mm, np.float64).reshape(-1, 3).max(axis=-1)
     rows = np.asarray(_material_rows(buffers, d.shape[0]))
     safe = np.where(valid & np.isfinite(depth) & (depth > 0), depth, np.inf)
     ppm = float(camera.focal_px) / (safe * float(camera.mm_per_unit))
-    return int(np.count_nonzero(valid & (d[rows] * ppm * _BURLEY_R99 >= min_footprint_px)))
+    d_px = d[rows] * ppm
+    active = valid & (d_px * _BURLEY_R99 >= min_footprint_px)
+    return int(np.count_nonzero(active)), float(np.max(d_px, where=active, initial=0.0))
 
 
 def burley(
@@ -297,7 +314,8 @@ def burley(
     compacted into a buffer of the next power-of-two size (one compilation per size bucket), computed, and scattered
     back; ``compact=None`` (default) does so where the bucket holds under half the frame, ``True`` always, ``False``
     never. Under ``jit``/``vmap`` every pixel is computed (one compilation per shape). Compacted and dense results
-    agree to rounding.
+    agree to rounding. Channels that share one d (a grey material, or every material grey) share one kernel
+    evaluation per sample instead of three; the result is the same.
     """
     _check_albedo_mode(albedo_mode)
     if interpolation not in ("bilinear", "nearest"):
@@ -308,15 +326,34 @@ def burley(
         raise ValueError(f"samples must be a positive integer, got {samples!r}")
     if not (float(min_footprint_px) >= 0):
         raise ValueError(f"min_footprint_px must be >= 0, got {min_footprint_px!r}")
-    capacity = None
-    if compact is not False and _is_concrete(buffers, material, camera):
-        h, w = buffers.depth.shape[-2:]
-        count = burley_active_count(buffers, material, camera, min_footprint_px=float(min_footprint_px))
-        capacity = compaction_capacity(count, h * w)
-        if compact and capacity is None:
-            capacity = 1 << max(0, count - 1).bit_length()
+    capacity, truncate = None, True
+    weight_channels = weight_channel_count(material.d_mm)
+    if _is_concrete(buffers, material, camera):
+        count, reach_px = _burley_active(buffers, material, camera, float(min_footprint_px))
+        truncate = reach_px * _untruncated_radius(buffers.irradiance.dtype) > math.hypot(*buffers.depth.shape[-2:])
+        if compact is not False:
+            h, w = buffers.depth.shape[-2:]
+            capacity = compaction_capacity(count, h * w)
+            if compact and capacity is None:
+                capacity = 1 << max(0, count - 1).bit_length()
     return _burley_impl(buffers, material, camera, int(samples), albedo_mode, interpolation, capacity,
-                        float(min_footprint_px))
+                        float(min_footprint_px), weight_channels, bool(truncate))
+
+
+def _untruncated_radius(dtype) -> float:
+    """Radius (units of d) beyond which the Burley profile's remaining energy rounds away in ``dtype``: a pixel
+    whose image diagonal is farther than this needs no truncated sampling."""
+    eps = float(jnp.finfo(_work_dtype(dtype)).eps)
+    return float(np.asarray(burley_inverse_ccdf(np.float64(eps / 4), np.float64(1.0))))
+
+
+def weight_channel_count(d_mm) -> int:
+    """Host side: 1 where every material's d is the same in R, G and B (one kernel serves the three channels, so
+    ``burley`` evaluates it once), else 3. Traced d (under ``jit``/``grad``) always gives 3."""
+    if not _is_concrete(d_mm):
+        return 3
+    d = np.asarray(d_mm).reshape(-1, 3)
+    return 1 if np.array_equal(d, np.broadcast_to(d[:, :1], d.shape)) else 3
 
 
 # ------------------------------------------------------------------------------------------------------------------
@@ -405,26 +442,59 @@ def _separable_level(ev_pad: Array, z_pad: Array, v_pad: Array, e: Array, z: Arr
     return jax.lax.fori_loop(0, taps, body, jnp.zeros_like(e), unroll=_TAP_UNROLL)
 
 
-def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, level_reach_px: Array, skip: Array,
-                    tap_weight: Callable[[Array], Array], inv_reach_mm: Array, unit_offsets: Array, mm_per_unit: Array,
-                    follow_surface: bool, interpolation: str) -> Array:
-    """One horizontal 1D pass (transpose for vertical), planar ``e (3, H, W)``: the levels' shifted-slice passes,
-    blended per pixel by ``level_weights (L, H, W)``; levels no pixel uses are not computed; ``skip`` pixels keep
-    their own value."""
-    pad = e.shape[-1] + 2
-    v = valid.astype(e.dtype)
-    padw = lambda a: jnp.pad(a, [(0, 0)] * (a.ndim - 1) + [(pad, pad)])
-    ev_pad = padw(e * v[None])
-    z_pad = padw(z * v)
-    v_pad = padw(v)
-    def level(j, out):
-        lw = level_weights[j]
-        run = lambda: _separable_level(ev_pad, z_pad, v_pad, e, z, level_reach_px[j], inv_reach_mm, tap_weight,
-                                       unit_offsets, mm_per_unit, pad, follow_surface, interpolation)
-        return out + lw[None] * jax.lax.cond(jnp.any(lw > 0), run, lambda: jnp.zeros_like(e))
+def _band_rows(height: int) -> int:
+    """Rows per band of a pass: at most ``_MAX_BANDS`` bands, at least 8 rows each."""
+    return max(8, -(-height // _MAX_BANDS))
 
-    # a loop, not unrolled: the compile time does not grow with the number of levels
-    out = jax.lax.fori_loop(0, level_reach_px.shape[0], level, jnp.zeros_like(e))
+
+_MAX_BANDS = 16
+
+
+def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, level_reach_px: Array, skip: Array,
+                    onehot: Array | None, w_table: Array, inv_reach_mm: Array, unit_offsets: Array,
+                    mm_per_unit: Array, follow_surface: bool, interpolation: str,
+                    rows_per_band: int | None = None) -> Array:
+    """One horizontal 1D pass (transpose for vertical), planar ``e (3, H, W)``: the levels' shifted-slice passes,
+    blended per pixel by ``level_weights (L, H, W)``; ``skip`` pixels keep their own value.
+
+    Rows are independent in a horizontal pass, so the frame is cut into bands of rows and each band computes only
+    the levels its own pixels use (a band without SSS pixels computes none): the cost follows the scene's coverage
+    and depth range. Tap weights: ``w_table (M, 3, n)`` per material, chosen per pixel by ``onehot (M, H, W)``
+    (``None`` for one material)."""
+    _, h, w = e.shape
+    rows_per_band = rows_per_band or _band_rows(h)
+    bands = -(-h // rows_per_band)
+    pad = w + 2
+    v = valid.astype(e.dtype)
+    # bands past the last row are padding: no valid pixel, no level weight, so they compute nothing
+    pad_rows = lambda a: jnp.pad(a, [(0, 0)] * (a.ndim - 2) + [(0, bands * rows_per_band - h), (0, 0)])
+    padw = lambda a: jnp.pad(a, [(0, 0)] * (a.ndim - 1) + [(pad, pad)])
+    planes = {"ev_pad": padw(pad_rows(e * v[None])), "z_pad": padw(pad_rows(z * v)), "v_pad": padw(pad_rows(v)),
+              "e": pad_rows(e), "z": pad_rows(z), "lw": pad_rows(level_weights), "inv": pad_rows(inv_reach_mm)}
+    if onehot is not None:
+        planes["onehot"] = pad_rows(onehot)
+
+    def band(k):
+        b = {name: jax.lax.dynamic_slice_in_dim(a, k * rows_per_band, rows_per_band, axis=a.ndim - 2)
+             for name, a in planes.items()}
+        if onehot is None:
+            tap_weight = lambda i: w_table[0, :, i][:, None, None]
+        else:
+            tap_weight = lambda i: sum(b["onehot"][m][None] * w_table[m, :, i][:, None, None]
+                                       for m in range(w_table.shape[0]))
+
+        def level(j, out):
+            lw = b["lw"][j]
+            run = lambda: _separable_level(b["ev_pad"], b["z_pad"], b["v_pad"], b["e"], b["z"], level_reach_px[j],
+                                           b["inv"], tap_weight, unit_offsets, mm_per_unit, pad, follow_surface,
+                                           interpolation)
+            return out + lw[None] * jax.lax.cond(jnp.any(lw > 0), run, lambda: jnp.zeros_like(b["e"]))
+
+        # a loop, not unrolled: the compile time does not grow with the number of levels
+        return jax.lax.fori_loop(0, level_reach_px.shape[0], level, jnp.zeros_like(b["e"]))
+
+    out = jax.lax.map(band, jnp.arange(bands))  # (bands, 3, rows, W)
+    out = jnp.moveaxis(out, 0, 1).reshape(e.shape[0], bands * rows_per_band, w)[:, :h]
     return jnp.where(skip[None], e, out)
 
 
@@ -466,22 +536,16 @@ def _separable_impl(buffers: Buffers, material, camera: Camera, taps: int, albed
     level_reach_px = jnp.exp(lo + span * levels / max(nlev - 1, 1))
     level_reach_px = jnp.where(any_active, level_reach_px, 0.0)
     unit_offsets = jnp.asarray(_unit_tap_offsets(taps), dtype)
-    if count == 1:
-        tap_weight = lambda i: weights[0, i][:, None, None]
-        tap_weight_t = tap_weight
-    else:
-        w_planes = [jnp.moveaxis(weights[m], -1, 0) for m in range(count)]  # (3, n) each
-        onehot_t = [jnp.swapaxes(o, 0, 1) for o in onehot]
-        tap_weight = lambda i: sum(onehot[m][None] * w_planes[m][:, i][:, None, None] for m in range(count))
-        tap_weight_t = lambda i: sum(onehot_t[m][None] * w_planes[m][:, i][:, None, None] for m in range(count))
+    w_table = jnp.moveaxis(weights, -1, 1)  # (M, 3, n)
+    onehot_planes = None if count == 1 else jnp.stack(onehot)  # (M, H, W)
     common = dict(unit_offsets=unit_offsets, mm_per_unit=mm_per_unit, follow_surface=follow_surface,
                   interpolation=interpolation)
+    t2 = lambda a: None if a is None else jnp.swapaxes(a, -1, -2)
     e = jnp.moveaxis(prep.irradiance, -1, 0)  # planar (3, H, W): the fused loops run along rows
-    e = _separable_pass(e, prep.depth, prep.valid, level_weights, level_reach_px, skip, tap_weight, inv_reach_mm,
-                        **common)
-    t2 = lambda a: jnp.swapaxes(a, -1, -2)
+    e = _separable_pass(e, prep.depth, prep.valid, level_weights, level_reach_px, skip, onehot_planes, w_table,
+                        inv_reach_mm, **common)
     e = t2(_separable_pass(t2(e), t2(prep.depth), t2(prep.valid), t2(level_weights), level_reach_px, t2(skip),
-                           tap_weight_t, t2(inv_reach_mm), **common))
+                           t2(onehot_planes), w_table, t2(inv_reach_mm), **common))
     return _finish(buffers, prep, jnp.moveaxis(e, 0, -1))
 
 

@@ -17,7 +17,13 @@ from sss_jax._advise import (
     known_materials,
     resolve_material,
 )
-from sss_jax._techniques import burley_active_count, compaction_capacity
+from sss_jax._techniques import (
+    _burley_impl,
+    _separable_pass,
+    burley_active_count,
+    compaction_capacity,
+    weight_channel_count,
+)
 from sss_jax.cli import main
 
 CAM = sj.Camera(focal_px=100.0, mm_per_unit=10.0)  # at depth 50: 0.2 px per mm
@@ -74,6 +80,82 @@ def test_footprint_below_half_a_pixel_keeps_local_shading(technique):
     assert burley_active_count(b, tiny, CAM) == 0 and burley_active_count(b, tiny, CAM, min_footprint_px=0.0) == 768
     with pytest.raises(ValueError, match="min_footprint_px must be >= 0"):
         run(min_footprint_px=-1.0)
+
+
+def _exp_shapes(fn, *args) -> list[tuple[int, ...]]:
+    """Output shapes of every ``exp`` in the traced computation, nested jaxprs (jit, loops) included."""
+    shapes = []
+
+    def walk(jaxpr):
+        for eqn in jaxpr.eqns:
+            if eqn.primitive.name == "exp":
+                shapes.append(tuple(eqn.outvars[0].aval.shape))
+            for v in eqn.params.values():
+                for sub in v if isinstance(v, (tuple, list)) else (v,):
+                    if isinstance(sub, jax.extend.core.ClosedJaxpr):
+                        walk(sub.jaxpr)
+                    elif isinstance(sub, jax.extend.core.Jaxpr):
+                        walk(sub)
+
+    walk(jax.make_jaxpr(fn)(*args).jaxpr)
+    return shapes
+
+
+def test_grey_channels_share_one_kernel_evaluation():
+    b = _scene(coverage_rows=24)
+    grey = sj.BurleyMaterial(albedo=[0.9, 0.8, 0.7], d_mm=[3.0, 3.0, 3.0])
+    assert weight_channel_count(grey.d_mm) == 1 and weight_channel_count(MAT.d_mm) == 3
+    assert weight_channel_count(jnp.asarray([[3.0] * 3, [2.0, 2.0, 2.1]])) == 3  # every material must be grey
+    # the per-sample kernel is evaluated on one channel for the grey material, on three otherwise
+    n = 24 * 32
+    grey_exps = _exp_shapes(lambda bb: sj.burley(bb, grey, CAM, samples=8, compact=False), b)
+    rgb_exps = _exp_shapes(lambda bb: sj.burley(bb, MAT, CAM, samples=8, compact=False), b)
+    assert (n, 1) in grey_exps and (n, 3) not in grey_exps
+    assert (n, 3) in rgb_exps and (n, 1) not in rgb_exps
+    # and the image is the one the three-channel evaluation gives
+    shared = np.asarray(sj.burley(b, grey, CAM, samples=8, compact=False))
+    per_channel = np.asarray(_burley_impl(b, grey, CAM, 8, "post", "bilinear", None, 0.5, 3, True))
+    np.testing.assert_allclose(shared, per_channel, rtol=1e-12, atol=1e-14)
+    assert np.abs(shared - 0.9 * np.asarray(b.irradiance)[..., :1]).max() > 1e-3  # it did scatter
+
+
+def test_untruncated_frames_share_the_sample_radii():
+    # a wide frame against a small d: the profile's tail beyond the image diagonal rounds away, so the per-pixel
+    # truncated sampling and the shared radii give the same image; where the diagonal cuts the profile (large d) the
+    # truncated sampling is kept, and it matters there
+    b = _scene(coverage_rows=24, h=24, w=32)
+    small = sj.BurleyMaterial(albedo=[0.9, 0.8, 0.7], d_mm=[0.6, 0.3, 0.15])  # 0.12 px: diagonal 40 px = 333 d
+    large = sj.BurleyMaterial(albedo=[0.9, 0.8, 0.7], d_mm=[60.0, 30.0, 15.0])  # 12 px: diagonal 3.3 d
+    impl = lambda m, truncate: np.asarray(_burley_impl(b, m, CAM, 8, "post", "bilinear", None, 0.0, 3, truncate))
+    out_small = np.asarray(sj.burley(b, small, CAM, samples=8, min_footprint_px=0.0, compact=False))
+    np.testing.assert_allclose(out_small, impl(small, True), rtol=1e-12, atol=1e-14)
+    np.testing.assert_array_equal(out_small, impl(small, False))  # the shared radii are what ran
+    out_large = np.asarray(sj.burley(b, large, CAM, samples=8, min_footprint_px=0.0, compact=False))
+    np.testing.assert_array_equal(out_large, impl(large, True))
+    assert np.abs(impl(large, False) - out_large).max() > 1e-3
+
+
+def test_separable_bands_compute_only_their_own_levels_and_agree_with_one_band():
+    # a frame of 19 rows (bands of 8, 8 and 3 + 5 padding rows), two materials with their own tap weights, SSS
+    # pixels only in the middle rows, and two reach levels that each only some bands use
+    rng = np.random.default_rng(3)
+    h, w, n = 19, 23, 5
+    e = jnp.asarray(rng.uniform(0.0, 2.0, (3, h, w)))
+    z = jnp.asarray(50.0 + rng.uniform(0.0, 3.0, (h, w)))
+    valid = np.zeros((h, w), bool)
+    valid[6:15] = True
+    t = np.clip((np.arange(h)[:, None] - 6) / 8.0, 0, 1) * np.ones((1, w))  # level 0 at the top, level 1 below
+    level_weights = jnp.asarray(np.stack([1 - t, t]) * valid[None])
+    onehot = np.zeros((2, h, w))
+    onehot[0, :, : w // 2], onehot[1, :, w // 2 :] = 1, 1
+    w_table = jnp.asarray(rng.uniform(0.1, 1.0, (2, 3, n)))
+    args = (e, z, jnp.asarray(valid), level_weights, jnp.asarray([2.0, 5.0]), jnp.asarray(~valid), jnp.asarray(onehot),
+            w_table, jnp.full((h, w), 0.2), jnp.asarray(np.linspace(-1, 1, n)), jnp.asarray(10.0), True, "bilinear")
+    banded = np.asarray(_separable_pass(*args, rows_per_band=8))
+    whole = np.asarray(_separable_pass(*args, rows_per_band=h))
+    np.testing.assert_allclose(banded, whole, rtol=1e-13, atol=1e-13)
+    np.testing.assert_array_equal(banded[:, ~valid], np.asarray(e)[:, ~valid])  # rows without SSS keep their value
+    assert np.abs(banded - np.asarray(e))[:, valid].max() > 1e-2  # and the others were filtered
 
 
 def test_separable_levels_exact_for_one_reach_and_close_otherwise():

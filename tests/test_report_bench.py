@@ -61,7 +61,8 @@ def test_bench_reports_every_ratio_with_its_goal():
         assert set(r["errors"]) == {"demo", "shadow_edge", "thin_line", "point_light"}
         assert r["ms_per_frame"] > 0
     assert res["pareto"] and res["pareto"][0]["ms_per_frame"] == min(r["ms_per_frame"] for r in res["rows"])
-    assert set(res["other_ratios"]) == {"separable_coverage10_vs_full", "burley_three_materials_vs_one"}
+    assert set(res["other_ratios"]) == {"separable_coverage10_vs_full", "burley_three_materials_vs_one",
+                                        "burley_grey_vs_rgb"}
     skips = res["footprint_skip"]
     assert [r["d_scale"] for r in skips] == [1 / 8, 1 / 32, 1 / 64]
     assert skips[0]["skipped_fraction"] < skips[-1]["skipped_fraction"]  # smaller d: more pixels under half a pixel
