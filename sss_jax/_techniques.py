@@ -500,16 +500,22 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
 
 @eqx.filter_jit
 def _separable_impl(buffers: Buffers, material, camera: Camera, taps: int, albedo_mode: str, follow_surface: bool,
-                    interpolation: str, scale_levels: int, min_footprint_px: float) -> Array:
+                    interpolation: str, scale_levels: int, min_footprint_px: float,
+                    kernel_groups: tuple[int, ...] | None = None) -> Array:
     dtype = _work_dtype(buffers.irradiance.dtype)
     offsets, weights = _kernel_table(material, taps, dtype)  # (M, n) mm, (M, n, 3)
     prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
+    rows = prep.rows
+    if kernel_groups is not None:  # materials with one kernel share it: one table row, one weight term per group
+        first = [kernel_groups.index(g) for g in range(max(kernel_groups) + 1)]
+        offsets, weights = offsets[np.asarray(first)], weights[np.asarray(first)]
+        rows = jnp.asarray(kernel_groups, jnp.int32)[rows]
     mm_per_unit = camera.mm_per_unit.astype(dtype)
     ppm = px_per_mm(prep.depth, focal_px=camera.focal_px.astype(dtype), mm_per_unit=mm_per_unit)
     ppm = jnp.where(prep.valid, ppm, 0.0)
     table_reach_mm = jnp.max(jnp.abs(offsets), axis=-1)  # (M,): every kernel is its reach times one tap pattern
     count = offsets.shape[0]
-    onehot = [(prep.rows == m).astype(dtype) for m in range(count)] if count > 1 else None
+    onehot = [(rows == m).astype(dtype) for m in range(count)] if count > 1 else None
     per_pixel = lambda table: table[0] if count == 1 else sum(onehot[m] * table[m] for m in range(count))
     reach_mm = jnp.broadcast_to(per_pixel(table_reach_mm), ppm.shape)  # (H, W)
     reach_px = reach_mm * ppm
@@ -575,7 +581,8 @@ def separable(
     between the frame's smallest and largest reach, and each pixel blends the two levels bracketing its own reach
     (exact where every pixel has the same reach; levels no pixel uses are skipped). Pixels whose footprint (the radius
     holding 99% of the widest channel's energy, in px) is below ``min_footprint_px`` keep their local shading
-    (``albedo * irradiance``, the paper's Fig. 1); 0 disables that.
+    (``albedo * irradiance``, the paper's Fig. 1); 0 disables that. Several materials in one frame cost one pass;
+    materials that share a kernel (differing only in albedo) share its table row and per-pixel weight term.
     """
     _check_albedo_mode(albedo_mode)
     if interpolation not in ("linear", "nearest"):
@@ -588,7 +595,26 @@ def separable(
         raise ValueError(f"min_footprint_px must be >= 0, got {min_footprint_px!r}")
     mode = "bilinear" if interpolation == "linear" else "nearest"
     return _separable_impl(buffers, material, camera, int(taps), albedo_mode, bool(follow_surface), mode,
-                           int(scale_levels), float(min_footprint_px))
+                           int(scale_levels), float(min_footprint_px), kernel_groups(material))
+
+
+def kernel_groups(material) -> tuple[int, ...] | None:
+    """Host side: for a table of several materials of which some share one separable kernel (the same d, or the
+    same two-Gaussian w and sigmas; the albedo may differ), the group of each material (groups numbered in order of
+    first appearance), so ``separable`` builds and weights each distinct kernel once; ``None`` where every kernel is
+    distinct, for one material, or for traced parameters."""
+    if isinstance(material, BurleyMaterial):
+        params = [material.d_mm]
+    elif isinstance(material, TwoGaussianMaterial):
+        params = [material.w, material.sigma_near_mm, material.sigma_far_mm]
+    else:
+        return None
+    if not _is_concrete(params) or np.ndim(params[0]) < 2 or np.shape(params[0])[0] < 2:
+        return None
+    key = np.concatenate([np.asarray(p).reshape(np.shape(params[0])[0], -1) for p in params], axis=1)
+    groups: dict[bytes, int] = {}
+    out = tuple(groups.setdefault(row.tobytes(), len(groups)) for row in key)
+    return out if len(groups) < len(out) else None
 
 
 # ------------------------------------------------------------------------------------------------------------------

@@ -19,9 +19,11 @@ from sss_jax._advise import (
 )
 from sss_jax._techniques import (
     _burley_impl,
+    _separable_impl,
     _separable_pass,
     burley_active_count,
     compaction_capacity,
+    kernel_groups,
     weight_channel_count,
 )
 from sss_jax.cli import main
@@ -156,6 +158,44 @@ def test_separable_bands_compute_only_their_own_levels_and_agree_with_one_band()
     np.testing.assert_allclose(banded, whole, rtol=1e-13, atol=1e-13)
     np.testing.assert_array_equal(banded[:, ~valid], np.asarray(e)[:, ~valid])  # rows without SSS keep their value
     assert np.abs(banded - np.asarray(e))[:, valid].max() > 1e-2  # and the others were filtered
+
+
+def _count_primitive(jaxpr, name: str) -> int:
+    n = 0
+    for eqn in jaxpr.eqns:
+        n += eqn.primitive.name == name
+        for v in eqn.params.values():
+            for sub in v if isinstance(v, (tuple, list)) else (v,):
+                if isinstance(sub, jax.extend.core.ClosedJaxpr):
+                    n += _count_primitive(sub.jaxpr, name)
+                elif isinstance(sub, jax.extend.core.Jaxpr):
+                    n += _count_primitive(sub, name)
+    return n
+
+
+def test_materials_sharing_a_kernel_share_its_weight_term():
+    # three materials, the first and the third with one kernel (same d, other albedo): two kernels, not three
+    mats = sj.BurleyMaterial(albedo=[[0.9, 0.8, 0.7], [0.5, 0.5, 0.5], [0.3, 0.6, 0.9]],
+                             d_mm=[[6.0, 3.0, 1.5], [2.0, 1.0, 0.5], [6.0, 3.0, 1.5]])
+    assert kernel_groups(mats) == (0, 1, 0)
+    assert kernel_groups(sj.BurleyMaterial(albedo=[[1] * 3] * 2, d_mm=[[1.0] * 3, [2.0] * 3])) is None  # distinct
+    assert kernel_groups(MAT) is None  # one material
+    tg = sj.TwoGaussianMaterial(albedo=[[1] * 3, [0.5] * 3], w=[[0.5] * 3] * 2, sigma_near_mm=[[1.0] * 3] * 2,
+                                sigma_far_mm=[[4.0] * 3, [4.0, 4.0, 5.0]])
+    assert kernel_groups(tg) is None
+    b = _scene(coverage_rows=24)
+    ids = np.ones((24, 32), np.int32)
+    ids[:, 10:20], ids[:, 20:] = 2, 3
+    b = sj.Buffers(irradiance=b.irradiance, depth=b.depth, material_id=jnp.asarray(ids))
+    args = (b, mats, CAM, 9, "post", True, "bilinear", 4, 0.5)
+    shared = np.asarray(sj.separable(b, mats, CAM, taps=9))
+    np.testing.assert_allclose(shared, np.asarray(_separable_impl(*args, None)), rtol=1e-12, atol=1e-14)
+    albedo = np.asarray(mats.albedo)[ids - 1]
+    assert np.abs(shared - albedo * np.asarray(b.irradiance)).max() > 1e-3  # it scattered (not local shading)
+    # one per-pixel selection (an equality test against the material row) per kernel: two, not three
+    eqs = {g: _count_primitive(jax.make_jaxpr(lambda bb, g=g: _separable_impl(bb, *args[1:], g))(b).jaxpr, "eq")
+           for g in (None, (0, 1, 0))}
+    assert eqs[(0, 1, 0)] == eqs[None] - 1
 
 
 def test_separable_levels_exact_for_one_reach_and_close_otherwise():
