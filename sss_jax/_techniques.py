@@ -18,6 +18,7 @@ irradiance's dtype. Lengths of materials are in mm, depth in scene units, offset
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Callable
 
@@ -216,18 +217,15 @@ def _burley_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, sam
     ok_d = d_w > 0
     inv_d = jnp.where(ok_d, 1.0 / jnp.where(ok_d, d_w, 1.0), 0.0)
 
-    # Where no pixel's profile reaches past the image diagonal by more than rounding (``truncate`` False, decided on
-    # the host) every pixel shares the sample radius in units of d_max: one scalar inverse CDF per sample, not one
-    # per pixel and sample.
-
     def body(i, acc):
         num, den = acc
         fi = jnp.asarray(i, dtype)
         if truncate:
             v = 1 - (fi + 0.5) / samples * inside_fraction  # stratified CCDF, truncated to the image
             rho = burley_inverse_ccdf(v, jnp.ones_like(v))  # radius in units of d_max
-        else:
-            rho = burley_inverse_ccdf(1 - (fi + 0.5) / samples, jnp.ones((), dtype))  # scalar
+        else:  # no profile reaches past the image diagonal by more than rounding (decided on the host): every
+            # pixel shares the sample radius, one scalar inverse CDF per sample, not one per pixel and sample
+            rho = burley_inverse_ccdf(1 - (fi + 0.5) / samples, jnp.ones((), dtype))
         r_mm = rho * dmax_c
         off = r_mm * ppm_c
         theta = fi * GOLDEN_ANGLE
@@ -329,10 +327,10 @@ def burley(
     capacity, truncate = None, True
     weight_channels = weight_channel_count(material.d_mm)
     if _is_concrete(buffers, material, camera):
+        h, w = buffers.depth.shape[-2:]
         count, reach_px = _burley_active(buffers, material, camera, float(min_footprint_px))
-        truncate = reach_px * _untruncated_radius(buffers.irradiance.dtype) > math.hypot(*buffers.depth.shape[-2:])
+        truncate = reach_px * _untruncated_radius(buffers.irradiance.dtype) > math.hypot(h, w)
         if compact is not False:
-            h, w = buffers.depth.shape[-2:]
             capacity = compaction_capacity(count, h * w)
             if compact and capacity is None:
                 capacity = 1 << max(0, count - 1).bit_length()
@@ -340,6 +338,7 @@ def burley(
                         float(min_footprint_px), weight_channels, bool(truncate))
 
 
+@functools.lru_cache(maxsize=None)
 def _untruncated_radius(dtype) -> float:
     """Radius (units of d) beyond which the Burley profile's remaining energy rounds away in ``dtype``: a pixel
     whose image diagonal is farther than this needs no truncated sampling."""

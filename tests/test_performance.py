@@ -84,23 +84,26 @@ def test_footprint_below_half_a_pixel_keeps_local_shading(technique):
         run(min_footprint_px=-1.0)
 
 
-def _exp_shapes(fn, *args) -> list[tuple[int, ...]]:
-    """Output shapes of every ``exp`` in the traced computation, nested jaxprs (jit, loops) included."""
-    shapes = []
+def _equations(fn, *args, primitive: str):
+    """Every equation of ``primitive`` in the traced computation, nested jaxprs (jit, loops, conds) included."""
 
     def walk(jaxpr):
         for eqn in jaxpr.eqns:
-            if eqn.primitive.name == "exp":
-                shapes.append(tuple(eqn.outvars[0].aval.shape))
+            if eqn.primitive.name == primitive:
+                yield eqn
             for v in eqn.params.values():
                 for sub in v if isinstance(v, (tuple, list)) else (v,):
                     if isinstance(sub, jax.extend.core.ClosedJaxpr):
-                        walk(sub.jaxpr)
+                        yield from walk(sub.jaxpr)
                     elif isinstance(sub, jax.extend.core.Jaxpr):
-                        walk(sub)
+                        yield from walk(sub)
 
-    walk(jax.make_jaxpr(fn)(*args).jaxpr)
-    return shapes
+    return list(walk(jax.make_jaxpr(fn)(*args).jaxpr))
+
+
+def _exp_shapes(fn, *args) -> list[tuple[int, ...]]:
+    """Output shapes of every ``exp`` in the traced computation."""
+    return [tuple(eqn.outvars[0].aval.shape) for eqn in _equations(fn, *args, primitive="exp")]
 
 
 def test_grey_channels_share_one_kernel_evaluation():
@@ -160,19 +163,6 @@ def test_separable_bands_compute_only_their_own_levels_and_agree_with_one_band()
     assert np.abs(banded - np.asarray(e))[:, valid].max() > 1e-2  # and the others were filtered
 
 
-def _count_primitive(jaxpr, name: str) -> int:
-    n = 0
-    for eqn in jaxpr.eqns:
-        n += eqn.primitive.name == name
-        for v in eqn.params.values():
-            for sub in v if isinstance(v, (tuple, list)) else (v,):
-                if isinstance(sub, jax.extend.core.ClosedJaxpr):
-                    n += _count_primitive(sub.jaxpr, name)
-                elif isinstance(sub, jax.extend.core.Jaxpr):
-                    n += _count_primitive(sub, name)
-    return n
-
-
 def test_materials_sharing_a_kernel_share_its_weight_term():
     # three materials, the first and the third with one kernel (same d, other albedo): two kernels, not three
     mats = sj.BurleyMaterial(albedo=[[0.9, 0.8, 0.7], [0.5, 0.5, 0.5], [0.3, 0.6, 0.9]],
@@ -193,7 +183,7 @@ def test_materials_sharing_a_kernel_share_its_weight_term():
     albedo = np.asarray(mats.albedo)[ids - 1]
     assert np.abs(shared - albedo * np.asarray(b.irradiance)).max() > 1e-3  # it scattered (not local shading)
     # one per-pixel selection (an equality test against the material row) per kernel: two, not three
-    eqs = {g: _count_primitive(jax.make_jaxpr(lambda bb, g=g: _separable_impl(bb, *args[1:], g))(b).jaxpr, "eq")
+    eqs = {g: len(_equations(lambda bb, g=g: _separable_impl(bb, *args[1:], g), b, primitive="eq"))
            for g in (None, (0, 1, 0))}
     assert eqs[(0, 1, 0)] == eqs[None] - 1
 
