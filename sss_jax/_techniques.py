@@ -384,7 +384,6 @@ def _kernel_table(material, taps: int, dtype) -> tuple[Array, Array]:
 # blends the two levels that bracket its own reach (in log scale), so the result stays continuous in d and depth.
 SCALE_LEVELS = 4
 
-_TAP_UNROLL = 5
 
 
 def _unit_tap_offsets(taps: int) -> np.ndarray:
@@ -400,45 +399,39 @@ def _safe_log(x: Array) -> Array:
     return jnp.where(pos, jnp.log(jnp.where(pos, x, 1.0)), 0.0)
 
 
-def _separable_level(ev_pad: Array, z_pad: Array, v_pad: Array, e: Array, z: Array, reach_px: Array, inv_reach_mm: Array,
-                     tap_weight: Callable[[Array], Array], unit_offsets: Array, mm_per_unit: Array, pad: int,
-                     follow_surface: bool, interpolation: str) -> Array:
-    """One horizontal 1D pass at one constant reach ``reach_px`` (a scalar): every tap is a constant shift of the
-    padded planes (``dynamic_slice``), so XLA fuses each tap into one loop over the image. Planar layout:
-    ``ev_pad (3, H, W + 2 pad)`` holds irradiance times validity, ``z_pad`` depth times validity, ``v_pad`` validity."""
-    _, h, w = e.shape
+def _separable_level(fetch: Callable[[Array], tuple[Array, Array, Array]], e: Array, z: Array, reach_px: Array,
+                     inv_reach_mm: Array, tap_weight: Callable[[int], Array], weight_sum: Array, unit_offsets: Array,
+                     mm_per_unit: Array, limit: float, follow_surface: bool, interpolation: str) -> Array:
+    """One 1D pass at one constant reach ``reach_px`` (a scalar) over a band of rows: ``fetch(start)`` returns the
+    padded planes (irradiance times validity, depth times validity, validity) shifted by ``start`` pixels along the
+    pass, so every tap is a constant shift. The taps are unrolled into one expression, which XLA fuses into one loop
+    over the band: each pixel reads its taps and writes its result once.
 
-    def fetch(start):
-        o = jnp.zeros_like(start)  # index arguments of one type (int64 under x64)
-        ev = jax.lax.dynamic_slice(ev_pad, (o, o, start), (3, h, w))
-        zv = jax.lax.dynamic_slice(z_pad, (o, start), (h, w))
-        vv = jax.lax.dynamic_slice(v_pad, (o, start), (h, w))
-        return ev, zv, vv
-
-    def body(i, acc):
+    A tap contributes ``w (keep (e_q - e))`` to ``e sum(w)``, which is ``sum(w (keep e_q + (1 - keep) e))``: the
+    fetch counts as far as it landed on valid pixels at a similar depth, and as the centre for the rest."""
+    acc = e * weight_sum
+    for i in range(unit_offsets.shape[0]):
         # offsets beyond the image land in the zero padding: nothing valid there, the tap counts as the centre
-        off = jnp.clip(unit_offsets[i] * reach_px, -(w + 1.0), w + 1.0)
+        off = jnp.clip(unit_offsets[i] * reach_px, -limit, limit)
         if interpolation == "nearest":
-            ev, zv, vv = fetch((jnp.round(off) + pad).astype(jnp.int32))
+            ev, zv, vv = fetch(jnp.round(off).astype(jnp.int32))
         else:
             x0 = jnp.floor(off)
             f = off - x0
-            start = (x0 + pad).astype(jnp.int32)
+            start = x0.astype(jnp.int32)
             ev0, zv0, vv0 = fetch(start)
             ev1, zv1, vv1 = fetch(start + 1)
-            ev, zv, vv = (1 - f) * ev0 + f * ev1, (1 - f) * zv0 + f * zv1, (1 - f) * vv0 + f * vv1
+            ev, zv, vv = ev0 + f * (ev1 - ev0), zv0 + f * (zv1 - zv0), vv0 + f * (vv1 - vv0)
         ok = vv > 1e-6
-        inv = jnp.where(ok, 1.0 / jnp.where(ok, vv, 1.0), 0.0)
-        e_q, z_q, keep = ev * inv[None], zv * inv, jnp.where(ok, vv, 0.0)
+        a = ok.astype(e.dtype)
         # Jimenez's "follow the surface": blend the fetched colour towards the centre's as the depth difference grows
         # relative to how far this kernel carries light; invalid or off-image fetches count as the centre.
         if follow_surface:
-            keep = keep * (1 - jnp.clip(jnp.abs(z_q - z) * mm_per_unit * inv_reach_mm, 0.0, 1.0))
-        sample = keep[None] * e_q + (1 - keep)[None] * e
-        return acc + tap_weight(i) * sample
-
-    taps = unit_offsets.shape[0]
-    return jax.lax.fori_loop(0, taps, body, jnp.zeros_like(e), unroll=_TAP_UNROLL)
+            z_q = zv / jnp.where(ok, vv, 1.0)
+            a = jnp.where(ok, 1 - jnp.clip(jnp.abs(z_q - z) * mm_per_unit * inv_reach_mm, 0.0, 1.0), 0.0)
+        # keep = a vv and keep e_q = a ev (e_q = ev / vv): no per-channel division
+        acc = acc + tap_weight(i) * (a[None] * ev - (a * vv)[None] * e)
+    return acc
 
 
 def _band_rows(height: int) -> int:
@@ -452,41 +445,57 @@ _MAX_BANDS = 16
 def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, level_reach_px: Array, skip: Array,
                     onehot: Array | None, w_table: Array, inv_reach_mm: Array, unit_offsets: Array,
                     mm_per_unit: Array, follow_surface: bool, interpolation: str,
-                    rows_per_band: int | None = None) -> Array:
-    """One horizontal 1D pass (transpose for vertical), planar ``e (3, H, W)``: the levels' shifted-slice passes,
-    blended per pixel by ``level_weights (L, H, W)``; ``skip`` pixels keep their own value.
+                    rows_per_band: int | None = None, axis: int = 2) -> Array:
+    """One 1D pass of planar ``e (3, H, W)`` along ``axis``: 2 horizontal, 1 vertical (no transposes: both read
+    whole rows). The levels' shifted-slice passes are blended per pixel by ``level_weights (L, H, W)``; ``skip``
+    pixels keep their own value.
 
-    Rows are independent in a horizontal pass, so the frame is cut into bands of rows and each band computes only
-    the levels its own pixels use (a band without SSS pixels computes none): the cost follows the scene's coverage
-    and depth range. Tap weights: ``w_table (M, 3, n)`` per material, chosen per pixel by ``onehot (M, H, W)``
-    (``None`` for one material)."""
+    The frame is cut into bands of rows (independent in either pass: a band reads its taps from the whole padded
+    frame) and each band computes only the levels its own pixels use (a band without SSS pixels computes none): the
+    cost follows the scene's coverage and depth range. Tap weights: ``w_table (M, 3, n)`` per material, chosen per
+    pixel by ``onehot (M, H, W)`` (``None`` for one material)."""
+    if axis not in (1, 2):
+        raise ValueError(f"axis must be 1 (vertical) or 2 (horizontal), got {axis!r}")
     _, h, w = e.shape
     rows_per_band = rows_per_band or _band_rows(h)
     bands = -(-h // rows_per_band)
-    pad = w + 2
+    extra = bands * rows_per_band - h  # bands past the last row: no valid pixel, no level weight, nothing computed
+    pad = (w if axis == 2 else h) + 2  # every clipped offset lands inside the padding
     v = valid.astype(e.dtype)
-    # bands past the last row are padding: no valid pixel, no level weight, so they compute nothing
-    pad_rows = lambda a: jnp.pad(a, [(0, 0)] * (a.ndim - 2) + [(0, bands * rows_per_band - h), (0, 0)])
-    padw = lambda a: jnp.pad(a, [(0, 0)] * (a.ndim - 1) + [(pad, pad)])
-    planes = {"ev_pad": padw(pad_rows(e * v[None])), "z_pad": padw(pad_rows(z * v)), "v_pad": padw(pad_rows(v)),
-              "e": pad_rows(e), "z": pad_rows(z), "lw": pad_rows(level_weights), "inv": pad_rows(inv_reach_mm)}
+    pad_rows = lambda a: jnp.pad(a, [(0, 0)] * (a.ndim - 2) + [(0, extra), (0, 0)])
+    if axis == 2:
+        pad_fetched = lambda a: jnp.pad(a, [(0, 0)] * (a.ndim - 2) + [(0, extra), (pad, pad)])
+    else:
+        pad_fetched = lambda a: jnp.pad(a, [(0, 0)] * (a.ndim - 2) + [(pad, pad + extra), (0, 0)])
+    ev_pad, z_pad, v_pad = pad_fetched(e * v[None]), pad_fetched(z * v), pad_fetched(v)
+    planes = {"e": pad_rows(e), "z": pad_rows(z), "lw": pad_rows(level_weights), "inv": pad_rows(inv_reach_mm)}
     if onehot is not None:
         planes["onehot"] = pad_rows(onehot)
+    weight_sums = jnp.sum(w_table, axis=-1)  # (M, 3)
 
     def band(k):
-        b = {name: jax.lax.dynamic_slice_in_dim(a, k * rows_per_band, rows_per_band, axis=a.ndim - 2)
-             for name, a in planes.items()}
+        row0 = (k * rows_per_band).astype(jnp.int32)
+        b = {name: jax.lax.dynamic_slice_in_dim(a, row0, rows_per_band, axis=a.ndim - 2) for name, a in planes.items()}
+
+        def fetch(start):
+            o = jnp.zeros((), jnp.int32)  # index arguments of one type (int64 under x64 otherwise)
+            row, col = (row0, pad + start) if axis == 2 else (pad + row0 + start, o)
+            return (jax.lax.dynamic_slice(ev_pad, (o, row, col), (3, rows_per_band, w)),
+                    jax.lax.dynamic_slice(z_pad, (row, col), (rows_per_band, w)),
+                    jax.lax.dynamic_slice(v_pad, (row, col), (rows_per_band, w)))
+
         if onehot is None:
             tap_weight = lambda i: w_table[0, :, i][:, None, None]
+            weight_sum = weight_sums[0][:, None, None]
         else:
-            tap_weight = lambda i: sum(b["onehot"][m][None] * w_table[m, :, i][:, None, None]
-                                       for m in range(w_table.shape[0]))
+            per_pixel = lambda table: sum(b["onehot"][m][None] * table[m][:, None, None] for m in range(len(w_table)))
+            tap_weight = lambda i: per_pixel(w_table[:, :, i])
+            weight_sum = per_pixel(weight_sums)
 
         def level(j, out):
             lw = b["lw"][j]
-            run = lambda: _separable_level(b["ev_pad"], b["z_pad"], b["v_pad"], b["e"], b["z"], level_reach_px[j],
-                                           b["inv"], tap_weight, unit_offsets, mm_per_unit, pad, follow_surface,
-                                           interpolation)
+            run = lambda: _separable_level(fetch, b["e"], b["z"], level_reach_px[j], b["inv"], tap_weight, weight_sum,
+                                           unit_offsets, mm_per_unit, pad - 1.0, follow_surface, interpolation)
             return out + lw[None] * jax.lax.cond(jnp.any(lw > 0), run, lambda: jnp.zeros_like(b["e"]))
 
         # a loop, not unrolled: the compile time does not grow with the number of levels
@@ -545,12 +554,10 @@ def _separable_impl(buffers: Buffers, material, camera: Camera, taps: int, albed
     onehot_planes = None if count == 1 else jnp.stack(onehot)  # (M, H, W)
     common = dict(unit_offsets=unit_offsets, mm_per_unit=mm_per_unit, follow_surface=follow_surface,
                   interpolation=interpolation)
-    t2 = lambda a: None if a is None else jnp.swapaxes(a, -1, -2)
     e = jnp.moveaxis(prep.irradiance, -1, 0)  # planar (3, H, W): the fused loops run along rows
-    e = _separable_pass(e, prep.depth, prep.valid, level_weights, level_reach_px, skip, onehot_planes, w_table,
-                        inv_reach_mm, **common)
-    e = t2(_separable_pass(t2(e), t2(prep.depth), t2(prep.valid), t2(level_weights), level_reach_px, t2(skip),
-                           t2(onehot_planes), w_table, t2(inv_reach_mm), **common))
+    for axis in (2, 1):  # horizontal, then vertical
+        e = _separable_pass(e, prep.depth, prep.valid, level_weights, level_reach_px, skip, onehot_planes, w_table,
+                            inv_reach_mm, axis=axis, **common)
     return _finish(buffers, prep, jnp.moveaxis(e, 0, -1))
 
 

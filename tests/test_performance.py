@@ -140,9 +140,11 @@ def test_untruncated_frames_share_the_sample_radii():
     assert np.abs(impl(large, False) - out_large).max() > 1e-3
 
 
-def test_separable_bands_compute_only_their_own_levels_and_agree_with_one_band():
+@pytest.mark.parametrize("axis", [2, 1])
+def test_separable_bands_compute_only_their_own_levels_and_agree_with_one_band(axis):
     # a frame of 19 rows (bands of 8, 8 and 3 + 5 padding rows), two materials with their own tap weights, SSS
-    # pixels only in the middle rows, and two reach levels that each only some bands use
+    # pixels only in the middle rows, and two reach levels that each only some bands use; both passes (the vertical
+    # one reads its taps across band boundaries)
     rng = np.random.default_rng(3)
     h, w, n = 19, 23, 5
     e = jnp.asarray(rng.uniform(0.0, 2.0, (3, h, w)))
@@ -156,11 +158,66 @@ def test_separable_bands_compute_only_their_own_levels_and_agree_with_one_band()
     w_table = jnp.asarray(rng.uniform(0.1, 1.0, (2, 3, n)))
     args = (e, z, jnp.asarray(valid), level_weights, jnp.asarray([2.0, 5.0]), jnp.asarray(~valid), jnp.asarray(onehot),
             w_table, jnp.full((h, w), 0.2), jnp.asarray(np.linspace(-1, 1, n)), jnp.asarray(10.0), True, "bilinear")
-    banded = np.asarray(_separable_pass(*args, rows_per_band=8))
-    whole = np.asarray(_separable_pass(*args, rows_per_band=h))
+    banded = np.asarray(_separable_pass(*args, rows_per_band=8, axis=axis))
+    whole = np.asarray(_separable_pass(*args, rows_per_band=h, axis=axis))
     np.testing.assert_allclose(banded, whole, rtol=1e-13, atol=1e-13)
     np.testing.assert_array_equal(banded[:, ~valid], np.asarray(e)[:, ~valid])  # rows without SSS keep their value
     assert np.abs(banded - np.asarray(e))[:, valid].max() > 1e-2  # and the others were filtered
+
+
+def _numpy_depth_aware_pass(e, z, valid, w_table, rows, reach_px, reach_mm, unit_offsets, mm_per_unit, linear):
+    """Jimenez's depth-aware horizontal 1D pass written directly, pixel by pixel in float64 (the shape of the
+    SeparableSSS shader's loop, with the validity-weighted fetch of this project): an independent check of the
+    fused shifted-slice pass."""
+    h, w = z.shape
+    out = np.array(e, np.float64)
+    for y in range(h):
+        for x in range(w):
+            if not valid[y, x]:
+                continue
+            acc = np.zeros(3)
+            for i, u in enumerate(unit_offsets):
+                pos = x + np.clip(u * reach_px, -(w + 1.0), w + 1.0)
+                corners = [(int(np.floor(pos)), 1 - (pos - np.floor(pos))), (int(np.floor(pos)) + 1, pos - np.floor(pos))]
+                if not linear:
+                    corners = [(int(np.round(pos)), 1.0)]
+                ev, zv, vv = np.zeros(3), 0.0, 0.0
+                for xi, f in corners:
+                    if 0 <= xi < w and valid[y, xi]:
+                        ev, zv, vv = ev + f * e[:, y, xi], zv + f * z[y, xi], vv + f
+                sample = e[:, y, x]
+                if vv > 1e-6:
+                    keep = vv * (1 - np.clip(abs(zv / vv - z[y, x]) * mm_per_unit / reach_mm[y, x], 0, 1))
+                    sample = keep * ev / vv + (1 - keep) * e[:, y, x]
+                acc += w_table[rows[y, x], :, i] * sample
+            out[:, y, x] = acc
+    return out
+
+
+@pytest.mark.parametrize("axis", [2, 1])
+@pytest.mark.parametrize("linear", [True, False])
+def test_separable_pass_matches_a_pixel_by_pixel_loop(axis, linear):
+    # one reach level, two materials, a depth step (follow the surface), invalid pixels, taps reaching off the frame
+    rng = np.random.default_rng(5)
+    h, w, n = 11, 13, 7
+    e = rng.uniform(0.0, 2.0, (3, h, w))
+    z = 50.0 + 4.0 * (np.arange(w)[None, :] >= 6) + rng.uniform(0.0, 0.5, (h, w))
+    valid = rng.uniform(size=(h, w)) > 0.2
+    rows = (np.arange(h)[:, None] + np.arange(w)[None, :]) % 2
+    w_table = rng.uniform(0.05, 1.0, (2, 3, n))
+    reach_mm = np.where(rows == 0, 20.0, 35.0)
+    unit = np.linspace(-1.0, 1.0, n) ** 3
+    reach_px, mm_per_unit = 3.7, 10.0
+    t = (lambda a: np.swapaxes(a, -1, -2)) if axis == 1 else (lambda a: a)
+    expected = t(_numpy_depth_aware_pass(t(e), t(z), t(valid), w_table, t(rows), reach_px, t(reach_mm), unit,
+                                         mm_per_unit, linear))
+    onehot = np.stack([rows == 0, rows == 1]).astype(np.float64)
+    got = _separable_pass(jnp.asarray(e), jnp.asarray(z), jnp.asarray(valid), jnp.asarray(valid[None] * 1.0),
+                          jnp.asarray([reach_px]), jnp.asarray(~valid), jnp.asarray(onehot), jnp.asarray(w_table),
+                          jnp.asarray(1.0 / reach_mm), jnp.asarray(unit), jnp.asarray(mm_per_unit), True,
+                          "bilinear" if linear else "nearest", rows_per_band=4, axis=axis)
+    np.testing.assert_allclose(np.asarray(got), expected, rtol=1e-12, atol=1e-12)
+    assert np.abs(expected - e)[:, valid].max() > 0.1  # it filtered
 
 
 def test_materials_sharing_a_kernel_share_its_weight_term():
