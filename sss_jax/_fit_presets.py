@@ -225,15 +225,20 @@ def _slab_provenance(photons: int, seed: int, d_mm: np.ndarray) -> dict[str, Any
             "d_mm": [float(v) for v in d_mm]}
 
 
-def _same(a: Any, b: Any) -> bool:
-    """Provenances match: equal, floats to 1e-12 (a derived albedo may differ in its last bits across CPUs)."""
+def _same(a: Any, b: Any, rel_tol: float = 1e-12) -> bool:
+    """Provenances match: equal, floats to ``rel_tol`` (a derived albedo may differ in its last bits across CPUs)."""
     if isinstance(a, dict) and isinstance(b, dict):
-        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+        return a.keys() == b.keys() and all(_same(a[k], b[k], rel_tol) for k in a)
     if isinstance(a, list) and isinstance(b, list):
-        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+        return len(a) == len(b) and all(_same(x, y, rel_tol) for x, y in zip(a, b))
     if isinstance(a, float) or isinstance(b, float):
-        return isinstance(a, (int, float)) and isinstance(b, (int, float)) and math.isclose(a, b, rel_tol=1e-12)
+        return isinstance(a, (int, float)) and isinstance(b, (int, float)) and math.isclose(a, b, rel_tol=rel_tol)
     return a == b
+
+
+# The slabs' d is a fitted value: the least-squares solver returns it to ~1e-9 relative, and its last digits move
+# with the machine and the library versions. Slabs run for a d within this of the current fit are the same experiment.
+_SLAB_D_REL_TOL = 1e-7
 
 
 def _read_cache(path: pathlib.Path | None, log: Callable[[str], None]) -> dict | None:
@@ -282,7 +287,8 @@ def montecarlo_slabs(name: str, medium: dict, d_mm: np.ndarray, *, photons: int,
     prov = _slab_provenance(photons, seed, d_mm)
     path = cache_dir / f"{name}.json" if cache_dir is not None else None
     cached = _read_cache(path, log)
-    if cached is not None and isinstance(cached.get("slab"), dict) and _same(cached["slab"].get("provenance"), prov):
+    if (cached is not None and isinstance(cached.get("slab"), dict)
+            and _same(cached["slab"].get("provenance"), prov, _SLAB_D_REL_TOL)):
         return cached["slab"]
     eta = medium["eta"]
     mfp = np.asarray(medium["mean_free_path_mm"])

@@ -4,6 +4,7 @@ import csv
 import json
 import math
 import pathlib
+import shutil
 
 import jsonschema
 import numpy as np
@@ -177,7 +178,12 @@ def test_rerunning_reproduces_a_preset_and_its_monte_carlo(tmp_path):
     np.testing.assert_allclose(again.total_reflectance, blue["total_reflectance"], rtol=1e-12)
     np.testing.assert_allclose((again.r_mfp * again.R), blue["profile"]["rR"], rtol=1e-9, atol=1e-15)
     # the whole preset from the cache: every number but the timings
-    fresh = FP.fit_preset("ketchup", photons=prov["photons"], seed=prov["seed"], cache_dir=FITS / "montecarlo")
+    # (from a copy: a run that finds its cache stale writes it again, and the checkout's cache must stay as committed)
+    cache = tmp_path / "montecarlo"
+    cache.mkdir()
+    shutil.copy(FITS / "montecarlo" / "ketchup.json", cache / "ketchup.json")
+    fresh = FP.fit_preset("ketchup", photons=prov["photons"], seed=prov["seed"], cache_dir=cache)
+    assert (cache / "ketchup.json").read_bytes() == (FITS / "montecarlo" / "ketchup.json").read_bytes()  # it was used
     stored = json.loads((FITS / "ketchup.json").read_text())
     a, b = _without_seconds(json.loads(json.dumps(fresh))), _without_seconds(stored)
     assert a.keys() == b.keys()
