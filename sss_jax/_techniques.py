@@ -407,39 +407,43 @@ def _separable_level(fetch: Callable[[Array], tuple[Array, Array, Array]], e: Ar
     pass, so every tap is a constant shift. The taps are unrolled into one expression, which XLA fuses into one loop
     over the band: each pixel reads its taps and writes its result once.
 
-    A tap contributes ``w (keep (e_q - e))`` to ``e sum(w)``, which is ``sum(w (keep e_q + (1 - keep) e))``: the
-    fetch counts as far as it landed on valid pixels at a similar depth, and as the centre for the rest."""
+    Each pixel q a tap reads (one for "nearest"; two for "linear", with weights 1 - f and f) adds
+    ``w f keep_q (e_q - e)`` to ``e sum(w)``, which is ``sum(w (sum_q f keep_q e_q + (1 - sum_q f keep_q) e))``: the
+    tap counts as far as it landed on valid pixels at a similar depth, and as the centre for the rest. No division
+    and no transcendental per tap, so nothing stops XLA from fusing the whole level."""
     acc = e * weight_sum
+    scale = mm_per_unit * inv_reach_mm  # depth difference (scene units) at which a fetch stops counting
     for i in range(unit_offsets.shape[0]):
         # offsets beyond the image land in the zero padding: nothing valid there, the tap counts as the centre
         off = jnp.clip(unit_offsets[i] * reach_px, -limit, limit)
         if interpolation == "nearest":
-            ev, zv, vv = fetch(jnp.round(off).astype(jnp.int32))
+            corners = [(jnp.round(off).astype(jnp.int32), None)]
         else:
             x0 = jnp.floor(off)
             f = off - x0
             start = x0.astype(jnp.int32)
-            ev0, zv0, vv0 = fetch(start)
-            ev1, zv1, vv1 = fetch(start + 1)
-            ev, zv, vv = ev0 + f * (ev1 - ev0), zv0 + f * (zv1 - zv0), vv0 + f * (vv1 - vv0)
-        ok = vv > 1e-6
-        a = ok.astype(e.dtype)
-        # Jimenez's "follow the surface": blend the fetched colour towards the centre's as the depth difference grows
-        # relative to how far this kernel carries light; invalid or off-image fetches count as the centre.
-        if follow_surface:
-            z_q = zv / jnp.where(ok, vv, 1.0)
-            a = jnp.where(ok, 1 - jnp.clip(jnp.abs(z_q - z) * mm_per_unit * inv_reach_mm, 0.0, 1.0), 0.0)
-        # keep = a vv and keep e_q = a ev (e_q = ev / vv): no per-channel division
-        acc = acc + tap_weight(i) * (a[None] * ev - (a * vv)[None] * e)
+            corners = [(start, 1 - f), (start + 1, f)]
+        term = 0.0
+        for start, frac in corners:
+            ev, zv, vv = fetch(start)
+            # Jimenez's "follow the surface", per fetched pixel: it counts less as its depth differs from the centre's
+            # (none at the kernel's reach); invalid or off-image pixels count as the centre. v is 0 or 1, so
+            # keep = v (1 - clip(|z_q - z| scale)) = max(v - |v z_q - v z| scale, 0): no division
+            keep = jnp.maximum(vv - jnp.abs(zv - vv * z) * scale, 0.0) if follow_surface else vv
+            keep = keep if frac is None else frac * keep
+            term = term + keep[None] * (ev - e)
+        acc = acc + tap_weight(i) * term
     return acc
 
 
-def _band_rows(height: int) -> int:
-    """Rows per band of a pass: at most ``_MAX_BANDS`` bands, at least 8 rows each."""
-    return max(8, -(-height // _MAX_BANDS))
+def _band_rows(height: int, width: int) -> int:
+    """Rows per band of a pass: at least ``_MIN_BANDS`` bands (finer cost-following), and few enough pixels per band
+    that the rows a tap reads stay in the L2 cache (1920x1080: 18 rows, ~9% faster than 68), at least 8 rows each."""
+    return max(8, min(-(-height // _MIN_BANDS), -(-_BAND_PIXELS // width)))
 
 
-_MAX_BANDS = 16
+_MIN_BANDS = 16
+_BAND_PIXELS = 1 << 15
 
 
 def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, level_reach_px: Array, skip: Array,
@@ -457,7 +461,7 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
     if axis not in (1, 2):
         raise ValueError(f"axis must be 1 (vertical) or 2 (horizontal), got {axis!r}")
     _, h, w = e.shape
-    rows_per_band = rows_per_band or _band_rows(h)
+    rows_per_band = rows_per_band or _band_rows(h, w)
     bands = -(-h // rows_per_band)
     extra = bands * rows_per_band - h  # bands past the last row: no valid pixel, no level weight, nothing computed
     pad = (w if axis == 2 else h) + 2  # every clipped offset lands inside the padding
@@ -578,9 +582,10 @@ def separable(
     The kernel is the artist-friendly two-Gaussian model (``TwoGaussianMaterial``) or the pre-integrated kernel of a
     profile (``BurleyMaterial``, ``ProfileMaterial``), ``taps`` taps per pass placed densest near the centre, offsets
     in mm projected per pixel by its depth. Weights sum to 1, so energy is redistributed, not created; with
-    ``follow_surface`` a tap whose depth differs from the centre's by as much as the kernel's reach counts as the
-    centre colour, so light does not cross depth discontinuities. ``interpolation``: "linear" (continuous in the
-    offsets, for fitting) or "nearest".
+    ``follow_surface`` each pixel a tap reads counts less as its depth differs from the centre's and, at a difference
+    as large as the kernel's reach, counts as the centre colour, so light does not cross depth discontinuities (the
+    two pixels of a linear fetch are tested separately: no interpolated depth between the sides of a step).
+    ``interpolation``: "linear" (continuous in the offsets, for fitting) or "nearest".
 
     Cost: each pass is ``taps`` constant shifts of the padded image per reach level (fused loops, no per-pixel
     gathers). The reach in px varies with depth and material; it is quantised into ``scale_levels`` geometric levels

@@ -167,8 +167,9 @@ def test_separable_bands_compute_only_their_own_levels_and_agree_with_one_band(a
 
 def _numpy_depth_aware_pass(e, z, valid, w_table, rows, reach_px, reach_mm, unit_offsets, mm_per_unit, linear):
     """Jimenez's depth-aware horizontal 1D pass written directly, pixel by pixel in float64 (the shape of the
-    SeparableSSS shader's loop, with the validity-weighted fetch of this project): an independent check of the
-    fused shifted-slice pass."""
+    SeparableSSS shader's loop): each tap is a linear (or nearest) fetch whose pixels count as far as they are valid
+    and at the centre's depth ("follow the surface", full at equal depth, none at the kernel's reach), the rest of
+    the tap counting as the centre colour. An independent check of the fused shifted-slice pass."""
     h, w = z.shape
     out = np.array(e, np.float64)
     for y in range(h):
@@ -178,17 +179,13 @@ def _numpy_depth_aware_pass(e, z, valid, w_table, rows, reach_px, reach_mm, unit
             acc = np.zeros(3)
             for i, u in enumerate(unit_offsets):
                 pos = x + np.clip(u * reach_px, -(w + 1.0), w + 1.0)
-                corners = [(int(np.floor(pos)), 1 - (pos - np.floor(pos))), (int(np.floor(pos)) + 1, pos - np.floor(pos))]
-                if not linear:
-                    corners = [(int(np.round(pos)), 1.0)]
-                ev, zv, vv = np.zeros(3), 0.0, 0.0
-                for xi, f in corners:
+                x0, f = np.floor(pos), pos - np.floor(pos)
+                corners = [(int(x0), 1 - f), (int(x0) + 1, f)] if linear else [(int(np.round(pos)), 1.0)]
+                sample = e[:, y, x].copy()
+                for xi, frac in corners:
                     if 0 <= xi < w and valid[y, xi]:
-                        ev, zv, vv = ev + f * e[:, y, xi], zv + f * z[y, xi], vv + f
-                sample = e[:, y, x]
-                if vv > 1e-6:
-                    keep = vv * (1 - np.clip(abs(zv / vv - z[y, x]) * mm_per_unit / reach_mm[y, x], 0, 1))
-                    sample = keep * ev / vv + (1 - keep) * e[:, y, x]
+                        follow = 1 - min(abs(z[y, xi] - z[y, x]) * mm_per_unit / reach_mm[y, x], 1.0)
+                        sample += frac * follow * (e[:, y, xi] - e[:, y, x])
                 acc += w_table[rows[y, x], :, i] * sample
             out[:, y, x] = acc
     return out
