@@ -217,6 +217,11 @@ def _burley_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, sam
     ok_d = d_w > 0
     inv_d = jnp.where(ok_d, 1.0 / jnp.where(ok_d, d_w, 1.0), 0.0)
 
+    # channel planes: every per-pixel quantity below is a 1D array over the pixels, which XLA vectorises along
+    # (an (N, 3) layout leaves 3 lanes in the minor dimension)
+    inv_d_planes = [inv_d[:, c] for c in range(weight_channels)]
+    ok_d_planes = [ok_d[:, c] for c in range(weight_channels)]
+
     def body(i, acc):
         num, den = acc
         fi = jnp.asarray(i, dtype)
@@ -233,18 +238,24 @@ def _burley_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, sam
         inv_pdf = rho / (jnp.exp(-rho) + jnp.exp(-rho / 3))
         # each pixel the fetch reads is its own point on the surface, with its own depth: weighting the corners
         # separately keeps light from leaking across a depth step through the interpolation
+        num, den = list(num), list(den)
         for val, bw in _corners(flat, h, w, rows_i + off * jnp.sin(theta), cols_i + off * jnp.cos(theta),
                                 interpolation=interpolation):
             v_q = val[..., 4] * bw
             dz_mm = jnp.where(v_q > 0, (val[..., 3] - z) * mm_per_unit, 0.0)
             r3 = _safe_sqrt(r_mm * r_mm + dz_mm * dz_mm)
-            x = jnp.where(ok_d, r3[..., None] * inv_d, jnp.inf)
-            wgt = (v_q * inv_pdf)[..., None] * _burley_weight_kernel(x)
-            num = num + wgt * val[..., :3]
-            den = den + wgt
-        return num, den
+            base = v_q * inv_pdf
+            wgt = [base * _burley_weight_kernel(jnp.where(ok_d_planes[c], r3 * inv_d_planes[c], jnp.inf))
+                   for c in range(weight_channels)]
+            for c in range(3):
+                num[c] = num[c] + wgt[min(c, weight_channels - 1)] * val[..., c]
+            for c in range(weight_channels):
+                den[c] = den[c] + wgt[c]
+        return tuple(num), tuple(den)
 
-    num, den = jax.lax.fori_loop(0, samples, body, (jnp.zeros_like(e_c), jnp.zeros_like(d_w)))
+    zeros = jnp.zeros(e_c.shape[:1], dtype)
+    num, den = jax.lax.fori_loop(0, samples, body, ((zeros,) * 3, (zeros,) * weight_channels))
+    num, den = jnp.stack(num, axis=-1), jnp.stack(den, axis=-1)
     ok = jnp.broadcast_to(den > 0, num.shape)
     result = jnp.where(ok, num / jnp.where(ok, den, 1.0), e_c)
     if capacity is None:
