@@ -4,7 +4,11 @@ import json
 import pathlib
 import re
 
-from sss_jax._bench import GOALS, run_bench
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from sss_jax._bench import GOALS, run_bench, xla_plain_separable
 from sss_jax._demo import run_demo
 from sss_jax._reporting import write_demo_report
 
@@ -62,9 +66,23 @@ def test_bench_reports_every_ratio_with_its_goal():
         assert r["ms_per_frame"] > 0
     assert res["pareto"] and res["pareto"][0]["ms_per_frame"] == min(r["ms_per_frame"] for r in res["rows"])
     assert set(res["other_ratios"]) == {"separable_coverage10_vs_full", "burley_three_materials_vs_one",
-                                        "burley_grey_vs_rgb"}
+                                        "burley_grey_vs_rgb", "xla_plain_separable_vs_sepFilter2D",
+                                        "separable_vs_xla_plain_separable"}
     skips = res["footprint_skip"]
     assert [r["d_scale"] for r in skips] == [1 / 8, 1 / 32, 1 / 64]
     assert skips[0]["skipped_fraction"] < skips[-1]["skipped_fraction"]  # smaller d: more pixels under half a pixel
     for r in skips:
         assert 0 <= r["skipped_fraction"] <= 1 and r["rel_l2_with_skip"] >= 0 and r["rel_l2_without_skip"] >= 0
+
+
+def test_xla_plain_separable_is_the_filter_sepfilter2d_runs():
+    # the bench's compiler-floor peer must be the same filter as OpenCV's, or its ratio places nothing: equal away
+    # from the border (OpenCV reflects there, the XLA filter pads with zeros)
+    cv2 = pytest.importorskip("cv2")
+    rng = np.random.default_rng(0)
+    img = rng.uniform(0.0, 1.0, (40, 52, 3)).astype(np.float32)
+    k = cv2.getGaussianKernel(25, 4.0).astype(np.float32)
+    expected = cv2.sepFilter2D(img, -1, k, k)
+    got = np.moveaxis(np.asarray(xla_plain_separable(jnp.asarray(np.moveaxis(img, -1, 0)), jnp.asarray(k[:, 0]))), 0, -1)
+    np.testing.assert_allclose(got[12:-12, 12:-12], expected[12:-12, 12:-12], rtol=1e-5, atol=1e-6)
+    assert np.abs(got - expected)[:12].max() > 1e-3  # (the border does differ: the comparison is not vacuous)

@@ -57,9 +57,9 @@ def run(args) -> int:
     print(f"ratios at {w}x{h}:")
     for k, v in result["ratios"].items():
         met = "n/a" if v["met"] is None else ("met" if v["met"] else "NOT met")
-        print(f"  {k:26s} {v['value']!s:>10}   goal {v['goal']:8s} {met}")
+        print(f"  {k:34s} {v['value']!s:>10}   goal {v['goal']:8s} {met}")
     for k, v in result.get("other_ratios", {}).items():
-        print(f"  {k:26s} {v!s:>10}   (shown, no goal)")
+        print(f"  {k:34s} {v!s:>10}   (shown, no goal)")
     if result.get("footprint_skip"):
         print("footprint skip (pixels under half a pixel keep local shading), rel L2 against the reference:")
         for r in result["footprint_skip"]:
