@@ -526,13 +526,13 @@ def _separable_impl(buffers: Buffers, material, camera: Camera, taps: int, albed
                     interpolation: str, scale_levels: int, min_footprint_px: float,
                     kernel_groups: tuple[int, ...] | None = None) -> Array:
     dtype = _work_dtype(buffers.irradiance.dtype)
-    offsets, weights = _kernel_table(material, taps, dtype)  # (M, n) mm, (M, n, 3)
     prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
-    rows = prep.rows
-    if kernel_groups is not None:  # materials with one kernel share it: one table row, one weight term per group
-        first = [kernel_groups.index(g) for g in range(max(kernel_groups) + 1)]
-        offsets, weights = offsets[np.asarray(first)], weights[np.asarray(first)]
+    rows, kernel_material = prep.rows, material
+    if kernel_groups is not None:  # materials with one kernel share it: one kernel, one weight term per group
+        first = np.asarray([kernel_groups.index(g) for g in range(max(kernel_groups) + 1)])
+        kernel_material = jax.tree.map(lambda a: a[first], material)  # each distinct kernel built once
         rows = jnp.asarray(kernel_groups, jnp.int32)[rows]
+    offsets, weights = _kernel_table(kernel_material, taps, dtype)  # (K, n) mm, (K, n, 3)
     mm_per_unit = camera.mm_per_unit.astype(dtype)
     ppm = px_per_mm(prep.depth, focal_px=camera.focal_px.astype(dtype), mm_per_unit=mm_per_unit)
     ppm = jnp.where(prep.valid, ppm, 0.0)
