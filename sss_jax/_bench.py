@@ -250,7 +250,8 @@ def run_bench(*, quick: bool = False, repeats: int = 3, progress: Callable[[str]
                "burley_32_10pct_coverage_ms": 1e3 * t_10, "separable_25_full_coverage_ms": 1e3 * t_sep_full,
                "separable_25_10pct_coverage_ms": 1e3 * t_sep_10, "burley_32_three_materials_ms": 1e3 * t_three,
                "burley_32_one_material_ms": 1e3 * t_one, "burley_32_grey_ms": 1e3 * t_grey,
-               "burley_32_rgb_ms": 1e3 * t_rgb, "xla_plain_separable_25_ms": 1e3 * t_xla_plain, **{k + "_ms": 1e3 * v for k, v in peers.items()}}
+               "burley_32_rgb_ms": 1e3 * t_rgb, "xla_plain_separable_25_ms": 1e3 * t_xla_plain,
+               **{k + "_ms": 1e3 * v for k, v in peers.items()}}
 
     # --- Pareto front (error against time) at the first resolution ----------------------------------------------------
     base = [r for r in rows if (r["width"], r["height"]) == res_grid[0]]

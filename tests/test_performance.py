@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import sss_jax as sj
+from sss_jax import _techniques as techniques
 from sss_jax._advise import (
     Advice,
     Candidate,
@@ -193,8 +194,12 @@ def _numpy_depth_aware_pass(e, z, valid, w_table, rows, reach_px, reach_mm, unit
 
 @pytest.mark.parametrize("axis", [2, 1])
 @pytest.mark.parametrize("linear", [True, False])
-def test_separable_pass_matches_a_pixel_by_pixel_loop(axis, linear):
-    # one reach level, two materials, a depth step (follow the surface), invalid pixels, taps reaching off the frame
+@pytest.mark.parametrize("taps_per_fusion", [33, 3])
+def test_separable_pass_matches_a_pixel_by_pixel_loop(axis, linear, taps_per_fusion, monkeypatch):
+    # one reach level, two materials, a depth step (follow the surface), invalid pixels, taps reaching off the frame;
+    # the 7 taps fused at once, or in chunks of 3 (the last padded with two taps of weight 0)
+    monkeypatch.setattr(techniques, "_TAPS_PER_FUSION", taps_per_fusion)
+    assert techniques.tap_chunks(7) == ((1, 7) if taps_per_fusion == 33 else (3, 3))
     rng = np.random.default_rng(5)
     h, w, n = 11, 13, 7
     e = rng.uniform(0.0, 2.0, (3, h, w))
