@@ -490,33 +490,31 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
 
     The frame is cut into bands of rows (independent in either pass: a band reads its taps from the whole padded
     frame) and each band computes only the levels its own pixels use (a band without SSS pixels computes none): the
-    cost follows the scene's coverage and depth range. Tap weights: ``w_table (M, 3, n)`` per material, chosen per
-    pixel by ``onehot (M, H, W)`` (``None`` for one material)."""
+    cost follows the scene's coverage and depth range. A loop writes each band's rows in place into the output (the
+    last band ends at the last row, overlapping the one before where the height is no multiple of the band): no
+    padding rows and no reassembly copy. Tap weights: ``w_table (M, 3, n)`` per material, chosen per pixel by
+    ``onehot (M, H, W)`` (``None`` for one material)."""
     if axis not in (1, 2):
         raise ValueError(f"axis must be 1 (vertical) or 2 (horizontal), got {axis!r}")
     _, h, w = e.shape
-    rows_per_band = rows_per_band or _band_rows(h, w)
-    bands = -(-h // rows_per_band)
-    extra = bands * rows_per_band - h  # bands past the last row: no valid pixel, no level weight, nothing computed
+    rows_per_band = min(rows_per_band or _band_rows(h, w), h)
+    bands = -(-h // rows_per_band)  # the last band ends at the last row (it may overlap the one before: same values)
     pad = (w if axis == 2 else h) + 2  # every clipped offset lands inside the padding
     v = valid.astype(e.dtype)
-    pad_rows = lambda a: jnp.pad(a, [(0, 0)] * (a.ndim - 2) + [(0, extra), (0, 0)])
-    if axis == 2:
-        pad_fetched = lambda a: jnp.pad(a, [(0, 0)] * (a.ndim - 2) + [(0, extra), (pad, pad)])
-    else:
-        pad_fetched = lambda a: jnp.pad(a, [(0, 0)] * (a.ndim - 2) + [(pad, pad + extra), (0, 0)])
+    pad_width = [(0, 0), (pad, pad)] if axis == 2 else [(pad, pad), (0, 0)]
+    pad_fetched = lambda a: jnp.pad(a, [(0, 0)] * (a.ndim - 2) + pad_width)
     ev_pad, z_pad, v_pad = pad_fetched(e * v[None]), pad_fetched(z * v), pad_fetched(v)
-    planes = {"e": pad_rows(e), "z": pad_rows(z), "lw": pad_rows(level_weights), "inv": pad_rows(inv_reach_mm)}
+    planes = {"e": e, "z": z, "lw": level_weights, "inv": inv_reach_mm, "skip": skip}
     if onehot is not None:
-        planes["onehot"] = pad_rows(onehot)
+        planes["onehot"] = onehot
     weight_sums = jnp.sum(w_table, axis=-1)  # (M, 3)
     chunks, per_chunk = tap_chunks(unit_offsets.shape[0])
     extra_taps = chunks * per_chunk - unit_offsets.shape[0]  # padding taps: weight 0 at offset 0 (the centre: adds 0)
     unit_offsets = jnp.pad(unit_offsets, (0, extra_taps))
     w_table = jnp.pad(w_table, [(0, 0), (0, 0), (0, extra_taps)])
 
-    def band(k):
-        row0 = (k * rows_per_band).astype(jnp.int32)
+    def band(k, out):
+        row0 = jnp.minimum(k * rows_per_band, h - rows_per_band).astype(jnp.int32)
         b = {name: jax.lax.dynamic_slice_in_dim(a, row0, rows_per_band, axis=a.ndim - 2) for name, a in planes.items()}
 
         def fetch(start):
@@ -542,11 +540,11 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
             return out + lw[None] * jax.lax.cond(jnp.any(lw > 0), run, lambda: jnp.zeros_like(b["e"]))
 
         # a loop, not unrolled: the compile time does not grow with the number of levels
-        return jax.lax.fori_loop(0, level_reach_px.shape[0], level, jnp.zeros_like(b["e"]))
+        result = jax.lax.fori_loop(0, level_reach_px.shape[0], level, jnp.zeros_like(b["e"]))
+        result = jnp.where(b["skip"][None], b["e"], result)
+        return jax.lax.dynamic_update_slice_in_dim(out, result, row0, axis=1)  # in place: the loop owns ``out``
 
-    out = jax.lax.map(band, jnp.arange(bands))  # (bands, 3, rows, W)
-    out = jnp.moveaxis(out, 0, 1).reshape(e.shape[0], bands * rows_per_band, w)[:, :h]
-    return jnp.where(skip[None], e, out)
+    return jax.lax.fori_loop(0, bands, band, e)
 
 
 @eqx.filter_jit

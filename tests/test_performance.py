@@ -143,9 +143,9 @@ def test_untruncated_frames_share_the_sample_radii():
 
 @pytest.mark.parametrize("axis", [2, 1])
 def test_separable_bands_compute_only_their_own_levels_and_agree_with_one_band(axis):
-    # a frame of 19 rows (bands of 8, 8 and 3 + 5 padding rows), two materials with their own tap weights, SSS
-    # pixels only in the middle rows, and two reach levels that each only some bands use; both passes (the vertical
-    # one reads its taps across band boundaries)
+    # a frame of 19 rows (bands of 8 rows at rows 0, 8 and 11: the last overlaps), two materials with their own tap
+    # weights, SSS pixels only in the middle rows, and two reach levels that each only some bands use; both passes
+    # (the vertical one reads its taps across band boundaries)
     rng = np.random.default_rng(3)
     h, w, n = 19, 23, 5
     e = jnp.asarray(rng.uniform(0.0, 2.0, (3, h, w)))
