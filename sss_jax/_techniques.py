@@ -144,14 +144,6 @@ def _pack(e: Array, depth: Array, valid: Array) -> Array:
     return jnp.concatenate([e, z[..., None], v[..., None]], axis=-1).reshape(-1, 5)
 
 
-def _unpack(fetched: Array) -> tuple[Array, Array, Array]:
-    """Validity-normalised irradiance and depth of a fetch, and the fraction of it that was valid."""
-    vq = fetched[..., 4]
-    ok = vq > 1e-6
-    inv = jnp.where(ok, 1.0 / jnp.where(ok, vq, 1.0), 0.0)
-    return fetched[..., :3] * inv[..., None], fetched[..., 3] * inv, jnp.where(ok, vq, 0.0)
-
-
 # ------------------------------------------------------------------------------------------------------------------
 # Christensen–Burley: one pass of golden-angle spiral samples
 # ------------------------------------------------------------------------------------------------------------------
@@ -396,7 +388,6 @@ def _kernel_table(material, taps: int, dtype) -> tuple[Array, Array]:
 SCALE_LEVELS = 4
 
 
-
 def _unit_tap_offsets(taps: int) -> np.ndarray:
     """The tap pattern in units of the kernel's reach (``tap_offsets`` with range 1): every kernel shares it."""
     o = np.linspace(-1.0, 1.0, taps) if taps > 1 else np.zeros(1)
@@ -532,12 +523,12 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
             tap_weight = lambda i: per_pixel(w_table[:, :, i])
             weight_sum = per_pixel(weight_sums)
 
-        def level(j, out):
+        def level(j, acc):
             lw = b["lw"][j]
             run = lambda: _separable_level(fetch, b["e"], b["z"], level_reach_px[j], b["inv"], tap_weight, weight_sum,
                                            unit_offsets, per_chunk, mm_per_unit, pad - 1.0, follow_surface,
                                            interpolation)
-            return out + lw[None] * jax.lax.cond(jnp.any(lw > 0), run, lambda: jnp.zeros_like(b["e"]))
+            return acc + lw[None] * jax.lax.cond(jnp.any(lw > 0), run, lambda: jnp.zeros_like(b["e"]))
 
         # a loop, not unrolled: the compile time does not grow with the number of levels
         result = jax.lax.fori_loop(0, level_reach_px.shape[0], level, jnp.zeros_like(b["e"]))
