@@ -129,7 +129,7 @@ def measure_candidates(material: BurleyMaterial, *, buffers: Buffers | None = No
                        progress: Callable[[str], None] | None = None) -> list[Candidate]:
     """Time and ΔE2000 (against ``reference``) of each candidate on the scene; host-side ΔE via colour-science."""
     from ._metrics import delta_e_2000
-    from ._techniques import _sss_mask
+    from ._techniques._common import _sss_mask
 
     say = progress or (lambda m: None)
     if (buffers is None) != (camera is None):

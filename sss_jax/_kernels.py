@@ -11,9 +11,10 @@ import math
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from ._profiles import AbstractProfile, BurleyProfile, burley_inverse_ccdf, marginal_cdf
+from ._profiles import AbstractProfile, burley_inverse_ccdf, marginal_cdf
 
 __all__ = [
     "SeparableKernel",
@@ -32,20 +33,21 @@ class SeparableKernel(eqx.Module):
     """A 1D kernel applied once horizontally and once vertically.
 
     ``offsets_mm (n,)`` are shared by all channels (one fetch per tap serves R, G and B, as in Jimenez's shader);
-    ``weights (n, C)`` sum to 1 per channel. Tap 0 is the centre (offset 0).
+    ``weights (n, C)`` sum to 1 per channel. Tap 0 is the centre (offset 0). A table of materials' kernels has a
+    leading axis on both, ``(M, n)`` and ``(M, n, C)``.
     """
 
-    offsets_mm: Float[Array, " n"]
-    weights: Float[Array, "n C"]
+    offsets_mm: Float[Array, "*M n"]
+    weights: Float[Array, "*M n C"]
 
     @property
     def taps(self) -> int:
-        return int(self.offsets_mm.shape[0])
+        return int(self.offsets_mm.shape[-1])
 
     def __check_init__(self):
-        if self.offsets_mm.ndim != 1 or self.weights.ndim != 2 or self.weights.shape[0] != self.offsets_mm.shape[0]:
+        if self.offsets_mm.ndim < 1 or self.weights.shape[:-1] != self.offsets_mm.shape:
             raise ValueError(
-                f"SeparableKernel needs offsets_mm (n,) and weights (n, C); got {self.offsets_mm.shape} and "
+                f"SeparableKernel needs offsets_mm (..., n) and weights (..., n, C); got {self.offsets_mm.shape} and "
                 f"{self.weights.shape}"
             )
 
@@ -53,6 +55,20 @@ class SeparableKernel(eqx.Module):
 def _check_taps(taps: int) -> None:
     if not isinstance(taps, int) or taps < 1 or taps % 2 == 0:
         raise ValueError(f"taps must be an odd positive integer (a centre tap plus symmetric pairs), got {taps!r}")
+
+
+def unit_tap_offsets(taps: int, *, exponent: float = 2.0) -> np.ndarray:
+    """The tap pattern in units of the kernel's reach, in order from -1 to 1 (float64, host side): ``o_i`` evenly
+    spaced in [-1, 1], ``sign(o) |o|^exponent`` (Jimenez's ``SeparableSSS::calculateKernel``). Every kernel is its
+    reach times this pattern, which is what lets the separable pass share one set of shifts between materials."""
+    _check_taps(taps)
+    o = np.linspace(-1.0, 1.0, taps) if taps > 1 else np.zeros(1)
+    return np.sign(o) * np.abs(o) ** exponent
+
+
+def centre_first(taps: int) -> list[int]:
+    """Tap order with the centre first (the shader reads the centre once and the taps around it)."""
+    return [taps // 2] + [i for i in range(taps) if i != taps // 2]
 
 
 def tap_offsets(taps: int, range_mm: ArrayLike, *, exponent: float = 2.0) -> tuple[Array, Array, Array]:
@@ -63,17 +79,14 @@ def tap_offsets(taps: int, range_mm: ArrayLike, *, exponent: float = 2.0) -> tup
     [-range, range] with boundaries half way between neighbouring taps, the outer ones extended to +-infinity so
     the taps together hold all of the kernel's energy before normalisation.
     """
-    _check_taps(taps)
     range_mm = jnp.asarray(range_mm)
     dtype = jnp.result_type(range_mm.dtype, jnp.float32)
-    o = jnp.linspace(-1.0, 1.0, taps, dtype=dtype) if taps > 1 else jnp.zeros((1,), dtype)
-    sorted_offsets = range_mm * jnp.sign(o) * jnp.abs(o) ** exponent
+    sorted_offsets = range_mm * jnp.asarray(unit_tap_offsets(taps, exponent=exponent), dtype)
     mids = 0.5 * (sorted_offsets[1:] + sorted_offsets[:-1])
     inf = jnp.full((1,), jnp.inf, dtype)
     lower = jnp.concatenate([-inf, mids])
     upper = jnp.concatenate([mids, inf])
-    # centre first (the shader reads the centre once and the taps around it)
-    order = jnp.asarray([taps // 2] + [i for i in range(taps) if i != taps // 2])
+    order = jnp.asarray(centre_first(taps))
     return sorted_offsets[order], lower[order], upper[order]
 
 
@@ -170,8 +183,3 @@ def spiral_samples(n: int, *, dtype=jnp.float32) -> SpiralSamples:
     # i = 0 takes the largest CCDF (the smallest radius) so the first samples hug the centre
     ccdf = 1 - (i + 0.5) / n
     return SpiralSamples(ccdf=ccdf, angles=jnp.mod(i * GOLDEN_ANGLE, 2 * math.pi))
-
-
-def burley_kernel_for(profile: BurleyProfile, *, taps: int = 25, range_mm: ArrayLike | None = None) -> SeparableKernel:
-    """Shorthand: the pre-integrated separable kernel of a Burley profile."""
-    return separable_kernel_from_profile(profile, taps=taps, range_mm=range_mm)

@@ -16,9 +16,23 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from ._profiles import AbstractProfile, d_from_mfp
+from ._checks import checked
+from ._kernels import (
+    SeparableKernel,
+    separable_kernel_from_profile,
+    two_gaussian_kernel,
+)
+from ._profiles import (
+    AbstractProfile,
+    BurleyProfile,
+    burley_cdf,
+    burley_inverse_ccdf,
+    burley_R,
+    d_from_mfp,
+)
 
-__all__ = ["BurleyMaterial", "TwoGaussianMaterial", "ProfileMaterial", "STAParams", "DirectionalLight"]
+__all__ = ["AbstractMaterial", "BurleyMaterial", "TwoGaussianMaterial", "ProfileMaterial", "STAParams",
+           "DirectionalLight"]
 
 
 def _table(name: str, value: ArrayLike, dtype=None) -> Array:
@@ -60,7 +74,37 @@ def _same_rows(*named: tuple[str, Array]) -> None:
         raise ValueError(f"material parameters must have the same number of materials (rows): {rows}")
 
 
-class BurleyMaterial(eqx.Module):
+class AbstractMaterial(eqx.Module):
+    """A table of scattering materials (one row per material, ``albedo (M, 3)``) that answers for its own kernels, so
+    the techniques never test a material's type (equinox's abstract/final pattern).
+
+    - ``separable_kernels(taps, dtype)``: each material's 1D separable kernel (offsets (M, n) mm, weights (M, n, 3)).
+    - ``kernel_parameters()``: the arrays that decide the kernel (materials with equal rows share one), or ``None``.
+    - ``radius_mm(energy)``: host side, the radius (mm) holding ``energy`` of the widest channel of any material.
+    - ``pixel_profile(rows, valid, dtype)``: ``(radial, cdf)`` of each pixel's own material (row ``rows (H, W)``),
+      ``r (H, W) -> (H, W, 3)``; invalid pixels get the empty profile where the material varies per pixel.
+    """
+
+    albedo: eqx.AbstractVar[Array]
+
+    @property
+    def count(self) -> int:
+        return int(self.albedo.shape[0])
+
+    def separable_kernels(self, taps: int, dtype) -> SeparableKernel:
+        raise NotImplementedError
+
+    def kernel_parameters(self) -> list[Array] | None:
+        return None
+
+    def radius_mm(self, energy: float) -> float:
+        raise TypeError(f"{type(self).__name__} has no radial profile")
+
+    def pixel_profile(self, rows: Array, valid: Array, dtype):
+        raise TypeError(f"{type(self).__name__} has no radial profile")
+
+
+class BurleyMaterial(AbstractMaterial):
     """Christensen–Burley material: surface albedo ``A`` in [0, 1] and scattering distance ``d_mm`` >= 0 (mm)."""
 
     albedo: Float[Array, "M 3"]
@@ -87,12 +131,22 @@ class BurleyMaterial(eqx.Module):
         _check_range("mfp_mm", l, 0.0)
         return cls(a, d_from_mfp(a, l, fit=fit))
 
-    @property
-    def count(self) -> int:
-        return int(self.d_mm.shape[0])
+    def separable_kernels(self, taps: int, dtype) -> SeparableKernel:
+        d = checked(self.d_mm.astype(dtype), "d_mm")
+        return jax.vmap(lambda row: separable_kernel_from_profile(BurleyProfile(row), taps=taps))(d)
+
+    def kernel_parameters(self) -> list[Array]:
+        return [self.d_mm]
+
+    def radius_mm(self, energy: float) -> float:
+        return float(np.max(np.asarray(burley_inverse_ccdf(1 - energy, np.asarray(self.d_mm, np.float64)))))
+
+    def pixel_profile(self, rows: Array, valid: Array, dtype):
+        d_pix = jnp.where(valid[..., None], checked(self.d_mm.astype(dtype), "d_mm")[rows], 0.0)
+        return (lambda r: burley_R(r[..., None], d_pix)), (lambda r: burley_cdf(r[..., None], d_pix))
 
 
-class TwoGaussianMaterial(eqx.Module):
+class TwoGaussianMaterial(AbstractMaterial):
     """Jimenez et al.'s artist-friendly separable kernel per channel: ``w G(sigma_near) + (1 - w) G(sigma_far)``.
 
     ``w`` in [0, 1]; ``sigma_near_mm``, ``sigma_far_mm`` >= 0 in mm (0 is the identity kernel).
@@ -121,12 +175,17 @@ class TwoGaussianMaterial(eqx.Module):
         _check_range("sigma_near_mm", self.sigma_near_mm, 0.0)
         _check_range("sigma_far_mm", self.sigma_far_mm, 0.0)
 
-    @property
-    def count(self) -> int:
-        return int(self.w.shape[0])
+    def separable_kernels(self, taps: int, dtype) -> SeparableKernel:
+        w = jnp.clip(self.w.astype(dtype), 0.0, 1.0)
+        s_near = checked(self.sigma_near_mm.astype(dtype), "sigma_near_mm")
+        s_far = checked(self.sigma_far_mm.astype(dtype), "sigma_far_mm")
+        return jax.vmap(lambda a, b, c: two_gaussian_kernel(a, b, c, taps=taps))(w, s_near, s_far)
+
+    def kernel_parameters(self) -> list[Array]:
+        return [self.w, self.sigma_near_mm, self.sigma_far_mm]
 
 
-class ProfileMaterial(eqx.Module):
+class ProfileMaterial(AbstractMaterial):
     """Any radial profile (Gaussian sum, tabulated Monte Carlo) with a surface albedo: one material.
 
     Used by ``separable`` (pre-integrated kernel) and ``reference``.
@@ -144,9 +203,15 @@ class ProfileMaterial(eqx.Module):
     def __check_init__(self):
         _check_range("albedo", self.albedo, 0.0, 1.0)
 
-    @property
-    def count(self) -> int:
-        return 1
+    def separable_kernels(self, taps: int, dtype) -> SeparableKernel:
+        k = separable_kernel_from_profile(self.profile, taps=taps)
+        return SeparableKernel(offsets_mm=k.offsets_mm[None].astype(dtype), weights=k.weights[None].astype(dtype))
+
+    def radius_mm(self, energy: float) -> float:
+        return float(np.max(np.asarray(self.profile.radius_for_energy(energy))))
+
+    def pixel_profile(self, rows: Array, valid: Array, dtype):
+        return self.profile.radial, self.profile.cdf
 
 
 class STAParams(eqx.Module):

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import sss_jax as sj
-from sss_jax import _techniques as techniques
+from sss_jax._techniques import _separable as separable_module
 from sss_jax._advise import (
     Advice,
     Candidate,
@@ -18,15 +18,9 @@ from sss_jax._advise import (
     known_materials,
     resolve_material,
 )
-from sss_jax._techniques import (
-    _burley_impl,
-    _separable_impl,
-    _separable_pass,
-    burley_active_count,
-    compaction_capacity,
-    kernel_groups,
-    weight_channel_count,
-)
+from sss_jax._techniques import burley_active_count, compaction_capacity, kernel_groups, weight_channel_count
+from sss_jax._techniques._burley import _burley_impl
+from sss_jax._techniques._separable import _separable_impl, _separable_pass
 from sss_jax.cli import main
 
 CAM = sj.Camera(focal_px=100.0, mm_per_unit=10.0)  # at depth 50: 0.2 px per mm
@@ -198,8 +192,8 @@ def _numpy_depth_aware_pass(e, z, valid, w_table, rows, reach_px, reach_mm, unit
 def test_separable_pass_matches_a_pixel_by_pixel_loop(axis, linear, taps_per_fusion, monkeypatch):
     # one reach level, two materials, a depth step (follow the surface), invalid pixels, taps reaching off the frame;
     # the 7 taps fused at once, or in chunks of 3 (the last padded with two taps of weight 0)
-    monkeypatch.setattr(techniques, "_TAPS_PER_FUSION", taps_per_fusion)
-    assert techniques.tap_chunks(7) == ((1, 7) if taps_per_fusion == 33 else (3, 3))
+    monkeypatch.setattr(separable_module, "_TAPS_PER_FUSION", taps_per_fusion)
+    assert separable_module.tap_chunks(7) == ((1, 7) if taps_per_fusion == 33 else (3, 3))
     rng = np.random.default_rng(5)
     h, w, n = 11, 13, 7
     e = rng.uniform(0.0, 2.0, (3, h, w))

@@ -1,0 +1,51 @@
+"""The four screen-space techniques, each a jitted function of (buffers, material parameters, camera), one file each.
+
+- ``translucency`` (STA, ``_translucency``): local, adds back-light through thickness. Does NOT conserve energy.
+- ``separable`` (SSSS, ``_separable``): a horizontal then a vertical 1D pass, depth-aware ("follow the surface").
+- ``burley`` (``_burley``): one pass of n golden-angle spiral samples of the Christensen–Burley profile, normalised.
+- ``reference`` (``_reference``): dense, brute-force convolution with the exact profile integrated over each pixel.
+
+``separable``, ``burley`` and ``reference`` redistribute light: each output pixel is a normalised weighted mean of
+irradiance, so flat lighting stays flat and energy is conserved away from image and depth borders. What they share
+(which pixels take part, the albedo split, checks under ``jit``) is in ``_common``. Lengths of materials are in mm,
+depth in scene units, offsets in pixels via ``_units``.
+"""
+
+from ._burley import (
+    burley as burley,
+)
+from ._burley import (
+    burley_active_count as burley_active_count,
+)
+from ._burley import (
+    compaction_capacity as compaction_capacity,
+)
+from ._burley import (
+    weight_channel_count as weight_channel_count,
+)
+from ._common import ALBEDO_MODES as ALBEDO_MODES
+from ._common import MIN_FOOTPRINT_PX as MIN_FOOTPRINT_PX
+from ._reference import reference as reference
+from ._reference import reference_radius_px as reference_radius_px
+from ._registry import ENERGY_CONSERVING as ENERGY_CONSERVING
+from ._registry import TECHNIQUES as TECHNIQUES
+from ._registry import get_technique as get_technique
+from ._separable import SCALE_LEVELS as SCALE_LEVELS
+from ._separable import kernel_groups as kernel_groups
+from ._separable import separable as separable
+from ._separable import tap_chunks as tap_chunks
+from ._translucency import (
+    TRANSLUCENCY_MODELS as TRANSLUCENCY_MODELS,
+)
+from ._translucency import (
+    slab_transmittance as slab_transmittance,
+)
+from ._translucency import (
+    sta_term as sta_term,
+)
+from ._translucency import (
+    thin_transmittance as thin_transmittance,
+)
+from ._translucency import (
+    translucency as translucency,
+)

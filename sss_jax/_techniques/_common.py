@@ -1,0 +1,130 @@
+"""What every technique shares: which pixels take part, the material row per pixel, the albedo split, value checks
+that work under ``jit``, interpolated fetches and NaN-safe elementary functions.
+
+A pixel takes part when it has a surface (finite positive depth) and, if a ``material_id`` buffer is given, a non-zero
+id; every other pixel passes through untouched (output = input irradiance). The output of an SSS pixel is
+``albedo * scattered irradiance`` (``albedo_mode="post"``) or, with ``albedo_mode="pre_post"``,
+``sqrt(albedo) * scatter(sqrt(albedo) * irradiance)`` (texture detail survives the blur). Albedo comes from the buffer
+when present, else from the material. Work happens in at least float32 and the result has the irradiance's dtype.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array
+
+from .._scene import Buffers, surface_mask
+
+ALBEDO_MODES = ("post", "pre_post")
+
+
+def _work_dtype(dtype) -> jnp.dtype:
+    return jnp.promote_types(dtype, jnp.float32)
+
+
+def _check_albedo_mode(mode: str) -> None:
+    if mode not in ALBEDO_MODES:
+        raise ValueError(f"albedo_mode={mode!r} is not one of {ALBEDO_MODES}")
+
+
+def _sss_mask(buffers: Buffers) -> Array:
+    mask = surface_mask(buffers.depth)
+    if buffers.material_id is not None:
+        mask = mask & (buffers.material_id > 0)
+    return mask
+
+
+def _material_rows(buffers: Buffers, count: int) -> Array:
+    """Row of the material table used by each pixel (id k -> row k-1; with one material every id uses it)."""
+    if buffers.material_id is None or count == 1:
+        return jnp.zeros(buffers.depth.shape, jnp.int32)
+    return jnp.clip(buffers.material_id.astype(jnp.int32) - 1, 0, count - 1)
+
+
+class _Prepared(eqx.Module):
+    irradiance: Array  # what gets scattered (after the pre-scatter albedo, if any), work dtype
+    depth: Array
+    valid: Array
+    rows: Array
+    albedo_out: Array  # what multiplies the scattered irradiance
+
+
+def _prepare(buffers: Buffers, material_albedo: Array, albedo_mode: str, dtype) -> _Prepared:
+    valid = _sss_mask(buffers)
+    rows = _material_rows(buffers, material_albedo.shape[0])
+    albedo = buffers.albedo if buffers.albedo is not None else material_albedo.astype(dtype)[rows]
+    albedo = jnp.clip(albedo.astype(dtype), 0.0, 1.0)
+    # pixels that take no part hold nothing a neighbour could read: no NaN or inf depth, no stray irradiance
+    e = jnp.where(valid[..., None], buffers.irradiance.astype(dtype), 0.0)
+    depth = jnp.where(valid, buffers.depth.astype(dtype), 0.0)
+    if albedo_mode == "pre_post":
+        root = jnp.sqrt(albedo)
+        e, albedo = e * root, root
+    return _Prepared(irradiance=e, depth=depth, valid=valid, rows=rows, albedo_out=albedo)
+
+
+def _finish(buffers: Buffers, prep: _Prepared, scattered: Array) -> Array:
+    out = prep.albedo_out * scattered
+    out = jnp.where(prep.valid[..., None], out, buffers.irradiance.astype(out.dtype))
+    return out.astype(buffers.irradiance.dtype)
+
+
+def _corners(flat: Array, height: int, width: int, y: Array, x: Array, *, interpolation: str):
+    """The pixels a fetch at fractional coordinates (pixel centres at integers) reads from ``flat (H*W, K)``, with
+    their interpolation weights; pixels outside the image get weight 0."""
+    # clip first: huge or NaN offsets must not overflow the integer cast
+    x = jnp.clip(jnp.nan_to_num(x, nan=-4.0), -4.0, width + 3.0)
+    y = jnp.clip(jnp.nan_to_num(y, nan=-4.0), -4.0, height + 3.0)
+    if interpolation == "nearest":
+        corners = [(jnp.round(y), jnp.round(x), None)]
+    else:
+        x0, y0 = jnp.floor(x), jnp.floor(y)
+        fx, fy = x - x0, y - y0
+        corners = [
+            (y0, x0, (1 - fy) * (1 - fx)),
+            (y0, x0 + 1, (1 - fy) * fx),
+            (y0 + 1, x0, fy * (1 - fx)),
+            (y0 + 1, x0 + 1, fy * fx),
+        ]
+    out = []
+    for yi, xi, wgt in corners:
+        inside = (xi >= 0) & (xi <= width - 1) & (yi >= 0) & (yi <= height - 1)
+        idx = jnp.clip(yi, 0, height - 1).astype(jnp.int32) * width + jnp.clip(xi, 0, width - 1).astype(jnp.int32)
+        w = inside.astype(flat.dtype) if wgt is None else jnp.where(inside, wgt, 0.0)
+        out.append((jnp.take(flat, idx, axis=0), w))
+    return out
+
+
+
+def _pack(e: Array, depth: Array, valid: Array) -> Array:
+    """(H*W, 5): irradiance and depth zeroed where invalid (no inf * 0), and the validity itself."""
+    v = valid.astype(e.dtype)
+    z = jnp.where(valid, depth, 0.0)
+    e = jnp.where(valid[..., None], e, 0.0)
+    return jnp.concatenate([e, z[..., None], v[..., None]], axis=-1).reshape(-1, 5)
+
+
+
+def _safe_sqrt(x: Array) -> Array:
+    """sqrt with a finite gradient at 0 (double where)."""
+    pos = x > 0
+    return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1.0)), 0.0)
+
+
+
+def _safe_log(x: Array) -> Array:
+    pos = x > 0
+    return jnp.where(pos, jnp.log(jnp.where(pos, x, 1.0)), 0.0)
+
+
+
+def _is_concrete(*trees) -> bool:
+    return not any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(trees))
+
+
+
+# Footprint below which a pixel keeps its local shading (px): the paper's Fig. 1, scattering narrower than a pixel
+# is invisible. The footprint is the radius holding 99% of the widest channel's energy, projected at the pixel.
+MIN_FOOTPRINT_PX = 0.5

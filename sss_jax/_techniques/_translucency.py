@@ -1,0 +1,154 @@
+"""Back-lighting through thin parts: the simple translucency approximation (STA) and the profile's and slab's
+physically based transmission. These ADD light (they do not conserve energy)."""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from .._checks import checked
+from .._materials import BurleyMaterial, DirectionalLight, STAParams
+from .._profiles import burley_cdf
+from .._scene import Buffers, Camera, camera_positions, normals_from_depth
+from .._slab import slab_transmittance
+from ._common import _prepare, _work_dtype
+
+
+def _safe_pow(x: Array, p: Array) -> Array:
+    """``x^p`` for x >= 0 with ``0^0 = 1`` and finite gradients in x and p."""
+    pos = x > 0
+    xs = jnp.where(pos, x, 1.0)
+    return jnp.where(pos, jnp.exp(p * jnp.log(xs)), jnp.where(p == 0, 1.0, 0.0))
+
+
+def sta_term(normal: Array, view: Array, light: DirectionalLight, params: STAParams, thickness_mm: Array) -> Array:
+    """Per-pixel translucency light ``light * t * (s_T max(0, V . -L_T)^p_T + a_T)``, ``(H, W, 3)`` (before albedo).
+
+    ``L_T = norm(L + d_T N)`` (Barré-Brisebois & Bouchard 2011; the paper's Sec. 3.1); ``t = exp(-thickness/t_mm)``.
+    """
+    dtype = normal.dtype
+    l = light.direction.astype(dtype)
+    lt = l.reshape(1, 1, 3) + params.distortion.astype(dtype) * normal
+    norm = jnp.linalg.norm(lt, axis=-1, keepdims=True)
+    ok = norm > 1e-12
+    lt = jnp.where(ok, lt / jnp.where(ok, norm, 1.0), 0.0)
+    cos_back = jnp.clip(jnp.sum(view * -lt, axis=-1), 0.0, 1.0)
+    power = checked(params.power.astype(dtype), "STA power")
+    t_dir = params.scale.astype(dtype).reshape(1, 1, 3) * _safe_pow(cos_back, power)[..., None]
+    scale_mm = checked(params.thickness_mm.astype(dtype), "STA thickness_mm", positive=True)
+    ratio = thickness_mm[..., None] / scale_mm.reshape(1, 1, 3)
+    atten = jnp.where(jnp.isfinite(ratio), jnp.exp(-jnp.where(jnp.isfinite(ratio), ratio, 0.0)), 0.0)
+    return light.colour.astype(dtype).reshape(1, 1, 3) * atten * (t_dir + params.ambient.astype(dtype).reshape(1, 1, 3))
+
+
+def _thickness_mm(buffers: Buffers, thickness: Array | None, camera: Camera, shape: tuple[int, ...], dtype) -> Array:
+    """Per-pixel thickness in mm: the thickness buffer, else the constant ``thickness`` (scene units), else 0."""
+    if buffers.thickness is not None:
+        thick_units = buffers.thickness.astype(dtype)
+    elif thickness is not None:
+        thick_units = jnp.broadcast_to(jnp.asarray(thickness, dtype), shape)
+    else:
+        thick_units = jnp.zeros(shape, dtype)
+    return thick_units * camera.mm_per_unit.astype(dtype)
+
+
+@eqx.filter_jit
+def _translucency_impl(buffers: Buffers, params: STAParams, camera: Camera, light: DirectionalLight,
+                       thickness: Array | None, material_albedo: Array) -> Array:
+    dtype = _work_dtype(buffers.irradiance.dtype)
+    prep = _prepare(buffers, material_albedo, "post", dtype)
+    normal = buffers.normal.astype(dtype) if buffers.normal is not None else normals_from_depth(prep.depth, camera)
+    pos = camera_positions(prep.depth, camera)
+    view = -pos / jnp.linalg.norm(pos, axis=-1, keepdims=True)
+    thick_mm = _thickness_mm(buffers, thickness, camera, prep.depth.shape, dtype)
+    added = sta_term(normal, view, light, params, thick_mm)
+    out = prep.albedo_out * (prep.irradiance + added)
+    out = jnp.where(prep.valid[..., None], out, buffers.irradiance.astype(dtype))
+    return out.astype(buffers.irradiance.dtype)
+
+
+def thin_transmittance(thickness_mm: Array, d_mm: Array) -> Array:
+    """Thin-object transmittance of the normalised Burley profile: ``(exp(-t/d) + 3 exp(-t/(3d))) / 4``.
+
+    The fraction of the profile's energy beyond radius t, ``1 - CDF(t)``, i.e. the integral of the profile over a
+    plane at distance t (Unity HDRP ``ComputeTransmittanceDisney`` in ``SubsurfaceScattering.hlsl``, which HDRP
+    multiplies by ``0.25 * transmissionTint`` and later by the albedo; UE5 ``GetBurleyTransmissionProfile``:
+    ``0.25 A (exp(-s r) + 3 exp(-s r / 3))`` with ``r = t / dmfp``). Elementwise in (t, d), both in mm; d = 0 gives 0
+    for t > 0. See docs/engines.md for how it compares with Monte Carlo slab transmission.
+    """
+    return 1.0 - burley_cdf(thickness_mm, d_mm)
+
+
+def _thin_model(thickness_mm: Array, albedo: Array, d_mm: Array) -> Array:
+    return thin_transmittance(thickness_mm, d_mm)  # the profile's CCDF: the albedo plays no part
+
+
+# transmittance T(thickness_mm, medium albedo, d_mm) of each physically based model, elementwise per channel
+_TRANSMITTANCE: dict[str, Callable[[Array, Array, Array], Array]] = {"thin": _thin_model, "slab": slab_transmittance}
+
+
+@eqx.filter_jit
+def _transmission_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, light: DirectionalLight,
+                       thickness: Array | None, model: str) -> Array:
+    """``albedo * (irradiance + light * T * max(0, -N . L))``: the models differ only in T (``model`` is static)."""
+    dtype = _work_dtype(buffers.irradiance.dtype)
+    prep = _prepare(buffers, material.albedo, "post", dtype)
+    normal = buffers.normal.astype(dtype) if buffers.normal is not None else normals_from_depth(prep.depth, camera)
+    thick_mm = jnp.maximum(_thickness_mm(buffers, thickness, camera, prep.depth.shape, dtype), 0.0)
+    d = checked(material.d_mm.astype(dtype), "d_mm")[prep.rows]  # (H, W, 3)
+    # the medium is the material's (its A and d per material id), not the albedo texture's, which only tints
+    medium_albedo = jnp.clip(material.albedo.astype(dtype), 0.0, 1.0)[prep.rows]
+    t = jnp.where(jnp.isfinite(thick_mm), thick_mm, 0.0)[..., None]
+    transmitted = jnp.where(jnp.isfinite(thick_mm)[..., None], _TRANSMITTANCE[model](t, medium_albedo, d), 0.0)
+    # light reaching the back face: the cosine between the back-facing normal and the light
+    back_cos = jnp.clip(jnp.sum(-normal * light.direction.astype(dtype).reshape(1, 1, 3), axis=-1), 0.0, 1.0)
+    added = light.colour.astype(dtype).reshape(1, 1, 3) * transmitted * back_cos[..., None]
+    out = prep.albedo_out * (prep.irradiance + added)
+    out = jnp.where(prep.valid[..., None], out, buffers.irradiance.astype(dtype))
+    return out.astype(buffers.irradiance.dtype)
+
+
+TRANSLUCENCY_MODELS = ("sta", "thin", "slab")
+
+
+def translucency(
+    buffers: Buffers,
+    params: STAParams | BurleyMaterial,
+    camera: Camera,
+    light: DirectionalLight,
+    *,
+    albedo: Array | None = None,
+    thickness: float | None = None,
+    model: str = "sta",
+) -> Float[Array, "H W 3"]:
+    """Back-lighting through thin parts: ``albedo * (irradiance + transmitted light)`` on SSS pixels.
+
+    ADDS light (not energy conserving): the back-light through the object's thickness is added on top of local
+    diffuse shading. Thickness (scene units) comes from ``buffers.thickness``, else the constant ``thickness``, else
+    0 (paper-thin). Normals come from ``buffers.normal`` (camera space) or are derived from depth.
+
+    - ``model="sta"`` (default): the simple translucency approximation with ``STAParams``; ``albedo (3,)`` is used
+      where the buffers carry none (default white).
+    - ``model="thin"``: the physically based thin-object transmission that follows from the profile, as HDRP's thin
+      mode computes it: ``light * thin_transmittance(thickness_mm, d) * max(0, -N . L)`` with ``params`` a
+      ``BurleyMaterial`` (its d per material id, its albedo where the buffers carry none). HDRP wraps the cosine;
+      this uses the plain clamped cosine.
+    - ``model="slab"``: as ``"thin"`` with ``slab_transmittance(thickness_mm, A, d)`` for T: the Monte Carlo
+      transmittance of a slab of the medium behind the material (A and d of the ``BurleyMaterial`` per material id),
+      which agrees with transport where the profile's CCDF does not (docs/engines.md).
+    """
+    if model not in TRANSLUCENCY_MODELS:
+        raise ValueError(f"model={model!r} is not one of {TRANSLUCENCY_MODELS}")
+    if not isinstance(light, DirectionalLight):
+        raise TypeError(f"translucency needs a DirectionalLight, got {type(light).__name__}")
+    if model in _TRANSMITTANCE:
+        if not isinstance(params, BurleyMaterial):
+            raise TypeError(f"translucency(model={model!r}) needs a BurleyMaterial, got {type(params).__name__}")
+        return _transmission_impl(buffers, params, camera, light, thickness, model)
+    if not isinstance(params, STAParams):
+        raise TypeError(f"translucency needs STAParams, got {type(params).__name__}")
+    table = jnp.ones((1, 3), buffers.irradiance.dtype) if albedo is None else jnp.reshape(jnp.asarray(albedo), (-1, 3))
+    return _translucency_impl(buffers, params, camera, light, thickness, table)
