@@ -4,8 +4,7 @@ The public face; the implementation lives in private modules (``_profiles``, ``_
 ``_materials``, ``_techniques``, ...).
 """
 
-__version__ = "0.1.0"
-
+from ._version import __version__ as __version__
 from ._units import mm_to_px as mm_to_px, px_per_mm as px_per_mm
 from ._profiles import (
     AbstractProfile as AbstractProfile,
@@ -77,3 +76,9 @@ from ._engines import (
     unreal_to_burley as unreal_to_burley,
 )
 from ._advise import advise as advise
+from ._presets import (
+    Preset as Preset,
+    list_presets as list_presets,
+    load_preset as load_preset,
+    material_for as material_for,
+)

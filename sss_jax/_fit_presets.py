@@ -39,7 +39,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import __version__
+from ._version import __version__
 from ._fitting import (
     burley_slab_transmittance,
     fit_sta,

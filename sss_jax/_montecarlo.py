@@ -349,7 +349,7 @@ class MCResult:
         return 0.5 * (self.bin_edges_mfp[1:] + self.bin_edges_mfp[:-1])
 
     def to_json(self) -> dict[str, Any]:
-        from . import __version__
+        from ._version import __version__
 
         r = self.r_mfp
         out = {

@@ -8,12 +8,14 @@ The fields read (the preset format of the fitting issue; anything else in the fi
      "sta": {"distortion": d, "power": p, "scale": [...], "ambient": [...], "thickness_mm": [...]}}
 
 ``albedo`` and ``burley`` are required; the two-Gaussian kernel and the STA parameters are optional. A name is looked
-up in the directories of ``SSS_JAX_PRESETS`` (``os.pathsep``-separated) and then the repository's ``fits/``.
+up in the directories of ``SSS_JAX_PRESETS`` (``os.pathsep``-separated) and then in the presets that ship with the
+package (the repository's ``fits/``, installed as the package data ``sss_jax.fits``).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import importlib.resources
 import json
 import os
 import pathlib
@@ -22,7 +24,7 @@ from typing import Any
 from ._io import SSSInputError
 from ._materials import BurleyMaterial, STAParams, TwoGaussianMaterial
 
-__all__ = ["Preset", "load_preset", "preset_dirs", "material_for"]
+__all__ = ["Preset", "list_presets", "load_preset", "material_for", "preset_dirs", "preset_home"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -35,9 +37,20 @@ class Preset:
     raw: dict[str, Any]
 
 
+def preset_home() -> pathlib.Path:
+    """The directory of the presets that ship with sss_jax (``fits/`` in the repository; package data in an install)."""
+    return pathlib.Path(str(importlib.resources.files("sss_jax.fits")))
+
+
 def preset_dirs() -> list[pathlib.Path]:
+    """Where names are looked up, in order: the directories of ``SSS_JAX_PRESETS``, then ``preset_home()``."""
     dirs = [pathlib.Path(p) for p in os.environ.get("SSS_JAX_PRESETS", "").split(os.pathsep) if p]
-    return dirs + [pathlib.Path(__file__).resolve().parents[1] / "fits"]
+    return dirs + [preset_home()]
+
+
+def list_presets() -> list[str]:
+    """The names ``load_preset`` accepts, sorted (a name in an earlier directory hides the same name later)."""
+    return sorted({c.stem for d in preset_dirs() if d.is_dir() for c in d.glob("*.json") if c.stem != "schema"})
 
 
 def _resolve(name_or_path: str | os.PathLike) -> pathlib.Path:
@@ -50,8 +63,7 @@ def _resolve(name_or_path: str | os.PathLike) -> pathlib.Path:
         candidate = d / f"{name_or_path}.json"
         if candidate.exists():
             return candidate
-    known = sorted({c.stem for d in preset_dirs() if d.is_dir() for c in d.glob("*.json") if c.stem != "schema"})
-    raise SSSInputError(f"unknown preset {str(name_or_path)!r}; presets found: {', '.join(known) or 'none'} "
+    raise SSSInputError(f"unknown preset {str(name_or_path)!r}; presets found: {', '.join(list_presets()) or 'none'} "
                         f"(looked in {', '.join(str(d) for d in preset_dirs())})")
 
 
@@ -67,7 +79,10 @@ def _triple(data: dict, path: list[str], source: pathlib.Path):
 
 
 def load_preset(name_or_path: str | os.PathLike) -> Preset:
-    """Read and validate a preset; every error names the file and the field."""
+    """Read and validate a preset by name (``list_presets()``) or path; every error names the file and the field.
+
+    The ``Preset`` holds the Burley material (albedo, d in mm), the fitted two-Gaussian kernel and STA parameters
+    where the file has them, and the whole file as ``raw`` (fit records, errors, engine blocks)."""
     path = _resolve(name_or_path)
     try:
         data = json.loads(path.read_text())

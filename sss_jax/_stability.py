@@ -199,8 +199,6 @@ def _run_technique_group(cases: list[Case]) -> None:
     if not prepared:
         return
     dtype = np.dtype(prepared[0][0].params["dtype"])
-    if dtype == np.float64 and not jax.config.read("jax_enable_x64"):
-        jax.config.update("jax_enable_x64", True)
     e = jnp.asarray(np.stack([x[0] for _, x in prepared]))
     z = jnp.asarray(np.stack([x[1] for _, x in prepared]))
     params = {k: jnp.asarray(np.stack([x[2][k] for _, x in prepared])) for k in prepared[0][1][2]}
@@ -319,7 +317,15 @@ def _run_small_case(case: Case) -> None:
 
 
 def run_sweep(*, quick: bool = False, progress: bool = True) -> dict[str, Any]:
-    """Run the sweep and return the summary with every case (the JSON ``sss-jax stability`` writes)."""
+    """Run the sweep and return the summary with every case (the JSON ``sss-jax stability`` writes).
+
+    The float64 cases must really run in float64: the sweep runs in a local ``jax.enable_x64`` scope, which leaves
+    the caller's setting as it was."""
+    with jax.enable_x64(True):
+        return _run_sweep(quick, progress)
+
+
+def _run_sweep(quick: bool, progress: bool) -> dict[str, Any]:
     cases = list(sweep_cases(quick))
     bar = None
     if progress:

@@ -28,9 +28,6 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    import jax
-
-    jax.config.update("jax_enable_x64", True)  # float64 cases must really run in float64
     from .._io import write_json_atomic
     from .._stability import run_sweep
 
