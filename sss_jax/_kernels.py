@@ -12,8 +12,9 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, Float
 
+from ._custom_types import ParamLike
 from ._profiles import AbstractProfile, burley_inverse_ccdf, marginal_cdf
 
 __all__ = [
@@ -71,7 +72,7 @@ def centre_first(taps: int) -> list[int]:
     return [taps // 2] + [i for i in range(taps) if i != taps // 2]
 
 
-def tap_offsets(taps: int, range_mm: ArrayLike, *, exponent: float = 2.0) -> tuple[Array, Array, Array]:
+def tap_offsets(taps: int, range_mm: ParamLike, *, exponent: float = 2.0) -> tuple[Array, Array, Array]:
     """Tap positions in [-range, range], densest near the centre, and the interval each tap stands for.
 
     Following Jimenez's ``SeparableSSS::calculateKernel``: ``o_i`` evenly spaced in [-1, 1], offset
@@ -96,7 +97,7 @@ def _normalise(weights: Array) -> Array:
 
 
 def separable_kernel_from_profile(
-    profile: AbstractProfile, *, taps: int = 25, range_mm: ArrayLike | None = None, exponent: float = 2.0
+    profile: AbstractProfile, *, taps: int = 25, range_mm: ParamLike | None = None, exponent: float = 2.0
 ) -> SeparableKernel:
     """The pre-integrated SSSS kernel of a profile: tap i gets the energy of ``a_p`` over its interval.
 
@@ -123,12 +124,12 @@ def _gauss_cdf(x: Array, sigma: Array) -> Array:
 
 
 def two_gaussian_kernel(
-    w: ArrayLike,
-    sigma_near_mm: ArrayLike,
-    sigma_far_mm: ArrayLike,
+    w: ParamLike,
+    sigma_near_mm: ParamLike,
+    sigma_far_mm: ParamLike,
     *,
     taps: int = 25,
-    range_mm: ArrayLike | None = None,
+    range_mm: ParamLike | None = None,
     exponent: float = 2.0,
 ) -> SeparableKernel:
     """Jimenez et al.'s artist-friendly kernel ``a_m(x) = w G(x, s_near) + (1 - w) G(x, s_far)``, per channel.

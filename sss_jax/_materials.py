@@ -14,9 +14,10 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, Float
 
 from ._checks import checked
+from ._custom_types import ParamLike
 from ._kernels import (
     SeparableKernel,
     separable_kernel_from_profile,
@@ -35,7 +36,7 @@ __all__ = ["AbstractMaterial", "BurleyMaterial", "TwoGaussianMaterial", "Profile
            "DirectionalLight"]
 
 
-def _table(name: str, value: ArrayLike, dtype=None) -> Array:
+def _table(name: str, value: ParamLike, dtype=None) -> Array:
     x = jnp.asarray(value, dtype=dtype)
     if not jnp.issubdtype(x.dtype, jnp.floating):
         x = x.astype(jnp.float32)
@@ -110,7 +111,7 @@ class BurleyMaterial(AbstractMaterial):
     albedo: Float[Array, "M 3"]
     d_mm: Float[Array, "M 3"]
 
-    def __init__(self, albedo: ArrayLike, d_mm: ArrayLike):
+    def __init__(self, albedo: ParamLike, d_mm: ParamLike):
         self.d_mm = _table("d_mm", d_mm)
         self.albedo = _table("albedo", albedo, self.d_mm.dtype)
         if self.albedo.shape[0] == 1 and self.d_mm.shape[0] > 1:
@@ -124,7 +125,7 @@ class BurleyMaterial(AbstractMaterial):
             raise ValueError("d_mm must be finite")
 
     @classmethod
-    def from_mfp(cls, albedo: ArrayLike, mfp_mm: ArrayLike, *, fit: str = "diffuse_transmission") -> "BurleyMaterial":
+    def from_mfp(cls, albedo: ParamLike, mfp_mm: ParamLike, *, fit: str = "diffuse_transmission") -> "BurleyMaterial":
         """From albedo and mean free path (mm) through the memo's ``s(A)`` fit (``d = mfp / s(A)``)."""
         a = _table("albedo", albedo)
         l = _table("mfp_mm", mfp_mm, a.dtype)
@@ -157,7 +158,7 @@ class TwoGaussianMaterial(AbstractMaterial):
     sigma_near_mm: Float[Array, "M 3"]
     sigma_far_mm: Float[Array, "M 3"]
 
-    def __init__(self, albedo: ArrayLike, w: ArrayLike, sigma_near_mm: ArrayLike, sigma_far_mm: ArrayLike):
+    def __init__(self, albedo: ParamLike, w: ParamLike, sigma_near_mm: ParamLike, sigma_far_mm: ParamLike):
         self.w = _table("w", w)
         dtype = self.w.dtype
         self.sigma_near_mm = _table("sigma_near_mm", sigma_near_mm, dtype)
@@ -194,7 +195,7 @@ class ProfileMaterial(AbstractMaterial):
     albedo: Float[Array, "1 3"]
     profile: AbstractProfile
 
-    def __init__(self, profile: AbstractProfile, albedo: ArrayLike | None = None):
+    def __init__(self, profile: AbstractProfile, albedo: ParamLike | None = None):
         if profile.num_channels != 3:
             raise ValueError(f"ProfileMaterial needs a 3-channel profile, got {profile.num_channels} channels")
         self.profile = profile
@@ -257,7 +258,7 @@ class DirectionalLight(eqx.Module):
     direction: Float[Array, " 3"]
     colour: Float[Array, " 3"]
 
-    def __init__(self, direction: ArrayLike, colour: ArrayLike = (1.0, 1.0, 1.0)):
+    def __init__(self, direction: ParamLike, colour: ParamLike = (1.0, 1.0, 1.0)):
         direction = jnp.asarray(direction, dtype=jnp.result_type(jnp.asarray(direction).dtype, jnp.float32))
         if direction.shape != (3,):
             raise ValueError(f"light direction must have shape (3,), got {direction.shape}")

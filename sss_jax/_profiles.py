@@ -19,7 +19,9 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, Float
+
+from ._custom_types import ParamLike
 
 __all__ = [
     "AbstractProfile",
@@ -42,7 +44,7 @@ __all__ = [
 _TINY = 1e-30
 
 
-def _float(x: ArrayLike, like: ArrayLike | None = None) -> Array:
+def _float(x: ParamLike, like: ParamLike | None = None) -> Array:
     x = jnp.asarray(x)
     if like is not None:
         return x.astype(jnp.result_type(jnp.asarray(like).dtype, jnp.float32))
@@ -56,7 +58,7 @@ def _float(x: ArrayLike, like: ArrayLike | None = None) -> Array:
 # ----------------------------------------------------------------------------------------------------------------
 
 
-def burley_R(r_mm: ArrayLike, d_mm: ArrayLike) -> Array:
+def burley_R(r_mm: ParamLike, d_mm: ParamLike) -> Array:
     """Normalised Burley profile ``R(r) = (exp(-r/d) + exp(-r/(3d))) / (8 pi d r)`` in 1/mm^2.
 
     Elementwise and broadcasting. ``r = 0`` gives ``+inf`` (the profile's integrable 1/r peak); ``d = 0`` is the
@@ -73,7 +75,7 @@ def burley_R(r_mm: ArrayLike, d_mm: ArrayLike) -> Array:
     return jnp.where(ok, value, at_zero)
 
 
-def burley_cdf(r_mm: ArrayLike, d_mm: ArrayLike) -> Array:
+def burley_cdf(r_mm: ParamLike, d_mm: ParamLike) -> Array:
     """Fraction of the energy inside radius r: ``1 - exp(-r/d)/4 - 3 exp(-r/(3d))/4``.
 
     Written with ``expm1`` so small ``r/d`` keeps full relative precision; ``d = 0`` gives 1 for ``r > 0``.
@@ -87,7 +89,7 @@ def burley_cdf(r_mm: ArrayLike, d_mm: ArrayLike) -> Array:
     return jnp.where(ok, value, jnp.where(r > 0, 1.0, 0.0))
 
 
-def burley_inverse_ccdf(v: ArrayLike, d_mm: ArrayLike) -> Array:
+def burley_inverse_ccdf(v: ParamLike, d_mm: ParamLike) -> Array:
     """Radius r whose complementary CDF ``1 - CDF(r)`` equals ``v`` in (0, 1].
 
     With ``y = exp(-r/(3d))`` the CCDF is ``(y^3 + 3y)/4``; the cubic ``y^3 + 3y = 4v`` has the real root
@@ -103,7 +105,7 @@ def burley_inverse_ccdf(v: ArrayLike, d_mm: ArrayLike) -> Array:
     return -3 * d * jnp.log(jnp.minimum(y, 1.0))
 
 
-def burley_inverse_cdf(u: ArrayLike, d_mm: ArrayLike) -> Array:
+def burley_inverse_cdf(u: ParamLike, d_mm: ParamLike) -> Array:
     """Radius r with ``CDF(r) = u`` for u in [0, 1): importance sampling of the Burley profile."""
     u = _float(u)
     return burley_inverse_ccdf(1 - u, d_mm)
@@ -114,21 +116,21 @@ def burley_inverse_cdf(u: ArrayLike, d_mm: ArrayLike) -> Array:
 # ----------------------------------------------------------------------------------------------------------------
 
 
-def scaling_searchlight(albedo: ArrayLike) -> Array:
+def scaling_searchlight(albedo: ParamLike) -> Array:
     """s(A) for the searchlight (perpendicular incidence) configuration with the mean free path as the length:
     ``s = 1.85 - A + 7 |A - 0.8|^3`` (Christensen & Burley 2015, Sec. 3, Eq. 6)."""
     a = _float(albedo)
     return 1.85 - a + 7 * jnp.abs(a - 0.8) ** 3
 
 
-def scaling_diffuse_transmission(albedo: ArrayLike) -> Array:
+def scaling_diffuse_transmission(albedo: ParamLike) -> Array:
     """s(A) for diffuse surface transmission with the mean free path as the length:
     ``s = 1.9 - A + 3.5 (A - 0.8)^2`` (Christensen & Burley 2015, Sec. 3, Eq. 8; used by Blender Cycles)."""
     a = _float(albedo)
     return 1.9 - a + 3.5 * (a - 0.8) ** 2
 
 
-def scaling_diffuse_mfp(albedo: ArrayLike) -> Array:
+def scaling_diffuse_mfp(albedo: ParamLike) -> Array:
     """s(A) for the diffuse mean free path on the surface (dmfp) as the length:
     ``s = 3.5 + 100 (A - 0.33)^4`` (Christensen & Burley 2015, Sec. 3, Eq. 10)."""
     a = _float(albedo)
@@ -142,7 +144,7 @@ SCALING_FITS = {
 }
 
 
-def d_from_mfp(albedo: ArrayLike, mfp_mm: ArrayLike, *, fit: str = "diffuse_transmission") -> Array:
+def d_from_mfp(albedo: ParamLike, mfp_mm: ParamLike, *, fit: str = "diffuse_transmission") -> Array:
     """Burley's d (mm) from a surface albedo A and a measured length (mm): ``d = length / s(A)``.
 
     ``fit`` names which of the memo's three fits the length belongs to: ``"searchlight"`` and
@@ -171,14 +173,14 @@ class AbstractProfile(eqx.Module):
     """
 
     @abc.abstractmethod
-    def radial(self, r_mm: ArrayLike) -> Array: ...
+    def radial(self, r_mm: ParamLike) -> Array: ...
 
     @abc.abstractmethod
-    def cdf(self, r_mm: ArrayLike) -> Array:
+    def cdf(self, r_mm: ParamLike) -> Array:
         """Normalised energy inside radius r, ``(..., C)``."""
 
     @abc.abstractmethod
-    def inverse_cdf(self, u: ArrayLike) -> Array:
+    def inverse_cdf(self, u: ParamLike) -> Array:
         """Radius (mm) at which the normalised CDF reaches u, ``(..., C)``."""
 
     @property
@@ -190,7 +192,7 @@ class AbstractProfile(eqx.Module):
     def num_channels(self) -> int:
         return int(self.albedo.shape[-1])
 
-    def physical(self, r_mm: ArrayLike) -> Array:
+    def physical(self, r_mm: ParamLike) -> Array:
         """``A * R(r)`` in 1/mm^2: the profile carrying the material's total reflectance."""
         r = jnp.asarray(r_mm)
         radial = self.radial(r)
@@ -207,7 +209,7 @@ class BurleyProfile(AbstractProfile):
     d_mm: Float[Array, " C"]
     surface_albedo: Float[Array, " C"]
 
-    def __init__(self, d_mm: ArrayLike, albedo: ArrayLike | None = None):
+    def __init__(self, d_mm: ParamLike, albedo: ParamLike | None = None):
         d = _float(d_mm)
         if d.ndim != 1:
             raise ValueError(f"d_mm must have shape (C,), got {d.shape}")
@@ -220,7 +222,7 @@ class BurleyProfile(AbstractProfile):
         self.surface_albedo = a
 
     @classmethod
-    def from_mfp(cls, albedo: ArrayLike, mfp_mm: ArrayLike, *, fit: str = "diffuse_transmission") -> "BurleyProfile":
+    def from_mfp(cls, albedo: ParamLike, mfp_mm: ParamLike, *, fit: str = "diffuse_transmission") -> "BurleyProfile":
         """Profile from surface albedo and a mean free path (mm) through the memo's ``s(A)`` fit."""
         a = _float(albedo)
         return cls(d_from_mfp(a, mfp_mm, fit=fit), a)
@@ -229,15 +231,15 @@ class BurleyProfile(AbstractProfile):
     def albedo(self) -> Array:
         return self.surface_albedo
 
-    def radial(self, r_mm: ArrayLike) -> Array:
+    def radial(self, r_mm: ParamLike) -> Array:
         r, d = _channels_last(_float(r_mm, self.d_mm), self.d_mm)
         return burley_R(r, d)
 
-    def cdf(self, r_mm: ArrayLike) -> Array:
+    def cdf(self, r_mm: ParamLike) -> Array:
         r, d = _channels_last(_float(r_mm, self.d_mm), self.d_mm)
         return burley_cdf(r, d)
 
-    def inverse_cdf(self, u: ArrayLike) -> Array:
+    def inverse_cdf(self, u: ParamLike) -> Array:
         u, d = _channels_last(_float(u, self.d_mm), self.d_mm)
         return burley_inverse_cdf(u, d)
 
@@ -271,7 +273,7 @@ class GaussianSumProfile(AbstractProfile):
     weights: Float[Array, "K C"]
     variances_mm2: Float[Array, "K C"]
 
-    def __init__(self, weights: ArrayLike, variances_mm2: ArrayLike):
+    def __init__(self, weights: ParamLike, variances_mm2: ParamLike):
         w = _float(weights)
         v = jnp.asarray(variances_mm2, dtype=w.dtype)
         if w.ndim == 1:
@@ -299,14 +301,14 @@ class GaussianSumProfile(AbstractProfile):
         total = self.albedo
         return self.weights / jnp.where(total > 0, total, 1.0)[None, :]
 
-    def radial(self, r_mm: ArrayLike) -> Array:
+    def radial(self, r_mm: ParamLike) -> Array:
         r = _float(r_mm, self.weights)[..., None, None]  # (..., 1, 1) against (K, C)
         lead = (1,) * (r.ndim - 2)
         w = self._normalised_weights().reshape(lead + self.weights.shape)
         v = self.variances_mm2.reshape(lead + self.weights.shape)
         return jnp.sum(w * _gaussian_2d(r, v), axis=-2)
 
-    def cdf(self, r_mm: ArrayLike) -> Array:
+    def cdf(self, r_mm: ParamLike) -> Array:
         r = _float(r_mm, self.weights)[..., None, None]
         lead = (1,) * (r.ndim - 2)
         w = self._normalised_weights().reshape(lead + self.weights.shape)
@@ -315,7 +317,7 @@ class GaussianSumProfile(AbstractProfile):
         inside = jnp.where(ok, -jnp.expm1(-(r * r) / (2 * jnp.where(ok, v, 1.0))), 1.0)
         return jnp.sum(w * inside, axis=-2)
 
-    def inverse_cdf(self, u: ArrayLike) -> Array:
+    def inverse_cdf(self, u: ParamLike) -> Array:
         """Per-channel bisection on the monotone CDF (60 halvings: below float64 resolution of the bracket)."""
         u = _float(u, self.weights)
         hi0 = 12.0 * jnp.sqrt(jnp.max(self.variances_mm2, axis=0)) + 1e-12  # (C,)
@@ -346,7 +348,7 @@ class TabulatedProfile(AbstractProfile):
     r_mm: Float[Array, " N"]
     R: Float[Array, "N C"]
 
-    def __init__(self, r_mm: ArrayLike, R: ArrayLike):
+    def __init__(self, r_mm: ParamLike, R: ParamLike):
         r = np.asarray(r_mm, dtype=np.float64)
         table = np.asarray(R, dtype=np.float64)
         if table.ndim == 1:
@@ -375,7 +377,7 @@ class TabulatedProfile(AbstractProfile):
     def albedo(self) -> Array:
         return self._knots()[1][-1]
 
-    def radial(self, r_mm: ArrayLike) -> Array:
+    def radial(self, r_mm: ParamLike) -> Array:
         r = _float(r_mm, self.R)
         total = self.albedo
         norm = jnp.where(total > 0, total, 1.0)
@@ -385,7 +387,7 @@ class TabulatedProfile(AbstractProfile):
         ]
         return jnp.stack(cols, axis=-1)
 
-    def cdf(self, r_mm: ArrayLike) -> Array:
+    def cdf(self, r_mm: ParamLike) -> Array:
         r = _float(r_mm, self.R)
         knots, cum = self._knots()
         total = jnp.where(cum[-1] > 0, cum[-1], 1.0)
@@ -404,7 +406,7 @@ class TabulatedProfile(AbstractProfile):
             out.append(jnp.clip(value / total[c], 0.0, 1.0))
         return jnp.stack(out, axis=-1)
 
-    def inverse_cdf(self, u: ArrayLike) -> Array:
+    def inverse_cdf(self, u: ParamLike) -> Array:
         """Inverse of the normalised CDF by interpolation on a fine radius grid (monotone, exact at the knots)."""
         u = _float(u, self.R)
         grid = jnp.concatenate(
@@ -422,7 +424,7 @@ class TabulatedProfile(AbstractProfile):
 _GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(96)
 
 
-def preintegrate(profile: AbstractProfile, x_mm: ArrayLike, *, segments: int = 8) -> Array:
+def preintegrate(profile: AbstractProfile, x_mm: ParamLike, *, segments: int = 8) -> Array:
     """Pre-integrated 1D kernel ``a_p(x) = integral R(sqrt(x^2 + y^2)) dy`` of the normalised profile, ``(..., C)``.
 
     With ``r = |x| cosh t`` the integral becomes ``integral_0^inf R(|x| cosh t) 2 |x| cosh t dt``, whose integrand is
@@ -448,7 +450,7 @@ def preintegrate(profile: AbstractProfile, x_mm: ArrayLike, *, segments: int = 8
     return jnp.sum(integrand * (t_max[..., None] * wq.reshape(lead + wq.shape))[..., None], axis=-2)
 
 
-def marginal_cdf(profile: AbstractProfile, x_mm: ArrayLike, *, quantiles: int = 2048) -> Array:
+def marginal_cdf(profile: AbstractProfile, x_mm: ParamLike, *, quantiles: int = 2048) -> Array:
     """CDF of the 1D marginal of the normalised profile: ``F(x) = integral_{-inf}^{x} a_p(s) ds``, ``(..., C)``.
 
     For radius r and a uniform angle, ``P(|r cos theta| <= x) = 1`` if ``r <= x`` else ``(2/pi) asin(x/r)``; averaged

@@ -12,8 +12,9 @@ import math
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float, Int
+from jaxtyping import Array, Float, Int
 
+from ._custom_types import ParamLike
 from ._materials import DirectionalLight
 
 __all__ = ["Camera", "Buffers", "validate_buffers", "surface_mask", "camera_positions", "normals_from_depth",
@@ -30,7 +31,7 @@ class Camera(eqx.Module):
     mm_per_unit: Float[Array, ""]
     principal_point: tuple[float, float] | None = eqx.field(static=True, default=None)
 
-    def __init__(self, focal_px: ArrayLike, mm_per_unit: ArrayLike = 1.0, principal_point=None):
+    def __init__(self, focal_px: ParamLike, mm_per_unit: ParamLike = 1.0, principal_point=None):
         self.focal_px = jnp.asarray(focal_px, dtype=jnp.result_type(jnp.asarray(focal_px).dtype, jnp.float32))
         self.mm_per_unit = jnp.asarray(mm_per_unit, dtype=self.focal_px.dtype)
         self.principal_point = None if principal_point is None else (float(principal_point[0]), float(principal_point[1]))
@@ -56,12 +57,12 @@ class Buffers(eqx.Module):
     - ``material_id (H, W)`` optional int: 0 = no SSS (passes through untouched), k >= 1 selects material k.
     """
 
-    irradiance: Float[Array, "H W 3"]
-    depth: Float[Array, "H W"]
-    albedo: Float[Array, "H W 3"] | None = None
-    normal: Float[Array, "H W 3"] | None = None
-    thickness: Float[Array, "H W"] | None = None
-    material_id: Int[Array, "H W"] | None = None
+    irradiance: Float[Array, "*batch H W 3"]
+    depth: Float[Array, "*batch H W"]
+    albedo: Float[Array, "*batch H W 3"] | None = None
+    normal: Float[Array, "*batch H W 3"] | None = None
+    thickness: Float[Array, "*batch H W"] | None = None
+    material_id: Int[Array, "*batch H W"] | None = None
 
     def __check_init__(self):
         # a batch adds leading axes: check the trailing (H, W[, 3]) dimensions

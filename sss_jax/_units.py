@@ -7,10 +7,12 @@ covers ``L / mm_per_unit * focal_px / z`` pixels under a pinhole camera. Every p
 from __future__ import annotations
 
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike
+from jaxtyping import Array
+
+from ._custom_types import ParamLike
 
 
-def px_per_mm(depth: ArrayLike, *, focal_px: ArrayLike, mm_per_unit: ArrayLike) -> Array:
+def px_per_mm(depth: ParamLike, *, focal_px: ParamLike, mm_per_unit: ParamLike) -> Array:
     """Pixels covered by one millimetre at planar depth ``depth`` (scene units).
 
     Depth ``inf`` (no surface) gives 0 px/mm; depth 0 or below, or NaN, also gives 0 (a footprint cannot be
@@ -24,7 +26,7 @@ def px_per_mm(depth: ArrayLike, *, focal_px: ArrayLike, mm_per_unit: ArrayLike) 
     return jnp.where(ok, focal_px / (safe_depth * mm_per_unit), jnp.zeros_like(depth))
 
 
-def mm_to_px(length_mm: ArrayLike, depth: ArrayLike, *, focal_px: ArrayLike, mm_per_unit: ArrayLike) -> Array:
+def mm_to_px(length_mm: ParamLike, depth: ParamLike, *, focal_px: ParamLike, mm_per_unit: ParamLike) -> Array:
     """Length in pixels of ``length_mm`` millimetres at planar depth ``depth`` (scene units).
 
     ``px = length_mm / mm_per_unit * focal_px / depth``. Broadcasting follows NumPy's rules.

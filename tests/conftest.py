@@ -19,6 +19,17 @@ if not SHARED.exists():  # CI clones the repo with shared/ beside it; a develope
     SHARED = pathlib.Path(__file__).resolve().parents[1].parent / "shared"
 
 
+@pytest.fixture
+def as_users_run_it():
+    """The messages a user sees: the test run checks every annotation (``--jaxtyping-packages`` in pyproject.toml),
+    which answers bad input before the library's own checks can; tests of those messages switch the checker off."""
+    import jaxtyping
+
+    jaxtyping.config.update("jaxtyping_disable", True)
+    yield
+    jaxtyping.config.update("jaxtyping_disable", False)
+
+
 @pytest.fixture(scope="session")
 def shared_dir() -> pathlib.Path:
     if not SHARED.exists():

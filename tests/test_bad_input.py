@@ -14,6 +14,9 @@ import sss_jax as sj
 from sss_jax import _io
 from sss_jax.cli import main
 
+# what a user sees when the input is wrong: the library's own messages, without the test run's annotation checker
+pytestmark = pytest.mark.usefixtures("as_users_run_it")
+
 MATERIAL = ["--technique", "burley", "--d-mm", "1,1,1", "--focal-px", "100"]
 
 
