@@ -61,6 +61,22 @@ def burley_inverse_cdf_np(u, d) -> np.ndarray:
         return np.asarray(burley_inverse_cdf(np.asarray(u, np.float64), np.asarray(d, np.float64)), np.float64)
 
 
+def unit_burley_inverse_cdf(u: np.ndarray) -> np.ndarray:
+    """x = r / d where Burley's CDF ``1 - exp(-x) / 4 - 3 exp(-x / 3) / 4`` reaches ``u`` in [0, 1), by Newton's
+    method in NumPy float64 from below the root (the CDF is concave in x, so the iterates rise monotonically to it)."""
+    u = np.asarray(u, np.float64)
+    x = -3.0 * np.log(np.maximum((1.0 - u) * 4.0 / 3.0, 1e-300))  # 3 exp(-x/3)/4 = 1 - u: at or below the root
+    x = np.maximum(x, 0.0)
+    for _ in range(60):
+        e1, e3 = np.exp(-x), np.exp(-x / 3.0)
+        f = 1.0 - 0.25 * e1 - 0.75 * e3 - u
+        step = f / (0.25 * e1 + 0.25 * e3)
+        x = x - step
+        if np.all(np.abs(step) <= 1e-13 * np.maximum(x, 1.0)):
+            break
+    return x
+
+
 def burley_cdf_np(r, d) -> np.ndarray:
     with jax.enable_x64(True):
         return np.asarray(burley_cdf(np.asarray(r, np.float64), np.asarray(d, np.float64)), np.float64)
@@ -100,7 +116,7 @@ def burley_marginal_masses(d: np.ndarray, edges: np.ndarray, u_max=None) -> np.n
         if d[c] <= 0:
             cdfs.append(np.where(edges[c] >= 0, 1.0, 0.0))
             continue
-        radii = burley_inverse_cdf_np(_QUANTILES * u_max[c], d[c])
+        radii = d[c] * unit_burley_inverse_cdf(_QUANTILES * u_max[c])
         cdfs.append(_radial_marginal_cdf(edges[c], radii))
     return masses_from_cdf(np.stack(cdfs))
 
