@@ -88,7 +88,7 @@ def test_blender_random_walk_hand_values():
     f_dr = -1.440 / eta**2 + 0.710 / eta + 0.668 + 0.0636 * eta
     a4 = 4.0 / 3.0 * (1 + f_dr) / (1 - f_dr)
     rd = lambda ap: 0.5 * ap * (1 + math.exp(-a4 * math.sqrt(3 * (1 - ap)))) * math.exp(-math.sqrt(3 * (1 - ap)))
-    root = np.array([brentq(lambda x: rd(x) - a, 1e-9, 1 - 1e-12) for a in ALBEDO])
+    root = np.array([brentq(lambda x, a=a: rd(x) - a, 1e-9, 1 - 1e-12) for a in ALBEDO])
     _, d = sj.from_engine("blender", {**base, "Subsurface Method": "Random Walk", "blender_version": "3.6"})
     factor = d * s_dt(ALBEDO) / np.array([1.0, 0.5, 0.25])
     # 12 halvings of [0, 1] leave a' within 2^-12 of the root
@@ -117,7 +117,7 @@ def test_random_walk_against_monte_carlo():
         r = res.r_mfp * mfp
         rr_mc = r * res.R / mfp**2 / res.total_reflectance  # r R(r), unit energy, 1/mm
 
-        def error(d):
+        def error(d, r=r, rr_mc=rr_mc):
             return np.linalg.norm(r * np.asarray(sj.burley_R(r, d)) - rr_mc) / np.linalg.norm(rr_mc)
 
         params = {"Subsurface Color": color, "Subsurface Radius": [1.0] * 3, "mm_per_unit": 1.0}
