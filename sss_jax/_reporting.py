@@ -279,7 +279,7 @@ def _engines_section(rep: Report, presets: list[dict], rows: list[dict]) -> None
 
     sec = rep.section("Engines", "What each engine renders for every preset: its kernel as that engine builds it "
                       "(from the preset's engine block), as a 1D marginal (one separable pass; the projection of a "
-                      "radial kernel) beside the Burley reference, per channel. Table cells, from the preset files: "
+                      "radial kernel) beside the Burley reference, for each preset's widest channel. Table cells, from the preset files: "
                       "relative L2 vs Burley / vs Monte Carlo / energy lost vs Monte Carlo (largest channel). Cycles' "
                       "random walks are measured against Monte Carlo in docs/engines.md.")
     rep.table(sec, rows, "engines", key="engines")

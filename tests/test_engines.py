@@ -256,8 +256,10 @@ def test_bad_parameters_name_the_parameter():
         sj.from_engine("unreal", {"Surface Albedo": [0.5] * 3, "Mean Free Path Color": [1, 1, 1]})
     with pytest.raises(ValueError, match="n_samples must be an odd"):
         sj.jimenez_kernel(0.5, 0.5, n_samples=16)
-    with pytest.raises(ValueError, match="subsurface_mask must lie in"):
+    with pytest.raises(ValueError, match="subsurface_mask must be <= 1.0"):
         sj.to_engine("hdrp", ALBEDO, D_MM, subsurface_mask=1.5)
+    with pytest.raises(ValueError, match="opacity must be a finite positive number"):
+        sj.to_engine("unreal", ALBEDO, D_MM, opacity=0.0)  # a zero multiplier renders no width: no profile gives d
     with pytest.raises(ValueError, match="blender_version must look like"):
         sj.to_engine("blender", ALBEDO, D_MM, blender_version="latest")
 

@@ -257,7 +257,12 @@ class Blender(AbstractEngine):
         return out
 
     def notes(self, params: dict[str, Any]) -> dict[str, str | None]:
-        if params.get("method", "burley") != "burley":
+        try:
+            version = parse_version(params.get("blender_version", params.get("cycles", CURRENT_BLENDER)))
+            method = _method_from_params(params, version)
+        except ValueError:
+            method = "burley"
+        if method != "burley":
             return {"lossy": "a random walk renders its own profile, not Burley's: d is the Burley profile the memo "
                              "fits to it (d = l / s_dt(A)), within the error docs/engines.md measures against Monte "
                              "Carlo", "unverified": None, "note": None}

@@ -45,8 +45,10 @@ def scalar(name: str, value, *, positive: bool = True, lo: float | None = None, 
         raise ValueError(f"{name} must be a number, got {value!r}") from None
     if not math.isfinite(v) or (positive and not v > 0):
         raise ValueError(f"{name} must be a finite {'positive ' if positive else ''}number, got {value!r}")
-    if (lo is not None and v < lo) or (hi is not None and v > hi):
-        raise ValueError(f"{name} must lie in [{lo}, {hi}], got {value!r}")
+    if lo is not None and v < lo:
+        raise ValueError(f"{name} must be >= {lo}, got {value!r}")
+    if hi is not None and v > hi:
+        raise ValueError(f"{name} must be <= {hi}, got {value!r}")
     return v
 
 

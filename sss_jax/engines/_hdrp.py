@@ -62,7 +62,7 @@ class Hdrp(AbstractEngine):
         scale``). Scattering Color is the stored linear value; the inspector shows its sRGB encoding, also given."""
         albedo, d = material(albedo, d_mm)
         unit = scalar("mm_per_unit", mm_per_unit)
-        mask = scalar("subsurface_mask", subsurface_mask, lo=0.0, hi=1.0)
+        mask = scalar("subsurface_mask", subsurface_mask, hi=1.0)
         profile_d = d / mask
         peak = float(np.max(profile_d))
         if peak > 0:

@@ -146,7 +146,7 @@ class Jimenez(AbstractEngine):
         """
         albedo, d = material(albedo, d_mm)
         unit = scalar("mm_per_unit", mm_per_unit)
-        a = scalar("alpha", alpha, lo=0.0, hi=1.0)
+        a = scalar("alpha", alpha, hi=1.0)
         if not np.all(d > 0):
             raise ValueError(f"jimenez needs d_mm > 0 in every channel, got {d.tolist()}")
         p, sol, err = _fit(albedo, d, unit, n_samples)
@@ -165,7 +165,7 @@ class Jimenez(AbstractEngine):
             if key not in params:
                 raise ValueError(f"jimenez parameters need {key!r}")
         albedo = rgb("albedo", params.get("albedo", (1.0, 1.0, 1.0)), lo=0.0, hi=1.0)
-        width = scalar("sss_width", params["sssWidth"]) * scalar("alpha", params.get("alpha", 1.0), lo=0.0, hi=1.0)
+        width = scalar("sss_width", params["sssWidth"]) * scalar("alpha", params.get("alpha", 1.0), hi=1.0)
         unit = scalar("mm_per_unit", params.get("mm_per_unit", 1000.0))
         n_samples = int(params.get("nSamples", JIMENEZ_DEFAULT_SAMPLES))
         strength = rgb("strength", params["strength"], lo=0.0, hi=1.0)

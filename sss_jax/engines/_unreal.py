@@ -74,7 +74,7 @@ class Unreal(AbstractEngine):
         albedo, d = material(albedo, d_mm)
         wus = scalar("world_unit_scale", world_unit_scale)
         unit = scalar("mm_per_unit", mm_per_unit)
-        op = scalar("opacity", opacity, lo=0.0, hi=1.0)
+        op = scalar("opacity", opacity, hi=1.0)
         d_kernel = d / (op * _world_mm_per_kernel_mm(wus, unit))
         mfp_cm = d_kernel * _UE_DMFP2MFP * s_fit("searchlight", albedo) / 10.0
         dist = float(np.max(mfp_cm))
