@@ -8,7 +8,9 @@ max(1e-6, max(closure.color))``, ``d = burley_setup(clamped_sss_radius, albedo)`
 (``gpu_shader_material_principled.glsl``: ``sss_radius = max(subsurface_radius * subsurface_scale, 0)``), the colour
 the Base Color. Samples lie at Burley radii of ``d0 = burley_setup(1, 1)`` up to ``SSS_BURLEY_TRUNCATE`` (16) times
 ``max(radius)`` (``precompute_samples_location``); each is weighted by ``burley_eval(d, r) / pdf`` and the sum
-normalised: Burley truncated at ``16 d0 max(radius)`` and renormalised.
+normalised: Burley truncated at ``16 d0 max(radius)`` and renormalised. Not modelled: a channel whose radius is below
+``1e-4`` (4.2; ``min_radius`` later) of the largest is raised to it, and nothing is drawn where the largest radius
+spans at most one pixel.
 """
 
 from __future__ import annotations
