@@ -399,3 +399,19 @@ def test_cli_flags_come_from_the_registry(capsys):
     table = capsys.readouterr().out
     d_walk = np.array([1.0, 0.2, 0.1]) * 500 / (4 * math.pi) / s_dt([0.8, 0.5, 0.4])
     assert "burley d (mm)    " + ", ".join(f"{v:.6g}" for v in d_walk) in table and "random walk" in table
+
+
+@pytest.mark.parametrize("name", ["skin", "ketchup", "wax"])
+def test_engine_kernels_reproduce_the_stored_preset_errors(name):
+    """The registry's kernels, built from a preset's own engine blocks, give the errors the preset file stored when
+    it was fitted (by the code before the registry): the refactor moved the kernels, it did not change them."""
+    import pathlib
+
+    fits = pathlib.Path(__file__).resolve().parents[1] / "fits"
+    preset = json.loads((fits / f"{name}.json").read_text())
+    marg = sj.engines.engine_marginals(preset["albedo"], preset["burley"]["d_mm"], blocks=preset["engines"])
+    err = sj.engines.engine_errors_against(marg, marg["reference"], marg["albedo"]["reference"])
+    stored = preset["errors"]["engines"]["vs_burley"]
+    for kernel in ("cycles", "eevee", "hdrp", "unreal", "jimenez"):
+        np.testing.assert_allclose(err[kernel]["error_relative_l2"], stored[kernel]["error_relative_l2"], atol=1e-6)
+        np.testing.assert_allclose(err[kernel]["energy_lost"], stored[kernel]["energy_lost"], atol=1e-9)
