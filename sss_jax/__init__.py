@@ -56,24 +56,17 @@ from ._techniques import (
     thin_transmittance as thin_transmittance,
     translucency as translucency,
 )
-from ._engines import (
+from .engines import (
     ENGINES as ENGINES,
-    blender_to_burley as blender_to_burley,
-    burley_to_blender as burley_to_blender,
-    burley_to_eevee as burley_to_eevee,
-    burley_to_hdrp as burley_to_hdrp,
-    burley_to_jimenez as burley_to_jimenez,
-    burley_to_unreal as burley_to_unreal,
+    AbstractEngine as AbstractEngine,
     convert as convert,
-    eevee_to_burley as eevee_to_burley,
     engine_blocks as engine_blocks,
     engine_profile_error as engine_profile_error,
     from_engine as from_engine,
-    hdrp_to_burley as hdrp_to_burley,
+    get_engine as get_engine,
     jimenez_kernel as jimenez_kernel,
-    jimenez_to_burley as jimenez_to_burley,
+    random_walk_medium as random_walk_medium,
     to_engine as to_engine,
-    unreal_to_burley as unreal_to_burley,
 )
 from ._advise import advise as advise
 from ._presets import (

@@ -17,7 +17,7 @@ Where the numbers come from (one derivation per kind of source, both documented 
 
 Each preset then holds Burley's d, the two-Gaussian kernel fitted to the Burley profile (and one fitted to the Monte
 Carlo profile), the STA parameters fitted to slab transmission, the error of each cheap model against Burley and
-against Monte Carlo with the metric named, every fit's record, an engine block per engine (``_engines``), and the
+against Monte Carlo with the metric named, every fit's record, an engine block per engine (``engines``), and the
 taps of the two-Gaussian kernel as HLSL and GLSL arrays. Monte Carlo runs are cached in ``fits/montecarlo/`` with
 their provenance (photons, seed, version) and reused only when all of it matches.
 """
@@ -470,10 +470,11 @@ def transmission_curves(preset: dict, slab: dict, *, points: int = 60) -> dict[s
 
 
 def engine_errors(albedo, d_mm: np.ndarray, mc_profile, mc_albedo) -> dict[str, Any]:
-    """What each engine renders for the preset (``_engines.engine_marginals``: its kernel as that engine builds it)
+    """What each engine renders for the preset (``engines.engine_marginals``: its kernel as that engine builds it)
     against the Burley profile and against the Monte Carlo profile, as 1D-marginal bin masses (bins of d/4 out to
     20 d plus both tails): relative L2 and the fraction of the reference's diffuse reflectance the engine loses."""
-    from ._engines import _masses_from_cdf, engine_errors_against, engine_marginals
+    from .engines._common import masses_from_cdf as _masses_from_cdf
+    from .engines import engine_errors_against, engine_marginals
 
     marg = engine_marginals(albedo, d_mm)
     edges = marg["edges"]
@@ -529,7 +530,7 @@ def fit_preset(name: str, *, photons: int = DEFAULT_PHOTONS, seed: int = 0, solv
 
 
 def _fit_preset(name, *, photons, seed, solver, taps, cache_dir, measured_csv, artist, log) -> dict[str, Any]:
-    from ._engines import engine_blocks
+    from .engines import engine_blocks
 
     log = log or (lambda s: None)
     t_start = time.perf_counter()
