@@ -73,11 +73,15 @@ def _translucency_impl(buffers: Buffers, params: STAParams, camera: Camera, ligh
 def thin_transmittance(thickness_mm: Array, d_mm: Array) -> Array:
     """Thin-object transmittance of the normalised Burley profile: ``(exp(-t/d) + 3 exp(-t/(3d))) / 4``.
 
-    The fraction of the profile's energy beyond radius t, ``1 - CDF(t)``, i.e. the integral of the profile over a
-    plane at distance t (Unity HDRP ``ComputeTransmittanceDisney`` in ``SubsurfaceScattering.hlsl``, which HDRP
-    multiplies by ``0.25 * transmissionTint`` and later by the albedo; UE5 ``GetBurleyTransmissionProfile``:
-    ``0.25 A (exp(-s r) + 3 exp(-s r / 3))`` with ``r = t / dmfp``). Elementwise in (t, d), both in mm; d = 0 gives 0
-    for t > 0. See docs/engines.md for how it compares with Monte Carlo slab transmission.
+    The fraction of the profile's energy beyond radius t, ``1 - CDF(t)``: the profile's CCDF read as transmission
+    through a slab of thickness t, a heuristic the engines share, not slab transport (docs/engines.md compares it with
+    Monte Carlo). Unity HDRP ``ComputeTransmittanceDisney`` (``SubsurfaceScattering.hlsl``) evaluates this form with
+    S = 1/d and multiplies it by ``0.25 * transmissionTint`` and later by the albedo. UE5 tabulates the same form
+    (``BurleyNormalizedSSS.cpp`` ``Burley_TransmissionProfile``: ``0.25 A (exp(-S r / L) + 3 exp(-S r / (3 L)))``,
+    L / S = d) but not at the same distances: ``ComputeTransmissionProfileBurley`` rescales them by
+    ``0.1 / WorldUnitScale``, and by another 0.1 while ``r.SSProfiles.Transmission.UseLegacy`` is 1, so for the same
+    material UE's transmission is this curve at a larger d (unverified against a UE render; docs/engines.md). It is
+    not UE's diffuse-mean-free-path equivalence. Elementwise in (t, d), both in mm; d = 0 gives 0 for t > 0.
     """
     return 1.0 - burley_cdf(thickness_mm, d_mm)
 
