@@ -10,6 +10,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from .._checks import checked
+from .._custom_types import ParamLike
 from .._materials import BurleyMaterial, DirectionalLight, STAParams
 from .._profiles import burley_cdf
 from .._scene import Buffers, Camera, camera_positions, normals_from_depth
@@ -44,7 +45,7 @@ def sta_term(normal: Array, view: Array, light: DirectionalLight, params: STAPar
     return light.colour.astype(dtype).reshape(1, 1, 3) * atten * (t_dir + params.ambient.astype(dtype).reshape(1, 1, 3))
 
 
-def _thickness_mm(buffers: Buffers, thickness: Array | None, camera: Camera, shape: tuple[int, ...], dtype) -> Array:
+def _thickness_mm(buffers: Buffers, thickness: ParamLike | None, camera: Camera, shape: tuple[int, ...], dtype) -> Array:
     """Per-pixel thickness in mm: the thickness buffer, else the constant ``thickness`` (scene units), else 0."""
     if buffers.thickness is not None:
         thick_units = buffers.thickness.astype(dtype)
@@ -57,7 +58,7 @@ def _thickness_mm(buffers: Buffers, thickness: Array | None, camera: Camera, sha
 
 @eqx.filter_jit
 def _translucency_impl(buffers: Buffers, params: STAParams, camera: Camera, light: DirectionalLight,
-                       thickness: Array | None, material_albedo: Array) -> Array:
+                       thickness: ParamLike | None, material_albedo: Array) -> Array:
     dtype = _work_dtype(buffers.irradiance.dtype)
     prep = _prepare(buffers, material_albedo, "post", dtype)
     normal = buffers.normal.astype(dtype) if buffers.normal is not None else normals_from_depth(prep.depth, camera)
@@ -96,7 +97,7 @@ _TRANSMITTANCE: dict[str, Callable[[Array, Array, Array], Array]] = {"thin": _th
 
 @eqx.filter_jit
 def _transmission_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, light: DirectionalLight,
-                       thickness: Array | None, model: str) -> Array:
+                       thickness: ParamLike | None, model: str) -> Array:
     """``albedo * (irradiance + light * T * max(0, -N . L))``: the models differ only in T (``model`` is static)."""
     dtype = _work_dtype(buffers.irradiance.dtype)
     prep = _prepare(buffers, material.albedo, "post", dtype)
