@@ -1,0 +1,42 @@
+"""A description of the machine a measurement ran on, for reports (JSON-able)."""
+
+from __future__ import annotations
+
+import os
+import platform
+import time
+
+__all__ = ["machine_info"]
+
+
+def machine_info() -> dict:
+    """Host, CPU, accelerator and library versions; the date in UTC."""
+    import jax
+
+    from importlib import metadata
+
+    def version(pkg: str) -> str | None:
+        try:
+            return metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            return None
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = next((ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")), cpu)
+    except OSError:
+        pass
+    devices = jax.devices()
+    return {
+        "date_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime()),
+        "host": platform.node(),
+        "os": platform.platform(),
+        "cpu": cpu,
+        "cpu_count": os.cpu_count(),
+        "jax_backend": jax.default_backend(),
+        "devices": f"{len(devices)} x {devices[0].device_kind}" if devices else "none",
+        "python": platform.python_version(),
+        "jax": version("jax"),
+        "sss_jax": version("sss_jax"),
+    }
