@@ -77,3 +77,10 @@ from ._engines import (
     unreal_to_burley as unreal_to_burley,
 )
 from ._advise import advise as advise
+from ._evaluate import evaluate_frames as evaluate_frames, read_truth as read_truth
+from ._report import (
+    FrameImages as FrameImages,
+    ReportData as ReportData,
+    TechniqueRun as TechniqueRun,
+    report as report,
+)

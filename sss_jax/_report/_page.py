@@ -1,6 +1,6 @@
 """One self-contained HTML page: sections of text, tables and images (every image embedded as base64 PNG).
 
-Host side only. Figures are matplotlib ``Figure`` objects drawn through ``FigureCanvasAgg``: no pyplot state and no
+Host side only. Figures are matplotlib ``Figure`` objects drawn through ``FigureCanvasAgg``: no global figure state and no
 backend switch, so building a page changes nothing in the caller's process.
 """
 
@@ -17,12 +17,12 @@ import numpy as np
 __all__ = ["Page", "new_figure", "figure_png", "rgb_png"]
 
 _CSS = """
-body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;max-width:1200px;margin:2em auto;padding:0 1em;
+body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;max-width:1360px;margin:2em auto;padding:0 1em;
 color:#222;line-height:1.45}
 h1{font-size:1.7em;margin-bottom:.2em} h2{border-bottom:1px solid #ddd;padding-bottom:.2em;margin-top:2em}
 h3{font-size:1.05em;margin:1.2em 0 .3em}
 .meta{color:#666;font-size:.9em} nav ol{columns:3;font-size:.95em}
-table{border-collapse:collapse;margin:1em 0;font-size:.85em} th,td{border:1px solid #ddd;padding:.25em .55em;
+table{border-collapse:collapse;margin:1em 0;font-size:.85em;display:block;max-width:100%;overflow-x:auto} th,td{border:1px solid #ddd;padding:.25em .55em;
 text-align:right} th{background:#f4f4f4} td:first-child,th:first-child{text-align:left} caption{text-align:left;
 color:#555;font-size:.95em;padding:.2em 0} tr.best td{background:#eef7ee}
 figure{display:inline-block;margin:.4em;vertical-align:top;text-align:center} figure img{max-width:100%;
@@ -30,7 +30,7 @@ border:1px solid #eee;image-rendering:pixelated} figcaption{font-size:.8em;color
 figure.plot img{image-rendering:auto}
 .grid{display:flex;flex-wrap:wrap;align-items:flex-start}
 .note{background:#fff8e1;border-left:4px solid #f0b400;padding:.5em 1em}
-pre{background:#f6f6f6;padding:.6em;font-size:.8em;overflow-x:auto}
+pre{background:#f6f6f6;padding:.6em;font-size:.8em;white-space:pre-wrap;max-height:24em;overflow-y:auto}
 """
 
 
@@ -51,7 +51,7 @@ def fmt(v: Any) -> str:
 
 
 def new_figure(width_in: float = 6.0, height_in: float = 3.6, dpi: int = 100):
-    """A matplotlib ``Figure`` with an Agg canvas attached (no pyplot)."""
+    """A matplotlib ``Figure`` with an Agg canvas attached (no global state)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 

@@ -1,4 +1,4 @@
-"""The report's figures as matplotlib ``Figure`` objects (no pyplot): error maps and the time/error trade."""
+"""The report's figures as matplotlib ``Figure`` objects (no global state): error maps and the time/error trade."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ __all__ = ["heatmap", "trade_figure"]
 TECHNIQUE_COLOURS = {"sta": "tab:orange", "separable": "tab:blue", "burley": "tab:green", "reference": "black"}
 
 
-def heatmap(data: np.ndarray, title: str, vmax: float | None = None, cmap: str = "magma", *, width_px: int = 340):
+def heatmap(data: np.ndarray, title: str, vmax: float | None = None, cmap: str = "magma", *, width_px: int = 300):
     """A map of one value per pixel (``(H, W)``) from 0 to ``vmax`` with a colour bar; ``width_px`` sets the size."""
     h, w = data.shape
     fig = new_figure(width_px / 100, max(1.6, width_px / 100 * h / w * 0.88 + 0.35))
