@@ -89,15 +89,18 @@ def _scale(maps: dict[str, np.ndarray], keys: Sequence[str], mask: np.ndarray) -
 
 
 def report(data: ReportData, out_dir: str | pathlib.Path, *,
-           extra_sections: Sequence[ExtraSection] = ()) -> pathlib.Path:
+           extra_sections: Sequence[ExtraSection] = (), images: bool = False) -> pathlib.Path:
     """Write ``out_dir/report.html`` and ``out_dir/report.json``; return the HTML's path.
 
     ``report.json``: ``{"inputs": [...], "material": {...}, "machine": {...}, "techniques": [{"technique", "count",
     "ms_per_frame", "vs_reference": {"rel_l2", "delta_e_mean", "delta_e_p95"}, "vs_truth": {...} or null}]}``
     (plus ``"sections"`` with the data of the extra sections that carry any). ``extra_sections``: ``(title,
     html_fragment)`` or ``(title, html_fragment, data)`` sections from other parts of a workflow (a fit's
-    before/after, the demo's profiles), placed after the trade. Both files are written atomically, the HTML last;
-    ``out_dir`` is created if missing."""
+    before/after, the demo's profiles), placed after the trade. ``images``: also write every image compared as
+    float32 EXR, ``out_dir/images/<frame>/<technique>[_<count>].exr`` (and ``reference.exr``), linear RGB.
+
+    Everything is written to a staging folder beside ``out_dir`` and moved in when complete (each file by an atomic
+    rename, the HTML last), so a failure leaves nothing partial in ``out_dir``; ``out_dir`` is created if missing."""
     extras = _check_extra(extra_sections)
     frames, runs = data.frames, list(data.runs)
     exposure = data.exposure
@@ -253,9 +256,41 @@ def report(data: ReportData, out_dir: str | pathlib.Path, *,
     extra_data = {t: d for t, _, d in extras if d}
     if extra_data:
         doc["sections"] = extra_data
-    from .._io import write_bytes_atomic, write_json_atomic
+    return _write(out_dir, doc, page.html(), frames, all_runs if images else [])
+
+
+def _write(out_dir, doc: dict, page_html: str, frames: Sequence[FrameImages], runs: Sequence[TechniqueRun]):
+    import os
+    import shutil
+    import tempfile
+
+    from .._io import write_bytes_atomic, write_exr, write_json_atomic
 
     out_dir = pathlib.Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(out_dir / "report.json", doc)
-    return write_bytes_atomic(out_dir / "report.html", page.html().encode())
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ValueError(f"{out_dir}: exists and is not a directory")
+    parent = out_dir.parent
+    parent.mkdir(parents=True, exist_ok=True)
+    staging = pathlib.Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.staging-", dir=parent))
+    try:
+        files = []
+        stems = [pathlib.Path(f.name).stem or f"frame{i}" for i, f in enumerate(frames)]
+        if len(set(stems)) < len(stems):  # frames of one name from several folders
+            stems = [f"{i}_{s}" for i, s in enumerate(stems)]
+        for fi, stem in enumerate(stems):
+            for run in runs:
+                rel = pathlib.Path("images", stem, run.label.replace(" ", "_") + ".exr")
+                (staging / rel).parent.mkdir(parents=True, exist_ok=True)
+                write_exr(staging / rel, np.asarray(run.images[fi], np.float32),
+                          attributes={"sss_jax:technique": run.technique, "sss_jax:count": run.count or 0})
+                files.append(rel)
+        write_json_atomic(staging / "report.json", doc)
+        write_bytes_atomic(staging / "report.html", page_html.encode())
+        files += [pathlib.Path("report.json"), pathlib.Path("report.html")]
+        out_dir.mkdir(parents=True, exist_ok=True)
+        for rel in files:
+            (out_dir / rel).parent.mkdir(parents=True, exist_ok=True)
+            os.replace(staging / rel, out_dir / rel)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return out_dir / "report.html"

@@ -21,7 +21,8 @@ EPILOG = """examples:
 Frames are read as `sss-jax apply` reads them (R,G,B + Z, Blender multilayer passes, or --channel-map; camera from
 the flags, the EXR header or a sidecar <name>.json). Several materials: --preset a,b,... (id k takes the k-th).
 The dense reference is computed once per frame and kept in OUT/cache/ (a second run reads it back).
-Writes OUT/report.html (one self-contained page) and OUT/report.json.
+Writes OUT/report.html (one self-contained page), OUT/report.json and each compared image as
+OUT/images/<frame>/<technique>_<count>.exr (linear RGB, float32).
 """
 
 
@@ -85,6 +86,7 @@ def register(subparsers) -> None:
     s.add_argument("--sta-ambient", type=rgb_triple, default=(0.0, 0.0, 0.0))
     s.add_argument("--sta-thickness-mm", type=rgb_triple, default=(1.0, 1.0, 1.0))
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--no-images", action="store_true", help="do not write OUT/images/<frame>/<technique>.exr")
     p.set_defaults(func=run)
 
 
@@ -175,10 +177,11 @@ def run(args) -> int:
                 import dataclasses
 
                 data = dataclasses.replace(data, notes=data.notes + tuple(notes))
-            html = report(data, args.out)
+            html = report(data, args.out, images=not args.no_images)
             if scratch is not None:
-                args.out.mkdir(parents=True, exist_ok=True)
-                shutil.copytree(scratch, cache, dirs_exist_ok=True)
+                cache.mkdir(parents=True, exist_ok=True)
+                for item in scratch.iterdir():
+                    shutil.move(str(item), str(cache / item.name))
         finally:
             if scratch is not None:
                 shutil.rmtree(scratch, ignore_errors=True)
