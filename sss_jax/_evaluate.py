@@ -74,9 +74,13 @@ def _leaves(material) -> dict[str, list]:
 
 
 def _reference_key(frame_hash: str, material, camera, radius_px: int, reading: Mapping[str, Any]) -> str:
-    from . import __version__
+    from importlib import metadata
 
-    blob = json.dumps({"v": _CACHE_VERSION, "sss_jax": __version__, "frame": frame_hash,
+    try:
+        version = metadata.version("sss_jax")
+    except metadata.PackageNotFoundError:  # a source tree on sys.path, not installed
+        version = "source"
+    blob = json.dumps({"v": _CACHE_VERSION, "sss_jax": version, "frame": frame_hash,
                        "material": {type(material).__name__: _leaves(material)},
                        "camera": [float(camera.focal_px), float(camera.mm_per_unit)], "radius_px": int(radius_px),
                        "reading": {k: str(v) for k, v in sorted(reading.items())}}, sort_keys=True)
@@ -130,6 +134,7 @@ def evaluate_frames(
     samples: Iterable[int] = (8, 16, 32, 64),
     separable_material: TwoGaussianMaterial | BurleyMaterial | ProfileMaterial | None = None,
     sta: tuple[STAParams, DirectionalLight] | None = None,
+    sta_thickness: float | None = None,
     burley_options: Mapping[str, Any] | None = None,
     focal_px: float | None = None,
     mm_per_unit: float | None = None,
@@ -146,7 +151,8 @@ def evaluate_frames(
 
     ``material``: the Burley (or tabulated-profile) material table of the reference and of ``burley`` (one row per
     material id, or one row for every id > 0); ``separable_material`` (default ``material``) the separable's
-    kernels; ``sta``: ``(STAParams, DirectionalLight)`` for the STA, required when ``techniques`` holds ``"sta"``.
+    kernels; ``sta``: ``(STAParams, DirectionalLight)`` for the STA, required when ``techniques`` holds ``"sta"``;
+    ``sta_thickness``: its constant thickness in scene units where a frame has no thickness channel (else 0).
     ``truth``: one offline render per input (``truth_channels`` as in ``read_truth``). ``taps``/``samples``: the
     separable's taps and Burley's samples to run (one run per count). ``burley_options``: further keyword arguments
     of ``sss_jax.burley`` (e.g. a sampling pattern), checked against its signature. Camera: ``focal_px`` (px) and
@@ -258,7 +264,7 @@ def evaluate_frames(
                 bar.set_postfix_str(f"{name}: {tech}" + ("" if n is None else f" {n}"))
                 if tech == "sta":
                     params, light = sta
-                    fn = lambda: translucency(b, params, cam, light)
+                    fn = lambda: translucency(b, params, cam, light, thickness=sta_thickness)
                 elif tech == "separable":
                     fn = lambda n=n: separable(b, sep_material, cam, taps=n)
                 else:
@@ -288,7 +294,7 @@ def evaluate_frames(
     if "sta" in techniques:
         params, light = sta
         info["sta"] = {**_leaves(params), "light_direction": np.asarray(light.direction).tolist(),
-                       "light_colour": np.asarray(light.colour).tolist()}
+                       "light_colour": np.asarray(light.colour).tolist(), "thickness_units": sta_thickness}
     if burley_options:
         info["burley_options"] = {k: str(v) for k, v in burley_options.items()}
     info.update(material_info or {})

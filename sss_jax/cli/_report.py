@@ -63,6 +63,8 @@ def register(subparsers) -> None:
     p.add_argument("--samples", type=_ints, default=(8, 16, 32, 64), help="Burley samples to run (default 8,16,32,64)")
     for name, param in _burley_extras().items():
         kind = type(param.default) if param.default not in (None, inspect.Parameter.empty) else str
+        if kind is bool:
+            kind = lambda text: text.strip().lower() in ("1", "true", "yes", "on")
         p.add_argument(f"--burley-{name.replace('_', '-')}", dest=f"burley_{name}", type=kind,
                        help=f"sss_jax.burley's {name} (default {param.default!r})")
     m = p.add_argument_group("material (as sss-jax apply)")
@@ -84,7 +86,9 @@ def register(subparsers) -> None:
     s.add_argument("--sta-power", type=float, default=4.0)
     s.add_argument("--sta-scale", type=rgb_triple, default=(1.0, 1.0, 1.0))
     s.add_argument("--sta-ambient", type=rgb_triple, default=(0.0, 0.0, 0.0))
-    s.add_argument("--sta-thickness-mm", type=rgb_triple, default=(1.0, 1.0, 1.0))
+    s.add_argument("--sta-thickness-mm", type=rgb_triple, default=(1.0, 1.0, 1.0),
+                   help="thickness falloff per channel, mm: t = exp(-thickness / this)")
+    s.add_argument("--thickness", type=float, help="constant thickness in scene units where there is no thickness channel")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--no-images", action="store_true", help="do not write OUT/images/<frame>/<technique>.exr")
     p.set_defaults(func=run)
@@ -169,7 +173,8 @@ def run(args) -> int:
         try:
             data = evaluate_frames(
                 args.inputs, mat, truth=args.truth, truth_channels=args.truth_channels, techniques=techniques,
-                taps=args.taps, samples=args.samples, separable_material=sep, sta=sta, burley_options=burley_options,
+                taps=args.taps, samples=args.samples, separable_material=sep, sta=sta, sta_thickness=args.thickness,
+                burley_options=burley_options,
                 focal_px=args.focal_px, mm_per_unit=args.mm_per_unit, channel_map=args.channel_map,
                 depth_kind=args.depth_kind, use_albedo_pass=args.albedo is None, radius_px=args.radius_px,
                 cache_dir=scratch or cache, repeats=args.repeats, material_info=info, progress=not args.no_progress)
