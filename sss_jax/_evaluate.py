@@ -106,6 +106,12 @@ def _store_reference(cache_dir: pathlib.Path, key: str, image: np.ndarray, secon
     write_bytes_atomic(cache_dir / f"reference-{key}.npz", buf.getvalue())
 
 
+def _tidy(values) -> Any:
+    """Parameters for people to read: float32 values as the 7 significant digits they hold."""
+    a = np.asarray(values, np.float64)
+    return np.vectorize(lambda v: float(f"{v:.7g}"))(a).tolist() if a.size else a.tolist()
+
+
 def _counts(name: str, values: Iterable[int], odd: bool = False) -> tuple[int, ...]:
     out = tuple(values)
     if not out:
@@ -222,6 +228,9 @@ def evaluate_frames(
     # ---- rendering and timing
     cache = None if cache_dir is None else pathlib.Path(cache_dir)
     sep_material = material if separable_material is None else separable_material
+    table = np.asarray(material.albedo, np.float32).reshape(-1, 3)
+    # the STA takes one albedo where the buffers carry none: the material's when there is one material
+    sta_albedo = table[0] if table.shape[0] == 1 else None
     configs: list[tuple[str, int | None]] = [("sta", None)] if "sta" in techniques else []
     configs += [("separable", n) for n in taps] + [("burley", n) for n in samples]
     bar = tqdm(total=len(frames) * (1 + len(configs)), desc="sss-jax report", unit="run", file=sys.stderr,
@@ -264,7 +273,7 @@ def evaluate_frames(
                 bar.set_postfix_str(f"{name}: {tech}" + ("" if n is None else f" {n}"))
                 if tech == "sta":
                     params, light = sta
-                    fn = lambda: translucency(b, params, cam, light, thickness=sta_thickness)
+                    fn = lambda: translucency(b, params, cam, light, albedo=sta_albedo, thickness=sta_thickness)
                 elif tech == "separable":
                     fn = lambda n=n: separable(b, sep_material, cam, taps=n)
                 else:
@@ -286,15 +295,15 @@ def evaluate_frames(
     runs = tuple(TechniqueRun(t, n, 1e3 * float(np.mean(seconds[(t, n)])), tuple(images[(t, n)]),
                               options=dict(burley_options) if t == "burley" else {}) for t, n in configs)
     ref_run = TechniqueRun("reference", None, 1e3 * float(np.mean(ref_seconds)), tuple(ref_images))
-    info = {"albedo": np.asarray(material.albedo).reshape(-1, 3).tolist()}
+    info = {"albedo": _tidy(material.albedo)}
     if isinstance(material, BurleyMaterial):
-        info["d_mm"] = np.asarray(material.d_mm).reshape(-1, 3).tolist()
+        info["d_mm"] = _tidy(material.d_mm)
     info["separable_kernel"] = ("two-Gaussian" if isinstance(sep_material, TwoGaussianMaterial)
                                 else "pre-integrated profile")
     if "sta" in techniques:
         params, light = sta
-        info["sta"] = {**_leaves(params), "light_direction": np.asarray(light.direction).tolist(),
-                       "light_colour": np.asarray(light.colour).tolist(), "thickness_units": sta_thickness}
+        info["sta"] = {**{k: _tidy(v) for k, v in _leaves(params).items()}, "light_direction": _tidy(light.direction),
+                       "light_colour": _tidy(light.colour), "thickness_units": sta_thickness}
     if burley_options:
         info["burley_options"] = {k: str(v) for k, v in burley_options.items()}
     info.update(material_info or {})

@@ -209,9 +209,10 @@ def report(data: ReportData, out_dir: str | pathlib.Path, *,
         mrows = []
         for k in ids:
             m = f.mask & (np.asarray(f.material_id) == k)
-            label = names[k - 1] if k - 1 < len(names) else (names[0] if len(names) == 1 else "")
+            label = names[k - 1] if k - 1 < len(names) else (names[0] if len(names) == 1 else None)
             for run in all_runs:
-                row = {"material id": k, "material": label, "pixels": int(m.sum()), "technique": run.label}
+                row = {"material id": k, **({"material": label} if names else {}), "pixels": int(m.sum()),
+                       "technique": run.label}
                 for which, tgt in (("ref", f.reference), ("truth", f.truth)):
                     if tgt is None:
                         continue
@@ -244,9 +245,12 @@ def report(data: ReportData, out_dir: str | pathlib.Path, *,
 
     # inputs and machine
     sec = page.section("Inputs", "The frames, camera and material this report was made from.")
-    page.table(sec, [{k: v for k, v in i.items() if not isinstance(v, dict)} for i in data.inputs], "frames",
-               key="inputs")
-    page.raw(sec, "<h3>Material</h3><pre>" + html.escape(json.dumps(data.material, indent=1, default=str)) + "</pre>")
+    # file names in the table (the JSON keeps the full paths)
+    shown_inputs = [{k: (pathlib.Path(v).name if k in ("path", "truth") and isinstance(v, str) else v)
+                     for k, v in i.items() if not isinstance(v, dict) and k != "name"} for i in data.inputs]
+    page.table(sec, shown_inputs, "frames", key="inputs")
+    page.table(sec, [{"parameter": k, "value": v if isinstance(v, str) else json.dumps(v, default=str)}
+                     for k, v in data.material.items()], "material", key="material")
     sec = page.section("Machine", "Where the times were measured.")
     page.table(sec, [{"what": k, "value": v} for k, v in data.machine.items()], "machine", key="machine")
 

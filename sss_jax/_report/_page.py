@@ -42,7 +42,7 @@ def fmt(v: Any) -> str:
         v = float(v)
         if v != v:
             return "–"
-        return f"{v:.4g}" if abs(v) < 1e4 else f"{v:.3e}"
+        return f"{v:.4g}" if abs(v) < 1e4 else (f"{v:.0f}" if abs(v) < 1e9 else f"{v:.3e}")
     if isinstance(v, (list, tuple)):
         return ", ".join(fmt(x) for x in v)
     if v is None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Sequence
 
 import numpy as np
+from matplotlib.ticker import FuncFormatter
 
 from ._page import new_figure
 
@@ -48,6 +49,9 @@ def trade_figure(rows: Sequence[dict], panels: Sequence[tuple[str, str]]):
         ax.plot([r["ms_per_frame"] for r in front], [max(r[key]["rel_l2"], 1e-6) for r in front], "k--", lw=1,
                 label="Pareto front", zorder=2)
         ax.set_xscale("log"), ax.set_yscale("log")
+        for axis in (ax.xaxis, ax.yaxis):  # plain numbers at the decades and at a few steps between them
+            axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+            axis.set_minor_formatter(FuncFormatter(lambda v, _: f"{v:g}" if f"{v:.0e}"[0] in "25" else ""))
         ax.set_xlabel("ms per frame"), ax.set_ylabel("relative L2"), ax.set_title(title, fontsize=9)
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7)
