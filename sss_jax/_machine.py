@@ -28,12 +28,17 @@ def machine_info() -> dict:
     except OSError:
         pass
     devices = jax.devices()
+    try:  # other work on the machine while timing: times taken under load read slower and noisier
+        load = ", ".join(f"{v:.1f}" for v in os.getloadavg())
+    except OSError:
+        load = None
     return {
         "date_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime()),
         "host": platform.node(),
         "os": platform.platform(),
         "cpu": cpu,
         "cpu_count": os.cpu_count(),
+        "load_average_1_5_15_min": load,
         "jax_backend": jax.default_backend(),
         "devices": f"{len(devices)} x {devices[0].device_kind}" if devices else "none",
         "python": platform.python_version(),

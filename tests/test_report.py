@@ -2,6 +2,7 @@
 against an independent NumPy computation from the written images, the reference cache, and bad input."""
 
 import json
+import pathlib
 import re
 
 import numpy as np
@@ -10,6 +11,7 @@ import pytest
 import sss_jax as sj
 from sss_jax.cli import main
 
+PRESETS = pathlib.Path(__file__).resolve().parents[1] / "fits"
 BLENDER_INPUT = "reference/blender/irradiance_backlit.exr"
 BLENDER_TRUTH = "reference/blender/burley_backlit.exr"
 # The material of reference/blender/README.md: A = (0.85, 0.75, 0.55), radius (0.4, 0.25, 0.15) m and Cycles 3.x's
@@ -181,3 +183,22 @@ def test_burley_options_are_checked_against_its_signature(tmp_path):
     with pytest.raises(ValueError, match=r"burley_options \['no_such_option'\] not accepted"):
         sj.evaluate_frames([frame], sj.BurleyMaterial((0.8, 0.8, 0.8), (1.0, 1.0, 1.0)), techniques=["burley"],
                            burley_options={"no_such_option": 1})
+
+
+def test_several_presets_through_the_id_channel(tmp_path):
+    # two presets, ids 1 and 2: the material table has one row per preset in the order given, and the per-material
+    # table of the page covers both ids; the separable takes the presets' two-Gaussian kernels
+    ids = np.ones((8, 10))
+    ids[:, 5:] = 2
+    frame = _tiny_exr(tmp_path / "in.exr", id=ids)
+    out = tmp_path / "rep"
+    assert main(["report", str(frame), "--out", str(out), "--preset", "skin1,marble", "--techniques", "separable",
+                 "--taps", "9", "--radius-px", "2", "--repeats", "0", "--no-progress", "--no-images"]) == 0
+    doc = json.loads((out / "report.json").read_text())
+    skin1 = json.loads((PRESETS / "skin1.json").read_text())
+    marble = json.loads((PRESETS / "marble.json").read_text())
+    np.testing.assert_allclose(doc["material"]["d_mm"], [skin1["burley"]["d_mm"], marble["burley"]["d_mm"]], rtol=1e-6)
+    assert doc["material"]["names"] == ["skin1", "marble"] and doc["material"]["separable_kernel"] == "two-Gaussian"
+    page = (out / "report.html").read_text()
+    assert "<td>skin1</td>" in page and "<td>marble</td>" in page
+    assert not (out / "images").exists()

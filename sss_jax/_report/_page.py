@@ -23,7 +23,7 @@ h1{font-size:1.7em;margin-bottom:.2em} h2{border-bottom:1px solid #ddd;padding-b
 h3{font-size:1.05em;margin:1.2em 0 .3em}
 .meta{color:#666;font-size:.9em} nav ol{columns:3;font-size:.95em}
 table{border-collapse:collapse;margin:1em 0;font-size:.85em;display:block;max-width:100%;overflow-x:auto} th,td{border:1px solid #ddd;padding:.25em .55em;
-text-align:right} th{background:#f4f4f4} td:first-child,th:first-child{text-align:left} caption{text-align:left;
+text-align:left} td.n{text-align:right;font-variant-numeric:tabular-nums} th{background:#f4f4f4} caption{text-align:left;
 color:#555;font-size:.95em;padding:.2em 0} tr.best td{background:#eef7ee}
 figure{display:inline-block;margin:.4em;vertical-align:top;text-align:center} figure img{max-width:100%;
 border:1px solid #eee;image-rendering:pixelated} figcaption{font-size:.8em;color:#555;max-width:420px;margin:auto}
@@ -48,6 +48,12 @@ def fmt(v: Any) -> str:
     if v is None:
         return "–"
     return html.escape(str(v))
+
+
+def _cell(v: Any) -> str:
+    """A table cell; numbers align right."""
+    numeric = isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
+    return f"<td class=n>{fmt(v)}</td>" if numeric else f"<td>{fmt(v)}</td>"
 
 
 def new_figure(width_in: float = 6.0, height_in: float = 3.6, dpi: int = 100):
@@ -107,7 +113,7 @@ class Page:
         cols = list(dict.fromkeys(c for r in rows for c in r))
         head = "".join(f"<th>{html.escape(str(c))}</th>" for c in cols)
         body = "".join(("<tr class=best>" if highlight and highlight[i] else "<tr>")
-                       + "".join(f"<td>{fmt(r.get(c))}</td>" for c in cols) + "</tr>" for i, r in enumerate(rows))
+                       + "".join(_cell(r.get(c)) for c in cols) + "</tr>" for i, r in enumerate(rows))
         cap = f"<caption>{html.escape(caption)}</caption>" if caption else ""
         sec["parts"].append(f"<table>{cap}<tr>{head}</tr>{body}</table>")
         self.data["sections"][sec["title"]][key or caption or f"table{len(sec['parts'])}"] = rows
