@@ -6,7 +6,8 @@ own Burley render as the truth, the material of its README), every technique, th
     python scripts/make_report.py --out report_blender
     python scripts/make_report.py IN.exr --truth TRUTH.exr --albedo 0.8,0.6,0.5 --d-mm 3,1.4,0.8 --out rep
 
-``--section TITLE=FILE.html`` adds a section of your own (e.g. a fit's before/after) after the trade.
+``--section TITLE=FILE.html`` adds a section of your own (e.g. a fit's before/after) after the trade. Like the other
+scripts it imports the installed ``sss_jax`` (``pip install -e .``; or run with ``PYTHONPATH=.`` from the checkout).
 """
 
 from __future__ import annotations
