@@ -75,3 +75,10 @@ from ._presets import (
     load_preset as load_preset,
     material_for as material_for,
 )
+from ._evaluate import evaluate_frames as evaluate_frames, read_truth as read_truth
+from ._report import (
+    FrameImages as FrameImages,
+    ReportData as ReportData,
+    TechniqueRun as TechniqueRun,
+    report as report,
+)

@@ -3,17 +3,19 @@
 from __future__ import annotations
 
 import dataclasses
-import time
 from typing import Callable
 
 import jax
 import numpy as np
 
 from ._materials import BurleyMaterial, STAParams, TwoGaussianMaterial
+from ._metrics import rel_l2
 from ._scene import DemoScene, demo_scene
 from ._techniques import ENERGY_CONSERVING, burley, reference, separable, translucency
+from ._timing import time_call
 
-__all__ = ["DEMO_MATERIALS", "DemoResult", "run_demo", "demo_two_gaussian"]
+__all__ = ["DEMO_MATERIALS", "DemoResult", "run_demo", "demo_two_gaussian", "demo_trade", "demo_montecarlo",
+           "demo_report_data"]
 
 # Artist-style materials of the demo scene (surface albedo, Burley d in mm per channel), ids 1..3. The scattering
 # distances are exaggerated for a scene of a few centimetres so the effect is visible at 256 px.
@@ -59,19 +61,6 @@ class DemoResult:
     energy: dict[str, np.ndarray]  # output / input energy per channel over SSS pixels (albedo divided out)
 
 
-def _timed(fn: Callable[[], jax.Array], repeats: int) -> tuple[np.ndarray, float, float]:
-    t0 = time.perf_counter()
-    out = fn().block_until_ready()
-    first = time.perf_counter() - t0
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = fn().block_until_ready()
-        times.append(time.perf_counter() - t0)
-    best = float(np.median(times)) if times else first
-    return np.asarray(out), best, max(first - best, 0.0)
-
-
 def run_demo(*, height: int = 192, width: int = 256, samples: int = 32, taps: int = 25, repeats: int = 2,
              progress: Callable[[str], None] | None = None) -> DemoResult:
     """Render the demo scene with every technique; time each (median of ``repeats`` after a compile run)."""
@@ -95,7 +84,7 @@ def run_demo(*, height: int = 192, width: int = 256, samples: int = 32, taps: in
     images, seconds, compile_s = {}, {}, {}
     for name, fn in runs.items():
         say(f"rendering {name} ...")
-        img, seconds[name], compile_s[name] = _timed(fn, 0 if name == "reference" else repeats)
+        img, seconds[name], compile_s[name] = time_call(fn, 0 if name == "reference" else repeats)
         # the passes leave pixels without SSS untouched (irradiance); shade them locally for a finished picture
         images[name] = np.where(mask[..., None], img, local)
     images["irradiance"] = irr
@@ -105,7 +94,7 @@ def run_demo(*, height: int = 192, width: int = 256, samples: int = 32, taps: in
     for name, img in images.items():
         if name == "irradiance":
             continue
-        errors[name] = float(np.linalg.norm((img - ref)[mask]) / np.linalg.norm(ref[mask]))
+        errors[name] = rel_l2(img, ref, mask=mask)
         scattered = img / np.where(albedo > 0, albedo, 1)
         energy[name] = scattered[mask].sum(0) / irr[mask].sum(0)
     return DemoResult(scene=scene, images=images, seconds=seconds, compile_seconds=compile_s, errors=errors,
@@ -127,3 +116,76 @@ def summary_rows(result: DemoResult) -> list[dict]:
             conserves_energy=ENERGY_CONSERVING.get(family, None) if family != "local" else True,
         ))
     return rows
+
+
+def demo_trade(result: DemoResult, *, taps=(9, 17, 25), samples=(8, 16, 32, 64), repeats: int = 2) -> list:
+    """Time and images of STA and of a few tap and sample counts on the demo frame (the report's trade), as
+    ``TechniqueRun``s; the separable runs use the pre-integrated Burley kernel."""
+    from ._report import TechniqueRun
+
+    scene = result.scene
+    b, cam = scene.buffers, scene.camera
+    mat = demo_burley_material()
+    mask = np.asarray(b.material_id) > 0
+    local = result.images["local"]
+    configs = [("sta", None, lambda: translucency(b, STAParams(**DEMO_STA), cam, scene.back_light))]
+    configs += [("separable", n, lambda n=n: separable(b, mat, cam, taps=n)) for n in taps]
+    configs += [("burley", n, lambda n=n: burley(b, mat, cam, samples=n)) for n in samples]
+    runs = []
+    for tech, n, fn in configs:
+        img, seconds, _ = time_call(fn, repeats)
+        runs.append(TechniqueRun(tech, n, 1e3 * seconds, (np.where(mask[..., None], img, local),)))
+    return runs
+
+
+def demo_montecarlo(photons: int = 20_000, albedos=(0.5, 0.9, 0.99)) -> list[dict]:
+    """Monte Carlo random walks (index-matched semi-infinite medium, normal pencil beam) beside Christensen-Burley
+    with the memo's searchlight s(A), per single-scattering albedo: ``r`` (mean free paths), ``rR`` and its standard
+    error, Burley's ``rR``, total reflectance, Burley's d (mean free paths) and the relative L2 between the curves."""
+    from ._montecarlo import simulate
+    from ._profiles import burley_R, d_from_mfp
+
+    rows = []
+    for alpha in albedos:
+        mc = simulate(alpha, photons=photons, seed=5, bins=60, r_max_mfp=6.0)
+        r = np.asarray(mc.r_mfp)
+        d = float(d_from_mfp(mc.total_reflectance, 1.0, fit="searchlight"))
+        rr_b = r * mc.total_reflectance * np.asarray(burley_R(r, d))
+        rows.append(dict(albedo=alpha, total_reflectance=round(float(mc.total_reflectance), 4), d_mfp=round(d, 4),
+                         rel_l2_rR=round(rel_l2(rr_b, r * mc.R), 4), r=r, rR=r * np.asarray(mc.R),
+                         rR_stderr=r * np.asarray(mc.R_stderr), rR_burley=rr_b))
+    return rows
+
+
+def demo_report_data(result: DemoResult, trade=()):
+    """The demo as ``ReportData``: the demo's own runs (reference, Burley, both separable kernels, STA) and the trade's
+    runs (``demo_trade``), with the demo's inputs, materials and machine."""
+    from ._machine import machine_info
+    from ._report import FrameImages, ReportData, TechniqueRun
+
+    b = result.scene.buffers
+    h, w = np.asarray(b.depth).shape
+    ms = lambda name: 1e3 * result.seconds[name]
+    runs, seen = [], set()
+    for name, img in result.images.items():
+        if name in ("irradiance", "local", "reference"):
+            continue
+        tech, _, count = name.rpartition("_")
+        tech, count = (tech, int(count)) if count.isdigit() else (name, None)
+        tech = {"separable_preintegrated": "separable"}.get(tech, tech)
+        runs.append(TechniqueRun(tech, count, ms(name), (img,)))
+        seen.add((tech, count))
+    runs += [r for r in trade if (r.technique, r.count) not in seen]
+    runs.sort(key=lambda r: (r.technique, r.count or 0))
+    frame = FrameImages(name="demo scene", shaded=result.images["local"], reference=result.images["reference"],
+                        material_id=np.asarray(b.material_id),
+                        mask=np.isfinite(np.asarray(b.depth)) & (np.asarray(b.material_id) > 0))
+    cam = result.scene.camera
+    material = {"names": list(DEMO_MATERIALS), **{k: [m[k] for m in DEMO_MATERIALS.values()] for k in ("albedo", "d_mm")},
+                "separable_kernel": "pre-integrated Burley (separable), two-Gaussian fit (separable_two_gaussian)",
+                "sta": DEMO_STA}
+    inputs = [{"name": "procedural demo scene", "width": w, "height": h, "focal_px": float(cam.focal_px),
+               "mm_per_unit": float(cam.mm_per_unit), "sss_pixels": int(frame.mask.sum())}]
+    return ReportData(frames=(frame,), runs=tuple(runs), inputs=inputs, material=material, machine=machine_info(),
+                      title="sss_jax demo: techniques against the reference",
+                      reference_run=TechniqueRun("reference", None, ms("reference"), (result.images["reference"],)))

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["relative_l2", "rmse", "max_error", "delta_e_2000", "energy_ratio", "metrics_by_material", "sss_mask"]
+__all__ = ["rel_l2", "rmse", "max_error", "delta_e_2000", "energy_ratio", "metrics_by_material", "sss_mask"]
 
 
 def _check(output: np.ndarray, reference: np.ndarray, mask: np.ndarray | None, names=("output", "reference")):
@@ -32,8 +32,12 @@ def _check(output: np.ndarray, reference: np.ndarray, mask: np.ndarray | None, n
     return out[mask], ref[mask]
 
 
-def relative_l2(output, reference, *, mask=None) -> float:
-    """``||output - reference||_2 / ||reference||_2`` over the masked pixels (all channels)."""
+def rel_l2(output, reference, *, mask=None) -> float:
+    """Relative L2 error ``||output - reference||_2 / ||reference||_2`` over the masked pixels, all channels
+    (dimensionless; the absolute ``||output - reference||_2`` where the reference is all zero).
+
+    The one owner of this metric in the package. ``output``, ``reference``: ``(H, W, C)`` (or ``(N, C)`` rows of
+    pixels), any units as long as they agree; ``mask``: ``(H, W)`` (or ``(N, C)``) bool, default every pixel."""
     o, r = _check(output, reference, mask)
     norm = np.linalg.norm(r)
     return float(np.linalg.norm(o - r) / norm) if norm > 0 else float(np.linalg.norm(o - r))
@@ -101,7 +105,7 @@ def metrics_by_material(output, reference, input, material_id, *, depth=None, ex
         de = delta_e_2000(output, reference, mask=m, exposure=exposure)
         result[name] = {
             "pixels": int(m.sum()),
-            "relative_l2": relative_l2(output, reference, mask=m),
+            "relative_l2": rel_l2(output, reference, mask=m),
             "rmse": rmse(output, reference, mask=m),
             "max_error": max_error(output, reference, mask=m),
             "delta_e_2000_mean": de["mean"], "delta_e_2000_p95": de["p95"], "delta_e_2000_max": de["max"],

@@ -77,25 +77,21 @@ def run(args) -> int:
               + ", ".join(f"{x:.3f}" for x in r["energy_ratio_rgb"]))
     print("(STA adds light: its energy ratio exceeds 1 by design; separable and Burley redistribute it.)")
     if not args.no_report:
-        try:
-            from .._reporting import write_demo_report
-        except ImportError:
-            write_demo_report = None
-        if write_demo_report is not None:
-            html = write_demo_report(result, out)
-            print(f"report: {html}")
+        from .._demo import demo_montecarlo, demo_trade
+        from .._reporting import write_demo_report
+
+        print("timing the trade (STA, separable 9/17/25, burley 8/16/32/64) and the Monte Carlo profiles ...",
+              file=sys.stderr, flush=True)
+        html = write_demo_report(result, out, trade=demo_trade(result), montecarlo=demo_montecarlo())
+        print(f"report: {html}")
     print(f"wrote {out}/ in {time.perf_counter() - t0:.1f} s")
     return 0
 
 
 def _write_overview(path: pathlib.Path, result) -> None:
     """A labelled grid of the renders, for a person to look at first."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    from matplotlib.figure import Figure
-
     from .._io import write_bytes_atomic
+    from .._report import figure_png, new_figure
 
     names = [n for n in ("irradiance", "local", "sta") if n in result.images] + [
         n for n in result.images if n not in ("irradiance", "local", "sta")
@@ -103,7 +99,7 @@ def _write_overview(path: pathlib.Path, result) -> None:
     cols = 4
     rows = (len(names) + cols - 1) // cols
     h, w = result.images[names[0]].shape[:2]
-    fig = Figure(figsize=(cols * 3.2, rows * 3.2 * h / w + 0.4 * rows), dpi=110)
+    fig = new_figure(cols * 3.2, rows * 3.2 * h / w + 0.4 * rows, dpi=110)
     for i, name in enumerate(names):
         ax = fig.add_subplot(rows, cols, i + 1)
         img = result.images[name]
@@ -113,9 +109,5 @@ def _write_overview(path: pathlib.Path, result) -> None:
         ax.set_title(name if err is None else f"{name}\nrel L2 {err:.3f}", fontsize=8)
         ax.axis("off")
     fig.tight_layout()
-    import io
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png")
-    write_bytes_atomic(path, buf.getvalue())
+    write_bytes_atomic(path, figure_png(fig))
 

@@ -1,0 +1,312 @@
+"""Run and time every technique on the user's own EXR frames, against a cached dense reference and, optionally, an
+offline render of the same view: the measuring half of ``sss-jax report`` (``sss_jax.report`` lays it out).
+
+The dense reference is the slow part; it is computed once per frame and kept in ``cache_dir`` under a key of
+everything it depends on (the input file's bytes, material, camera, window radius, reading options, package
+version), so a second report on the same frame reads it back.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import inspect
+import io
+import json
+import os
+import pathlib
+import sys
+from typing import Any, Iterable, Mapping, Sequence
+
+import numpy as np
+
+from ._io import Frame, SSSInputError, _blender_layers, read_channels, read_frame, write_bytes_atomic
+from ._machine import machine_info
+from ._materials import BurleyMaterial, DirectionalLight, ProfileMaterial, STAParams, TwoGaussianMaterial
+from ._report import FrameImages, ReportData, TechniqueRun
+from ._timing import time_call
+
+__all__ = ["evaluate_frames", "read_truth", "REPORT_TECHNIQUES"]
+
+REPORT_TECHNIQUES = ("sta", "separable", "burley")
+_CACHE_VERSION = 1
+
+
+def read_truth(path: str | os.PathLike, channels: str | Sequence[str] | None = None,
+               shape: tuple[int, int] | None = None) -> np.ndarray:
+    """An offline render's RGB ``(H, W, 3)`` (linear). ``channels``: a pass name (``"Combined"``: Blender's
+    ``<ViewLayer>.Combined.R/G/B``, the default for a Blender multilayer file), or three channel names (``"R,G,B"``,
+    the default otherwise). ``shape``: the ``(H, W)`` it must have."""
+    chans, _, got = read_channels(path)
+    blender = _blender_layers(list(chans))
+    if channels is None:
+        channels = "Combined" if "Combined.R" in blender else "R,G,B"
+    names = [c.strip() for c in channels.split(",")] if isinstance(channels, str) else list(channels)
+    if len(names) == 1:
+        p = names[0]
+        names = [blender.get(f"{p}.{c}") or f"{p}.{c}" for c in "RGB"]
+    if len(names) != 3:
+        raise SSSInputError(f"{path}: truth channels must be a pass name or three channel names, got {channels!r}")
+    missing = [n for n in names if n not in chans]
+    if missing:
+        found = ", ".join(list(chans)[:24]) + (" ..." if len(chans) > 24 else "")
+        raise SSSInputError(f"{path}: truth channel(s) {missing} not found; channels found: {found}")
+    if shape is not None and got != tuple(shape):
+        raise SSSInputError(f"{path}: truth is {got[1]}x{got[0]} but the input frame is {shape[1]}x{shape[0]}")
+    rgb = np.stack([chans[n] for n in names], axis=-1).astype(np.float32)
+    if not np.all(np.isfinite(rgb)):
+        raise SSSInputError(f"{path}: truth has {int(np.sum(~np.isfinite(rgb)))} non-finite values")
+    return rgb
+
+
+def _sha256_file(path: pathlib.Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _leaves(material) -> dict[str, list]:
+    import dataclasses
+
+    return {f.name: np.asarray(getattr(material, f.name)).tolist() for f in dataclasses.fields(material)
+            if not isinstance(getattr(material, f.name), (str, type(None)))}
+
+
+def _reference_key(frame_hash: str, material, camera, radius_px: int, reading: Mapping[str, Any]) -> str:
+    from importlib import metadata
+
+    try:
+        version = metadata.version("sss_jax")
+    except metadata.PackageNotFoundError:  # a source tree on sys.path, not installed
+        version = "source"
+    blob = json.dumps({"v": _CACHE_VERSION, "sss_jax": version, "frame": frame_hash,
+                       "material": {type(material).__name__: _leaves(material)},
+                       "camera": [float(camera.focal_px), float(camera.mm_per_unit)], "radius_px": int(radius_px),
+                       "reading": {k: str(v) for k, v in sorted(reading.items())}}, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()[:20]
+
+
+def _cached_reference(cache_dir: pathlib.Path | None, key: str, shape) -> tuple[np.ndarray, float] | None:
+    if cache_dir is None:
+        return None
+    path = cache_dir / f"reference-{key}.npz"
+    try:
+        with np.load(path) as z:
+            img, seconds = np.asarray(z["image"]), float(z["seconds"])
+    except (OSError, KeyError, ValueError):  # missing or damaged: computed again
+        return None
+    return (img, seconds) if img.shape == (*shape, 3) else None
+
+
+def _store_reference(cache_dir: pathlib.Path, key: str, image: np.ndarray, seconds: float) -> None:
+    buf = io.BytesIO()
+    np.savez_compressed(buf, image=image.astype(np.float32), seconds=np.float64(seconds))
+    cache_dir.mkdir(parents=True, exist_ok=True)
+    write_bytes_atomic(cache_dir / f"reference-{key}.npz", buf.getvalue())
+
+
+def _tidy(values) -> Any:
+    """Parameters for people to read: float32 values as the 7 significant digits they hold."""
+    a = np.asarray(values, np.float64)
+    return np.vectorize(lambda v: float(f"{v:.7g}"))(a).tolist() if a.size else a.tolist()
+
+
+def _counts(name: str, values: Iterable[int], odd: bool = False) -> tuple[int, ...]:
+    out = tuple(values)
+    if not out:
+        raise ValueError(f"{name}: give at least one count")
+    for v in out:
+        if not isinstance(v, (int, np.integer)) or v < 1 or (odd and v % 2 == 0):
+            raise ValueError(f"{name} must be {'odd ' if odd else ''}positive integers, got {v!r}")
+    return out
+
+
+def _material_albedo(material, ids: np.ndarray) -> np.ndarray:
+    """Per-pixel albedo ``(H, W, 3)`` from a material table (id k -> row k-1; one row serves every id)."""
+    table = np.asarray(material.albedo, np.float32).reshape(-1, 3)
+    rows = np.clip(ids - 1, 0, table.shape[0] - 1) if table.shape[0] > 1 else np.zeros_like(ids)
+    return table[rows]
+
+
+def evaluate_frames(
+    inputs: str | os.PathLike | Iterable[str | os.PathLike],
+    material: BurleyMaterial | ProfileMaterial,
+    *,
+    truth: str | os.PathLike | Sequence[str | os.PathLike] | None = None,
+    truth_channels: str | Sequence[str] | None = None,
+    techniques: Sequence[str] = REPORT_TECHNIQUES,
+    taps: Iterable[int] = (9, 17, 25),
+    samples: Iterable[int] = (8, 16, 32, 64),
+    separable_material: TwoGaussianMaterial | BurleyMaterial | ProfileMaterial | None = None,
+    sta: tuple[STAParams, DirectionalLight] | None = None,
+    sta_thickness: float | None = None,
+    burley_options: Mapping[str, Any] | None = None,
+    focal_px: float | None = None,
+    mm_per_unit: float | None = None,
+    channel_map: str | os.PathLike | Mapping[str, Any] | None = None,
+    depth_kind: str = "planar",
+    use_albedo_pass: bool = True,
+    radius_px: int | None = None,
+    cache_dir: str | os.PathLike | None = None,
+    repeats: int = 3,
+    material_info: Mapping[str, Any] | None = None,
+    progress: bool = False,
+) -> ReportData:
+    """Render, time and collect what ``sss_jax.report`` lays out, for EXR frames read as ``sss-jax apply`` reads them.
+
+    ``material``: the Burley (or tabulated-profile) material table of the reference and of ``burley`` (one row per
+    material id, or one row for every id > 0); ``separable_material`` (default ``material``) the separable's
+    kernels; ``sta``: ``(STAParams, DirectionalLight)`` for the STA, required when ``techniques`` holds ``"sta"``;
+    ``sta_thickness``: its constant thickness in scene units where a frame has no thickness channel (else 0).
+    ``truth``: one offline render per input (``truth_channels`` as in ``read_truth``). ``taps``/``samples``: the
+    separable's taps and Burley's samples to run (one run per count). ``burley_options``: further keyword arguments
+    of ``sss_jax.burley`` (e.g. a sampling pattern), checked against its signature. Camera: ``focal_px`` (px) and
+    ``mm_per_unit`` (mm per scene unit of depth), else the EXR header or the ``<name>.json`` sidecar.
+    ``radius_px``: the reference's window (default: 99.9% of the widest profile's energy, capped at 96 px).
+    ``cache_dir``: where the reference is kept between runs (None: not kept). ``repeats``: timed runs per frame
+    after the compiling one (0: the first run's time). Times are medians in ms per frame, averaged over frames.
+
+    Raises ``SSSInputError`` (a ``ValueError``) naming the input and what is wrong, before any rendering.
+    """
+    from tqdm import tqdm
+
+    from ._batch import expand_inputs
+    from ._scene import Camera
+    from ._techniques import burley, reference, reference_radius_px, separable, translucency
+
+    # ---- every check first: nothing is rendered or written for bad input
+    techniques = tuple(techniques)
+    unknown = [t for t in techniques if t not in REPORT_TECHNIQUES]
+    if unknown or not techniques:
+        raise SSSInputError(f"unknown technique(s) {unknown or '(none given)'}; valid: {', '.join(REPORT_TECHNIQUES)}")
+    taps = _counts("taps", taps, odd=True) if "separable" in techniques else ()
+    samples = _counts("samples", samples) if "burley" in techniques else ()
+    if not isinstance(repeats, (int, np.integer)) or repeats < 0:
+        raise ValueError(f"repeats must be a non-negative integer, got {repeats!r}")
+    if radius_px is not None and (not isinstance(radius_px, (int, np.integer)) or radius_px < 1):
+        raise ValueError(f"radius_px must be a positive integer, got {radius_px!r}")
+    if not isinstance(material, (BurleyMaterial, ProfileMaterial)):
+        raise TypeError(f"material must be a BurleyMaterial or ProfileMaterial, got {type(material).__name__}")
+    if "burley" in techniques and not isinstance(material, BurleyMaterial):
+        raise TypeError(f"burley needs a BurleyMaterial, got {type(material).__name__}")
+    if "sta" in techniques and sta is None:
+        raise SSSInputError("the STA needs its parameters and light: sta=(STAParams, DirectionalLight) "
+                            "(on the command line --light-dir X,Y,Z)")
+    accepted = inspect.signature(burley).parameters
+    burley_options = dict(burley_options or {})
+    extra = sorted(set(burley_options) - {k for k, p in accepted.items() if p.kind == p.KEYWORD_ONLY} - {"samples"})
+    if extra or "samples" in burley_options:
+        raise ValueError(f"burley_options {extra or ['samples']} not accepted here; sss_jax.burley takes "
+                         f"{', '.join(k for k, p in accepted.items() if p.kind == p.KEYWORD_ONLY and k != 'samples')}"
+                         " (samples come from `samples`)")
+    paths = expand_inputs(inputs)
+    if not paths:
+        raise SSSInputError("no input frames")
+    truths = [] if truth is None else list(expand_inputs([truth] if isinstance(truth, (str, os.PathLike)) else truth))
+    if truths and len(truths) != len(paths):
+        raise SSSInputError(f"{len(truths)} truth file(s) for {len(paths)} input frame(s): give one per input")
+    if len(set(map(str, paths))) != len(paths):
+        raise SSSInputError("an input frame is given twice")
+
+    frames: list[Frame] = []
+    for p in paths:
+        f = read_frame(p, channel_map=channel_map, focal_px=focal_px, mm_per_unit=mm_per_unit, depth_kind=depth_kind)
+        if f.focal_px is None:
+            raise SSSInputError(f"{p}: no focal length (pass --focal-px / focal_px, put sss_jax:focal_px in the "
+                                f"header, or camera.focal_px in the sidecar {pathlib.Path(p).with_suffix('.json')})")
+        ids = f.material_id if f.material_id is not None else np.ones(f.shape, np.int32)
+        mask = (ids > 0) & np.isfinite(f.depth)
+        if not mask.any():
+            raise SSSInputError(f"{p}: no pixel with subsurface scattering (material id > 0 on a surface)")
+        rows = np.asarray(material.albedo).reshape(-1, 3).shape[0]
+        if rows > 1 and int(ids.max()) > rows:
+            raise SSSInputError(f"{p}: material id {int(ids.max())} in the frame but only {rows} materials given")
+        frames.append(f)
+    truth_images = [read_truth(t, truth_channels, f.shape) for t, f in zip(truths, frames)]
+
+    # ---- rendering and timing
+    cache = None if cache_dir is None else pathlib.Path(cache_dir)
+    sep_material = material if separable_material is None else separable_material
+    table = np.asarray(material.albedo, np.float32).reshape(-1, 3)
+    # the STA takes one albedo where the buffers carry none: the material's when there is one material
+    sta_albedo = table[0] if table.shape[0] == 1 else None
+    configs: list[tuple[str, int | None]] = [("sta", None)] if "sta" in techniques else []
+    configs += [("separable", n) for n in taps] + [("burley", n) for n in samples]
+    bar = tqdm(total=len(frames) * (1 + len(configs)), desc="sss-jax report", unit="run", file=sys.stderr,
+               disable=not progress, dynamic_ncols=True)
+    reading = {"channel_map": json.dumps(channel_map, sort_keys=True, default=str) if channel_map else None,
+               "depth_kind": depth_kind, "use_albedo_pass": use_albedo_pass}
+    images: dict[tuple[str, int | None], list[np.ndarray]] = {c: [] for c in configs}
+    seconds: dict[tuple[str, int | None], list[float]] = {c: [] for c in configs}
+    frame_images, inputs_info, notes, ref_images, ref_seconds = [], [], [], [], []
+    try:
+        for f in frames:
+            name = pathlib.Path(f.path).name
+            b = f.to_buffers(use_albedo=use_albedo_pass)
+            cam = Camera(f.focal_px, f.mm_per_unit if f.mm_per_unit is not None else 1.0)
+            ids = f.material_id if f.material_id is not None else np.ones(f.shape, np.int32)
+            mask = (ids > 0) & np.isfinite(f.depth)
+            albedo = (f.albedo if use_albedo_pass and f.albedo is not None else _material_albedo(material, ids))
+            shaded = np.where(mask[..., None], albedo * f.irradiance,
+                              f.irradiance * (f.albedo if f.albedo is not None else 1.0)).astype(np.float32)
+            finish = lambda img: np.where(mask[..., None], np.asarray(img, np.float32), shaded)
+
+            radius = radius_px if radius_px is not None else reference_radius_px(b, material, cam)
+            key = _reference_key(_sha256_file(pathlib.Path(f.path)), material, cam, radius, reading)
+            bar.set_postfix_str(f"{name}: reference")
+            hit = _cached_reference(cache, key, f.shape)
+            if hit is not None:
+                ref, ref_s = hit
+                notes.append(f"{name}: dense reference (radius {radius} px) read from the cache "
+                             f"(reference-{key}.npz; computing it took {ref_s:.1f} s)")
+            else:
+                ref, ref_s, _ = time_call(lambda: reference(b, material, cam, radius_px=radius), 0)
+                if cache is not None:
+                    _store_reference(cache, key, ref, ref_s)
+                notes.append(f"{name}: dense reference (radius {radius} px) computed in {ref_s:.1f} s"
+                             + (f" and cached as reference-{key}.npz" if cache is not None else ""))
+            bar.update(1)
+            ref_images.append(finish(ref))
+            ref_seconds.append(ref_s)
+            for tech, n in configs:
+                bar.set_postfix_str(f"{name}: {tech}" + ("" if n is None else f" {n}"))
+                if tech == "sta":
+                    params, light = sta
+                    fn = lambda: translucency(b, params, cam, light, albedo=sta_albedo, thickness=sta_thickness)
+                elif tech == "separable":
+                    fn = lambda n=n: separable(b, sep_material, cam, taps=n)
+                else:
+                    fn = lambda n=n: burley(b, material, cam, samples=n, **burley_options)
+                img, s, _ = time_call(fn, repeats)
+                images[(tech, n)].append(finish(img))
+                seconds[(tech, n)].append(s)
+                bar.update(1)
+            frame_images.append(FrameImages(name=name, shaded=shaded, reference=ref_images[-1], material_id=ids,
+                                            truth=truth_images[len(frame_images)] if truth_images else None,
+                                            mask=mask))
+            inputs_info.append({"path": str(f.path), "name": name, "width": f.shape[1], "height": f.shape[0],
+                                "layout": f.layout, "focal_px": f.focal_px, "mm_per_unit": float(f.mm_per_unit if f.mm_per_unit is not None else 1.0),
+                                "sss_pixels": int(mask.sum()), "reference_radius_px": int(radius),
+                                "truth": str(truths[len(inputs_info)]) if truths else None})
+    finally:
+        bar.close()
+
+    runs = tuple(TechniqueRun(t, n, 1e3 * float(np.mean(seconds[(t, n)])), tuple(images[(t, n)]),
+                              options=dict(burley_options) if t == "burley" else {}) for t, n in configs)
+    ref_run = TechniqueRun("reference", None, 1e3 * float(np.mean(ref_seconds)), tuple(ref_images))
+    info = {"albedo": _tidy(material.albedo)}
+    if isinstance(material, BurleyMaterial):
+        info["d_mm"] = _tidy(material.d_mm)
+    info["separable_kernel"] = ("two-Gaussian" if isinstance(sep_material, TwoGaussianMaterial)
+                                else "pre-integrated profile")
+    if "sta" in techniques:
+        params, light = sta
+        info["sta"] = {**{k: _tidy(v) for k, v in _leaves(params).items()}, "light_direction": _tidy(light.direction),
+                       "light_colour": _tidy(light.colour), "thickness_units": sta_thickness}
+    if burley_options:
+        info["burley_options"] = {k: str(v) for k, v in burley_options.items()}
+    info.update(material_info or {})
+    return ReportData(frames=tuple(frame_images), runs=runs, inputs=inputs_info, material=info,
+                      machine=machine_info(), title="sss_jax error report", reference_run=ref_run,
+                      notes=tuple(notes))

@@ -1,0 +1,199 @@
+"""``sss-jax report``: how far each technique is from the reference and from an offline render, on the user's frames,
+and what each costs."""
+
+from __future__ import annotations
+
+import argparse
+import inspect
+import pathlib
+import shutil
+import sys
+import tempfile
+
+from . import rgb_triple
+
+EPILOG = """examples:
+  sss-jax report frame.exr --out rep --albedo 0.85,0.75,0.55 --d-mm 31.8,19.9,11.9
+  sss-jax report irradiance_backlit.exr --out rep --truth burley_backlit.exr --truth-channels Combined \\
+      --albedo 0.85,0.75,0.55 --d-mm 31.83,19.89,11.94 --techniques separable,burley --taps 9,25 --samples 8,32
+  sss-jax report 'shots/*.exr' --out rep --preset skin1,marble --light-dir 0.3,-0.4,0.9
+
+Frames are read as `sss-jax apply` reads them (R,G,B + Z, Blender multilayer passes, or --channel-map; camera from
+the flags, the EXR header or a sidecar <name>.json). Several materials: --preset a,b,... (id k takes the k-th).
+The dense reference is computed once per frame and kept in OUT/cache/ (a second run reads it back).
+Writes OUT/report.html (one self-contained page), OUT/report.json and each compared image as
+OUT/images/<frame>/<technique>_<count>.exr (linear RGB, float32).
+"""
+
+
+def _ints(text: str) -> tuple[int, ...]:
+    try:
+        return tuple(int(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
+
+
+def _burley_extras() -> dict[str, inspect.Parameter]:
+    """Options of ``sss_jax.burley`` beyond those the report sets itself (a sampling pattern, frames...), offered as
+    ``--burley-<name>`` flags when this version of burley has them."""
+    from .._techniques import burley
+
+    fixed = {"samples", "albedo_mode", "interpolation", "min_footprint_px", "compact"}
+    return {k: p for k, p in inspect.signature(burley).parameters.items()
+            if p.kind == p.KEYWORD_ONLY and k not in fixed and k in ("pattern", "frames", "frame", "sequence")}
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "report",
+        help="error report on your own frames: each technique against the reference and an offline render",
+        description="Run STA, separable and Burley at several counts on EXR frames, compare them with the dense "
+        "reference (cached) and, with --truth, with an offline render of the same view, and write a "
+        "self-contained HTML report and its JSON.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("inputs", nargs="+", help="input EXR files or glob patterns")
+    p.add_argument("--out", required=True, type=pathlib.Path, help="output directory (created if missing)")
+    p.add_argument("--truth", nargs="+", help="offline render(s) of the same view, one per input")
+    p.add_argument("--truth-channels", help="truth pass (Blender: Combined, the default) or R,G,B channel names")
+    p.add_argument("--techniques", default="sta,separable,burley",
+                   help="comma-separated, from sta, separable, burley (default all; sta only with --light-dir)")
+    p.add_argument("--taps", type=_ints, default=(9, 17, 25), help="separable taps to run (default 9,17,25)")
+    p.add_argument("--samples", type=_ints, default=(8, 16, 32, 64), help="Burley samples to run (default 8,16,32,64)")
+    for name, param in _burley_extras().items():
+        kind = type(param.default) if param.default not in (None, inspect.Parameter.empty) else str
+        if kind is bool:
+            kind = lambda text: text.strip().lower() in ("1", "true", "yes", "on")
+        p.add_argument(f"--burley-{name.replace('_', '-')}", dest=f"burley_{name}", type=kind,
+                       help=f"sss_jax.burley's {name} (default {param.default!r})")
+    m = p.add_argument_group("material (as sss-jax apply)")
+    m.add_argument("--preset", help="preset name(s) or JSON file(s), comma-separated: material id k takes the k-th")
+    m.add_argument("--albedo", type=rgb_triple, help="surface albedo R,G,B in [0,1] (overrides an albedo pass)")
+    m.add_argument("--d-mm", type=rgb_triple, help="Burley scattering distance d per channel, mm")
+    m.add_argument("--mfp-mm", type=rgb_triple, help="mean free path per channel, mm")
+    c = p.add_argument_group("camera and channels (as sss-jax apply)")
+    c.add_argument("--focal-px", type=float, help="focal length in pixels")
+    c.add_argument("--mm-per-unit", type=float, help="millimetres per scene unit of the depth buffer")
+    c.add_argument("--depth-kind", choices=("planar", "distance"), default="planar")
+    c.add_argument("--channel-map", help="JSON/TOML file mapping buffers to channels")
+    c.add_argument("--radius-px", type=int, help="reference window radius in px (default: 99.9%% of the energy)")
+    c.add_argument("--repeats", type=int, default=3, help="timed runs per frame after compilation (default 3)")
+    s = p.add_argument_group("STA (included with --light-dir)")
+    s.add_argument("--light-dir", type=rgb_triple, help="direction towards the back light, camera space")
+    s.add_argument("--light-colour", type=rgb_triple, default=(1.0, 1.0, 1.0))
+    s.add_argument("--sta-distortion", type=float, default=0.2)
+    s.add_argument("--sta-power", type=float, default=4.0)
+    s.add_argument("--sta-scale", type=rgb_triple, default=(1.0, 1.0, 1.0))
+    s.add_argument("--sta-ambient", type=rgb_triple, default=(0.0, 0.0, 0.0))
+    s.add_argument("--sta-thickness-mm", type=rgb_triple, default=(1.0, 1.0, 1.0),
+                   help="thickness falloff per channel, mm: t = exp(-thickness / this)")
+    s.add_argument("--thickness", type=float, help="constant thickness in scene units where there is no thickness channel")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--no-images", action="store_true", help="do not write OUT/images/<frame>/<technique>.exr")
+    p.set_defaults(func=run)
+
+
+def materials(args):
+    """``(burley_material, separable_material, sta, info)`` from the flags, as ``apply`` reads them."""
+    import jax.numpy as jnp
+    import numpy as np
+
+    from .._materials import BurleyMaterial, DirectionalLight, STAParams, TwoGaussianMaterial
+    from .._presets import load_preset
+
+    given = [n for n in ("d_mm", "mfp_mm", "preset") if getattr(args, n) is not None]
+    if len(given) > 1:
+        raise ValueError("give either --preset or --d-mm/--mfp-mm, not both" if "preset" in given
+                         else "give either --d-mm or --mfp-mm, not both")
+    sta_params, info = None, {}
+    if args.preset is not None:
+        presets = [load_preset(n.strip()) for n in args.preset.split(",") if n.strip()]
+        if not presets:
+            raise ValueError(f"--preset {args.preset!r} names no preset")
+        albedo = [args.albedo or tuple(np.asarray(pr.burley.albedo).reshape(3)) for pr in presets]
+        mat = BurleyMaterial(np.asarray(albedo, np.float32),
+                             np.asarray([np.asarray(pr.burley.d_mm).reshape(3) for pr in presets], np.float32))
+        sep = mat
+        if all(pr.two_gaussian is not None for pr in presets):
+            tgs = [pr.two_gaussian for pr in presets]
+            field = lambda n: np.asarray([np.asarray(getattr(t, n)).reshape(3) for t in tgs], np.float32)
+            sep = TwoGaussianMaterial(np.asarray(albedo, np.float32), field("w"), field("sigma_near_mm"),
+                                      field("sigma_far_mm"))
+        sta_params = presets[0].sta
+        info = {"source": "preset", "names": [pr.name for pr in presets], "preset_files": [pr.path for pr in presets]}
+    else:
+        albedo = args.albedo if args.albedo is not None else (1.0, 1.0, 1.0)
+        if args.d_mm is not None:
+            mat = BurleyMaterial(albedo, args.d_mm)
+            info = {"source": "--d-mm"}
+        elif args.mfp_mm is not None:
+            mat = BurleyMaterial.from_mfp(albedo, args.mfp_mm)
+            info = {"source": "--mfp-mm", "mfp_mm": list(args.mfp_mm)}
+        else:
+            raise ValueError("the report needs the material: --preset NAME, --d-mm R,G,B or --mfp-mm R,G,B")
+        sep = mat
+    sta = None
+    if args.light_dir is not None:
+        if sta_params is None:
+            sta_params = STAParams(distortion=args.sta_distortion, power=args.sta_power, scale=args.sta_scale,
+                                   ambient=args.sta_ambient, thickness_mm=args.sta_thickness_mm)
+        sta = (sta_params, DirectionalLight(jnp.asarray(args.light_dir, jnp.float32), args.light_colour))
+    return mat, sep, sta, info
+
+
+def run(args) -> int:
+    from .._evaluate import REPORT_TECHNIQUES, evaluate_frames
+    from .._report import report
+
+    try:
+        techniques = [t.strip() for t in args.techniques.split(",") if t.strip()]
+        unknown = [t for t in techniques if t not in REPORT_TECHNIQUES]
+        if unknown or not techniques:
+            raise ValueError(f"--techniques: unknown {unknown or '(none)'}; valid: {', '.join(REPORT_TECHNIQUES)}")
+        for name in ("focal_px", "mm_per_unit"):
+            v = getattr(args, name)
+            if v is not None and not (0 < v < float("inf")):
+                raise ValueError(f"--{name.replace('_', '-')} must be a finite positive number, got {v}")
+        if args.out.exists() and not args.out.is_dir():
+            raise ValueError(f"--out {args.out} exists and is not a directory")
+        mat, sep, sta, info = materials(args)
+        notes = []
+        if "sta" in techniques and sta is None:
+            if args.techniques != "sta,separable,burley":
+                raise ValueError("--techniques sta needs --light-dir X,Y,Z (the back light's direction)")
+            techniques.remove("sta")
+            notes.append("STA left out: it needs the back light's direction (--light-dir X,Y,Z).")
+        burley_options = {k: getattr(args, f"burley_{k}") for k in _burley_extras()
+                          if getattr(args, f"burley_{k}", None) is not None}
+        # the reference cache lives in OUT/cache; on a first run it is built in a scratch folder and moved in only
+        # when the report is complete, so bad input or an interruption leaves nothing in OUT
+        cache = args.out / "cache"
+        scratch = None if cache.is_dir() else pathlib.Path(tempfile.mkdtemp(prefix="sss-jax-report-"))
+        try:
+            data = evaluate_frames(
+                args.inputs, mat, truth=args.truth, truth_channels=args.truth_channels, techniques=techniques,
+                taps=args.taps, samples=args.samples, separable_material=sep, sta=sta, sta_thickness=args.thickness,
+                burley_options=burley_options,
+                focal_px=args.focal_px, mm_per_unit=args.mm_per_unit, channel_map=args.channel_map,
+                depth_kind=args.depth_kind, use_albedo_pass=args.albedo is None, radius_px=args.radius_px,
+                cache_dir=scratch or cache, repeats=args.repeats, material_info=info, progress=not args.no_progress)
+            if notes:
+                import dataclasses
+
+                data = dataclasses.replace(data, notes=data.notes + tuple(notes))
+            html = report(data, args.out, images=not args.no_images)
+            if scratch is not None:
+                cache.mkdir(parents=True, exist_ok=True)
+                for item in scratch.iterdir():
+                    shutil.move(str(item), str(cache / item.name))
+        finally:
+            if scratch is not None:
+                shutil.rmtree(scratch, ignore_errors=True)
+    except (ValueError, TypeError, OSError) as exc:
+        print(f"sss-jax report: {exc}", file=sys.stderr)
+        return 2
+    rows = [(r.label, r.ms_per_frame) for r in data.runs]
+    print(f"report: {html}")
+    print(f"{len(rows)} technique runs on {len(data.frames)} frame(s); json: {args.out / 'report.json'}")
+    return 0
