@@ -64,6 +64,7 @@ def test_pareto_front_by_hand():
     assert flags == [True, True, False, True, True, False]
 
 
+@pytest.mark.usefixtures("as_users_run_it")  # the library's own message for a malformed section
 def test_extra_sections_are_placed_and_checked(tmp_path):
     ref, ids, out = _frame(tmp_path)
     data = sj.ReportData(frames=(sj.FrameImages("f", ref, ref, ids),), runs=(sj.TechniqueRun("burley", 8, 1.0, (out,)),),

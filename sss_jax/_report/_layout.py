@@ -9,6 +9,8 @@ dense reference and, where the caller gave one, against the offline render ("tru
 
 from __future__ import annotations
 
+from numbers import Real
+
 import html
 import json
 import pathlib
@@ -44,7 +46,7 @@ def compare(images: Sequence[np.ndarray], targets: Sequence[np.ndarray], masks: 
     return {"rel_l2": rel_l2(out, tgt), "delta_e_mean": float(de.mean()), "delta_e_p95": float(np.percentile(de, 95))}
 
 
-def pareto_flags(ms: Sequence[float | None], err: Sequence[float]) -> list[bool]:
+def pareto_flags(ms: Sequence[Real | None], err: Sequence[Real]) -> list[bool]:
     """True for the runs no other run beats in both time and error (faster and at most as wrong, or as fast and
     less wrong); untimed runs are never on the front."""
     flags = []

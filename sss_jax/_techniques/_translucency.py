@@ -71,7 +71,7 @@ def _translucency_impl(buffers: Buffers, params: STAParams, camera: Camera, ligh
     return out.astype(buffers.irradiance.dtype)
 
 
-def thin_transmittance(thickness_mm: Array, d_mm: Array) -> Array:
+def thin_transmittance(thickness_mm: ParamLike, d_mm: ParamLike) -> Array:
     """Thin-object transmittance of the normalised Burley profile: ``(exp(-t/d) + 3 exp(-t/(3d))) / 4``.
 
     The fraction of the profile's energy beyond radius t, ``1 - CDF(t)``: the profile's CCDF read as transmission
