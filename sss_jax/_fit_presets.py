@@ -93,6 +93,7 @@ MEASURED_ETA = 1.3  # Jensen et al. 2001, Table 2 caption: "index of refraction 
 DEFAULT_PHOTONS = 100_000
 SLAB_T_OVER_D = (0.25, 0.5, 1.0, 2.0, 4.0)  # slab thicknesses for the Monte Carlo transmission, in units of d
 SLAB_PHOTONS_FRACTION = 5  # slab runs use photons / 5 each (five thicknesses per channel)
+MEDIUM_SLAB_PHOTONS_FRACTION = 10  # the medium's transmittance table: photons / 10 per thickness (16 per channel)
 IMAGE_PX_PER_D = 2.0  # image-space errors: the widest channel's d spans 2 pixels (a face close-up at 1080p)
 
 
@@ -312,6 +313,33 @@ def montecarlo_slabs(name: str, medium: dict, d_mm: np.ndarray, *, photons: int,
         cached["slab"] = slab
         write_bytes_atomic(path, (json.dumps(cached, indent=1) + "\n").encode())
     return slab
+
+
+def montecarlo_medium_slabs(name: str, medium: dict, *, photons: int, seed: int, cache_dir: pathlib.Path | None,
+                            log: Callable[[str], None]) -> dict[str, Any]:
+    """The slab transmittance table of the preset's own medium (``_slab.medium_slab_table``: its reduced
+    coefficients, its eta on both faces), cached beside the profiles under ``medium_slab`` with its provenance."""
+    from ._slab import MEDIUM_TAU_NODES, medium_slab_table
+
+    alpha = np.asarray(medium["single_scattering_albedo"], np.float64)
+    sigma_t = 1.0 / np.asarray(medium["mean_free_path_mm"], np.float64)
+    prov = {"photons": int(photons) // MEDIUM_SLAB_PHOTONS_FRACTION, "seed": int(seed), "eta": medium["eta"],
+            "single_scattering_albedo": alpha.tolist(), "mean_free_path_mm": medium["mean_free_path_mm"],
+            "tau_nodes": list(MEDIUM_TAU_NODES), "termination": MC_TERMINATION}
+    path = cache_dir / f"{name}.json" if cache_dir is not None else None
+    cached = _read_cache(path, log)
+    if (cached is not None and isinstance(cached.get("medium_slab"), dict)
+            and _same(cached["medium_slab"].get("provenance"), prov)):
+        return cached["medium_slab"]
+    log(f"  Monte Carlo {name}: slabs of its medium (eta {medium['eta']}), {len(MEDIUM_TAU_NODES)} thicknesses per "
+        f"channel, {prov['photons']} photons each")
+    table = medium_slab_table(alpha * sigma_t, (1 - alpha) * sigma_t, float(medium["eta"]), photons=prov["photons"],
+                              seed=seed + 7000)
+    table["provenance"] = prov
+    if path is not None and cached is not None:
+        cached["medium_slab"] = table
+        write_bytes_atomic(path, (json.dumps(cached, indent=1) + "\n").encode())
+    return table
 
 
 def _burley_residual(x, data):
@@ -586,6 +614,7 @@ def _fit_preset(name, *, photons, seed, solver, taps, cache_dir, measured_csv, a
                       "error_relative_l2_searchlight": [_burley_vs_mc(p, float(m), float(d0))
                                                         for p, m, d0 in zip(profiles, mfp, d_searchlight)]}
     slab = montecarlo_slabs(name, medium, d, photons=photons, seed=seed, cache_dir=cache, log=log)
+    medium_slab = montecarlo_medium_slabs(name, medium, photons=photons, seed=seed, cache_dir=cache, log=log)
     mc = {"profiles": profiles, "slab": slab, "provenance": {**prov, "slab": slab["provenance"]}}
     mc_profile = to_tabulated_profile(profiles, mfp.tolist())
 
@@ -617,6 +646,13 @@ def _fit_preset(name, *, photons, seed, solver, taps, cache_dir, measured_csv, a
                    "fitted to the Monte Carlo profile (r R(r) least squares) from mfp / s_searchlight(A)"},
         "separable": {"two_gaussian": tg_b, "two_gaussian_montecarlo": tg_m, "export": export_taps(name, tg_b, taps=taps)},
         "sta": sta,
+        "transmittance": {
+            "model": "total transmittance (unscattered + scattered) of a slab of the preset's medium (source.medium: "
+                     "isotropic with the reduced coefficients, its eta on both faces) under a normal back light, by "
+                     "the Monte Carlo walk; thickness_mm per channel (tau_nodes mean free paths, and 0); "
+                     "translucency(model='slab') interpolates log T linearly in t",
+            **{k: medium_slab[k] for k in ("eta", "tau_nodes", "thickness_mm", "T", "T_stderr", "resolved")},
+            "photons": medium_slab["provenance"]["photons"]},
         "errors": errors,
         "fit": {**({"burley": burley_fit} if burley_fit else {}), "two_gaussian": fit_tg_b, "two_gaussian_montecarlo": fit_tg_m, "sta": fit_sta_rec,
                 "solver": solver, "seconds": round(time.perf_counter() - t_start, 3)},
