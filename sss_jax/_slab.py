@@ -242,7 +242,7 @@ def slab_transmittance(thickness_mm: ArrayLike, albedo: ArrayLike, d_mm: ArrayLi
 # slabs of it (Fresnel on both faces), ``MediumMaterial`` interpolates that table per pixel.
 
 # slab thicknesses of the table, in mean free paths of each channel (t = 0 is added exactly)
-MEDIUM_TAU_NODES = (0.05, 0.1, 0.2, 0.35, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0)
+MEDIUM_TAU_NODES = (0.1, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 10.0, 16.0)
 
 
 def unscattered_transmittance_at_zero(eta: float) -> float:
