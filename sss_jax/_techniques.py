@@ -895,7 +895,7 @@ TRANSLUCENCY_MODELS = ("sta", "thin", "slab")
 
 def translucency(
     buffers: Buffers,
-    params: STAParams | BurleyMaterial,
+    params: STAParams | BurleyMaterial | MediumMaterial,
     camera: Camera,
     light: DirectionalLight,
     *,
