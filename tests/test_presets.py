@@ -135,7 +135,8 @@ def test_artist_presets_reflect_their_albedo_in_monte_carlo():
 def test_preset_errors_are_within_their_stated_bounds():
     # Image space (the error Jimenez et al. optimised): the 25-tap two-Gaussian separable pass against the dense
     # reference of the Burley profile and of the Monte Carlo profile, five test patterns, widest d = 2 px.
-    # Bound 0.12 (measured 0.068-0.082 against Burley, 0.070-0.092 against Monte Carlo over the 17 presets), the bound
+    # Bound 0.12 (measured 0.041-0.064 against Burley, 0.045-0.063 against Monte Carlo over the 17 presets with the
+    # kernels fitted as rendered; 0.068-0.082 and 0.070-0.092 with the r-weighted fit before issue #18), the bound
     # of the fitted kernel in tests/test_fitting.py, for the same reason: the point light dominates (a delta shows
     # the kernel itself, and no separable product of Gaussians matches the radial 1/r peak), while local shading (no
     # scattering) is several times worse, as a broken fit would be.
