@@ -2,10 +2,14 @@
 
 Objectives (each a residual vector; the loss is half its squared norm):
 
-- profile space: ``r_ij = (A_m(x_i, y_j) - R_ij) / ||R||_2`` on a (2N+1)^2 pixel grid of side ``pixel_mm``, where
-  ``A_m(x, y) = a_m(x) a_m(y)`` is the separable two-Gaussian kernel integrated exactly over each pixel (erf
-  differences) and ``R_ij`` the target profile's mass over pixel ij (centre pixel through the CDF, others by a
-  4x4 midpoint rule): a relative L2 per channel.
+- profile space, what ``separable`` renders: ``r_ij = (A_m(x_i, y_j) - R_ij) / ||R||_2`` on a (2N+1)^2 pixel grid of
+  side ``pixel_mm``, where ``A_m(x, y) = a_m(x) a_m(y)`` is the outer product of the 1D two-Gaussian kernel (the two
+  passes), integrated exactly over each pixel (erf differences), and ``R_ij`` the target profile's mass over pixel
+  ij (centre pixel through the CDF, others by an 8x8 midpoint rule): a relative L2 per channel. Presets use pixels
+  of side d (``RENDERED_PIXEL_PER_D``: the pixel spans +-d/2 about its centre, a face at ~1 px/mm) on +-20 pixels,
+  which hold 99.9% of a Burley profile. The radial two-Gaussian mix ``w G_near + (1 - w) G_far`` (isotropic 2D
+  Gaussians) is not what the pass renders: the product adds the cross terms ``w (1 - w) g_near(x) g_far(y)``, so a
+  kernel fitted as a radial mix renders a cross-shaped spread (``rendered_kernel_errors`` reports both).
 - image space: ``r = (separable(E_k; two-Gaussian) - reference(E_k; target)) / ||reference||`` over test irradiance
   patterns ``E_k`` (shadow edge, thin line, point light, textured, curved surface with depth): the error under
   practical lighting, which is what Jimenez et al. optimised.
@@ -34,7 +38,8 @@ from ._profiles import AbstractProfile, BurleyProfile
 from ._scene import Buffers, Camera
 from ._techniques import burley, reference, separable, sta_term, thin_transmittance
 
-__all__ = ["SOLVERS", "fit_two_gaussian_profile", "fit_two_gaussian_to_burley", "fit_two_gaussian_image",
+__all__ = ["SOLVERS", "RENDERED_PIXEL_PER_D", "RENDERED_HALF_PX", "rendered_kernel_errors", "radial_mix_pixel_mass",
+           "fit_two_gaussian_profile", "fit_two_gaussian_to_burley", "fit_two_gaussian_image",
            "fit_sta", "fit_burley_from_image", "image_patterns", "profile_pixel_mass", "two_gaussian_pixel_mass",
            "burley_slab_transmittance", "sta_slab_response"]
 
@@ -51,10 +56,14 @@ def _check_solver(solver: str) -> None:
 # ------------------------------------------------------------------------------------------------------------------
 
 
-def profile_pixel_mass(profile: AbstractProfile, pixel_mm: float, half: int) -> np.ndarray:
-    """Mass of the normalised profile over each pixel of a (2 half + 1)^2 grid, ``(n, n, C)`` (host, float64)."""
+RENDERED_PIXEL_PER_D = 1.0  # pixel side of the rendered-product objective and error, in units of each channel's d
+RENDERED_HALF_PX = 20  # +-20 pixels of side d: Burley's CCDF at 20 d is 1e-3
+
+
+def profile_pixel_mass(profile: AbstractProfile, pixel_mm: float, half: int, *, sub: int = 4) -> np.ndarray:
+    """Mass of the normalised profile over each pixel of a (2 half + 1)^2 grid, ``(n, n, C)`` (host, float64): the
+    centre pixel exactly through the CDF, the others by a ``sub`` x ``sub`` midpoint rule."""
     n = 2 * half + 1
-    sub = 4
     offs = (np.arange(sub) + 0.5) / sub - 0.5
     idx = np.arange(-half, half + 1)
     xs = (idx[:, None] + offs[None, :]).reshape(-1) * pixel_mm
@@ -81,6 +90,32 @@ def two_gaussian_pixel_mass(w, sigma_near, sigma_far, pixel_mm: float, half: int
     edges = (jnp.arange(-half, half + 2) - 0.5) * pixel_mm
     m = w[None, :] * _normal_mass_1d(edges, sigma_near) + (1 - w[None, :]) * _normal_mass_1d(edges, sigma_far)
     return m[:, None, :] * m[None, :, :]
+
+
+def radial_mix_pixel_mass(w, sigma_near, sigma_far, pixel_mm: float, half: int) -> jnp.ndarray:
+    """The radial two-Gaussian mix ``w G_near(r) + (1 - w) G_far(r)`` (isotropic 2D Gaussians of unit mass)
+    integrated exactly over each pixel: ``(n, n, C)``. Not what ``separable`` renders (see the module notes)."""
+    edges = (jnp.arange(-half, half + 2) - 0.5) * pixel_mm
+    mn, mf = _normal_mass_1d(edges, sigma_near), _normal_mass_1d(edges, sigma_far)
+    return (w[None, None, :] * mn[:, None, :] * mn[None, :, :]
+            + (1 - w[None, None, :]) * mf[:, None, :] * mf[None, :, :])
+
+
+def rendered_kernel_errors(tg: dict, profile: AbstractProfile, pixel_mm, *, half: int = RENDERED_HALF_PX
+                           ) -> dict[str, list[float]]:
+    """Relative L2, per channel, of the two-Gaussian kernel ``tg`` (``w``, ``sigma_near_mm``, ``sigma_far_mm``,
+    (3,) each) against ``profile`` on pixels of side ``pixel_mm[c]`` (mm, per channel), ``2 half + 1`` of them
+    across: ``rendered_product`` is ``a(x) a(y)``, what ``separable`` renders; ``radial_mix`` the radial mix."""
+    pix = np.broadcast_to(np.asarray(pixel_mm, np.float64), (profile.num_channels,))
+    out: dict[str, list[float]] = {"rendered_product": [], "radial_mix": []}
+    with jax.enable_x64(True):
+        for c in range(profile.num_channels):
+            target = profile_pixel_mass(profile, float(pix[c]), half, sub=8)[..., c]
+            args = [jnp.asarray([float(tg[k][c])], jnp.float64) for k in ("w", "sigma_near_mm", "sigma_far_mm")]
+            for key, fn in (("rendered_product", two_gaussian_pixel_mass), ("radial_mix", radial_mix_pixel_mass)):
+                model = np.asarray(fn(*args, float(pix[c]), half))[..., 0]
+                out[key].append(float(np.linalg.norm(model - target) / np.linalg.norm(target)))
+    return out
 
 
 def _moments_sigma(target: np.ndarray, pixel_mm: float, half: int) -> np.ndarray:
@@ -148,15 +183,21 @@ def _profile_residual(x, data):
 
 
 def fit_two_gaussian_grid(target: np.ndarray, pixel_mm: float, *, solver: str = "optimistix",
-                          starts: int = 3) -> tuple[np.ndarray, float, str, int]:
-    """Fit one channel's ``(w, sigma_near, sigma_far)`` to a pixel grid of masses ``(2 half + 1, 2 half + 1)``;
-    returns (params, weighted relative L2, outcome, iterations)."""
+                          starts: int = 3, weighting: str = "none") -> tuple[np.ndarray, float, str, int]:
+    """Fit one channel's ``(w, sigma_near, sigma_far)`` so the product ``a(x) a(y)`` matches a pixel grid of masses
+    ``(2 half + 1, 2 half + 1)``; returns (params, relative L2, outcome, iterations). ``weighting``: ``"none"``
+    (the rendered pixels as they are) or ``"radius"`` (each pixel times its distance to the centre, the r R(r) of
+    the paper's Fig. 4)."""
     _check_solver(solver)
+    if weighting not in ("none", "radius"):
+        raise ValueError(f"unknown weighting {weighting!r}; valid: none, radius")
     target = np.asarray(target, np.float64)
     half = (target.shape[0] - 1) // 2
     idx = np.arange(-half, half + 1)
     radius = np.hypot(idx[:, None], idx[None, :]) * pixel_mm
     radius[half, half] = pixel_mm / math.sqrt(math.pi)  # the centre pixel's disc of equal area, its mean radius
+    if weighting == "none":
+        radius = np.ones_like(radius)
     norm = float(np.linalg.norm(target * radius))
     s0 = float(_moments_sigma(target[..., None], pixel_mm, half)[0])
     data = (jnp.asarray(target), jnp.asarray(radius), jnp.asarray(norm), jnp.asarray(pixel_mm))
@@ -164,7 +205,7 @@ def fit_two_gaussian_grid(target: np.ndarray, pixel_mm: float, *, solver: str = 
     upper = np.array([1.0, 10 * s0, 20 * s0])
     best = None
     # starts from the moments: the near Gaussian inside, the far one outside the marginal's spread
-    for w0, fn, ff in [(0.5, 0.4, 1.6), (0.3, 0.2, 1.3), (0.7, 0.6, 2.5)][:starts]:
+    for w0, fn, ff in [(0.5, 0.4, 1.6), (0.3, 0.2, 1.3), (0.7, 0.6, 2.5), (0.6, 0.2, 2.0)][:starts]:
         x, outcome, it = _solve(_profile_residual, np.array([w0, fn * s0, ff * s0]), lower, upper, solver, args=data)
         err = float(jnp.linalg.norm(_profile_residual(jnp.asarray(x), data)))
         if best is None or err < best[1]:
@@ -175,30 +216,35 @@ def fit_two_gaussian_grid(target: np.ndarray, pixel_mm: float, *, solver: str = 
     return x, err, outcome, it
 
 
-def fit_two_gaussian_profile(profile: AbstractProfile, *, pixel_mm: float | None = None, half: int = 40,
-                             solver: str = "optimistix", starts: int = 3) -> dict[str, Any]:
-    """Fit ``w, sigma_near, sigma_far`` per channel so ``a_m(x) a_m(y)`` matches the profile on a pixel grid.
+def fit_two_gaussian_profile(profile: AbstractProfile, *, pixel_mm=None, half: int = RENDERED_HALF_PX,
+                             solver: str = "optimistix", starts: int = 4, weighting: str = "none") -> dict[str, Any]:
+    """Fit ``w, sigma_near, sigma_far`` per channel so ``a_m(x) a_m(y)``, the kernel ``separable`` renders, matches
+    the profile on a pixel grid: ``||A_m - R|| / ||R||`` over ``(2 half + 1)^2`` pixels, both integrated over each
+    pixel (``weighting="radius"``: ``||r (A_m - R)|| / ||r R||`` instead).
 
-    The residual is weighted by the distance to the centre (the r R(r) of the paper's Fig. 4, so the 1/r peak does
-    not outweigh the tail) and relative: ``||r (A_m - R)|| / ||r R||``. ``pixel_mm``: the world size of a pixel
-    (default per channel: the grid of ``2 half + 1`` pixels spans 99.9% of that channel's energy).
+    ``pixel_mm``: the side of a pixel in mm, one value or one per channel (presets pass ``RENDERED_PIXEL_PER_D``
+    times each channel's Burley d); default per channel: the grid spans 99.9% of that channel's energy, which for a
+    Burley profile is a pixel of about d.
     """
     _check_solver(solver)
     out = {"w": [], "sigma_near_mm": [], "sigma_far_mm": []}
     records = []
     t0 = time.perf_counter()
     r999 = np.asarray(profile.radius_for_energy(0.999), np.float64)
+    pixels = None if pixel_mm is None else np.broadcast_to(np.asarray(pixel_mm, np.float64), (profile.num_channels,))
     for c in range(profile.num_channels):
-        pix = float(pixel_mm) if pixel_mm is not None else float(r999[c]) / half
-        x, err, outcome, it = fit_two_gaussian_grid(profile_pixel_mass(profile, pix, half)[..., c], pix,
-                                                    solver=solver, starts=starts)
+        pix = float(pixels[c]) if pixels is not None else float(r999[c]) / half
+        x, err, outcome, it = fit_two_gaussian_grid(profile_pixel_mass(profile, pix, half, sub=8)[..., c], pix,
+                                                    solver=solver, starts=starts, weighting=weighting)
         out["w"].append(float(x[0]))
         out["sigma_near_mm"].append(float(x[1]))
         out["sigma_far_mm"].append(float(x[2]))
         records.append(dict(error=err, outcome=outcome, iterations=it, pixel_mm=pix))
     out["fit"] = {
         "solver": solver,
-        "objective": "profile space: ||r (a_m(x)a_m(y) - R)|| / ||r R|| on a pixel grid, per channel",
+        "objective": ("rendered product: ||a_m(x)a_m(y) - R|| / ||R||" if weighting == "none" else
+                      "profile space: ||r (a_m(x)a_m(y) - R)|| / ||r R||")
+        + f" over {2 * half + 1}^2 pixels of side pixel_mm, both integrated over each pixel, per channel",
         "pixel_mm": [r["pixel_mm"] for r in records], "grid_half_px": half,
         "outcome": "successful" if all(r["outcome"] == "successful" for r in records) else
         ";".join(r["outcome"] for r in records),
@@ -216,12 +262,15 @@ def _check_d(d_mm) -> np.ndarray:
     return d
 
 
-def fit_two_gaussian_to_burley(d_mm, *, pixel_mm: float | None = None, solver: str = "optimistix") -> dict[str, Any]:
-    """Profile-space fit of the two-Gaussian kernel to a Burley profile."""
+def fit_two_gaussian_to_burley(d_mm, *, pixel_mm=None, solver: str = "optimistix") -> dict[str, Any]:
+    """Fit of the two-Gaussian kernel, as ``separable`` renders it, to a Burley profile (d in mm, (3,)); pixels of
+    side ``RENDERED_PIXEL_PER_D`` d per channel unless ``pixel_mm`` says otherwise. Burley profiles share one shape,
+    so the kernel scales with d."""
     d_mm = _check_d(d_mm)
-    return fit_two_gaussian_profile(BurleyProfile(jnp.asarray(np.asarray(d_mm, np.float64), dtype=jnp.result_type(float))),
-                                    pixel_mm=pixel_mm,
-                                    solver=solver)
+    with jax.enable_x64(True):
+        return fit_two_gaussian_profile(BurleyProfile(jnp.asarray(d_mm, jnp.float64)),
+                                        pixel_mm=RENDERED_PIXEL_PER_D * d_mm if pixel_mm is None else pixel_mm,
+                                        solver=solver)
 
 
 # ------------------------------------------------------------------------------------------------------------------

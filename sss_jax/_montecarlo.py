@@ -7,9 +7,11 @@ unpolarised Fresnel reflection on entry (the specular part is reported apart) an
 total internal reflection, at every exit attempt.
 
 Lengths inside are in mean free paths (``sigma_t = 1``). Photons carry a weight: each scattering multiplies it by the
-single-scattering albedo (implicit capture) and Russian roulette ends weak photons without bias. Because free paths
-are memoryless, a path that reaches a boundary stops there, the boundary decides (leave or reflect), and a fresh
-free path starts: no partial steps to carry.
+single-scattering albedo (implicit capture) and Russian roulette ends weak photons without bias; past an event cap
+absorption turns analog (a photon dies with probability 1 - albedo at each scattering, its weight unchanged), and a
+photon in a non-absorbing half-space is tallied as reflected (it is certain to leave), so no photon is dropped at
+the cap. Because free paths are memoryless, a path that reaches a boundary stops there, the boundary decides (leave or
+reflect), and a fresh free path starts: no partial steps to carry.
 
 Streaming: each jitted call (a batch) runs ``lanes`` photons in parallel inside a ``lax.while_loop``. One iteration
 advances every lane by ``unroll`` events; at its end the photons that left are tallied with one histogram scatter and
@@ -135,8 +137,8 @@ def _kahan_add(total, compensation, x):
 _STATE = ("x", "y", "z", "ux", "uy", "uz", "w", "n", "events", "active")
 
 
-def _make_kernel(lanes: int, bins: int, r_max: float, max_events: int, slab: bool, diffuse: bool, isotropic: bool,
-                 index_matched: bool, unroll: int):
+def _make_kernel(lanes: int, bins: int, r_max: float, max_events: int, max_events_hard: int, slab: bool,
+                 diffuse: bool, isotropic: bool, index_matched: bool, unroll: int):
     """The jitted batch runner for one static configuration.
 
     One iteration of the while loop advances every lane by ``unroll`` events (boundary hits or scatterings); a lane
@@ -212,28 +214,44 @@ def _make_kernel(lanes: int, bins: int, r_max: float, max_events: int, slab: boo
             else:
                 nx, ny, nz = _rotate(ux, uy, uz, _hg_cos(u_dir, g), cp, sp)
             ux, uy, uz = (jnp.where(scatter, a, b) for a, b in ((nx, ux), (ny, uy), (nz, uz)))
-            w = jnp.where(scatter, w * albedo, w)
+            u_rr = _unit(b_rr)
+            # up to max_events scatterings: implicit capture (the weight carries the albedo) with Russian roulette on
+            # weak photons; beyond: analog absorption (the photon survives a scattering with probability albedo,
+            # its weight unchanged), unbiased with weights that never grow, so nearly conservative media end too
+            analog = n >= max_events
+            w = jnp.where(scatter & ~analog, w * albedo, w)
+            absorbed = scatter & analog & (u_rr >= albedo)
             n = n + scatter.astype(i32)
             events = events + scatter.astype(i32)
-            # Russian roulette on weak photons, and the event cap
-            weak = active & ~leaves & (w < _ROULETTE_WEIGHT)
-            survive = _unit(b_rr) < _ROULETTE_SURVIVAL
+            weak = active & ~leaves & ~analog & (w < _ROULETTE_WEIGHT)
+            survive = u_rr < _ROULETTE_SURVIVAL
             w = jnp.where(weak, jnp.where(survive, w / _ROULETTE_SURVIVAL, 0.0), w)
-            died = weak & ~survive
-            capped = active & ~leaves & ~died & (n >= max_events)
-            exit_top, exit_bottom, was_capped = done
-            done = (exit_top | (leaves & hits_top), exit_bottom | (leaves & hits_bottom), was_capped | capped)
-            active = active & ~leaves & ~died & ~capped
+            died = (weak & ~survive) | absorbed
+            alive = active & ~leaves & ~died
+            if slab:
+                escapes = jnp.zeros_like(alive)
+            else:
+                # without absorption a half-space keeps no photon: its walk in depth is recurrent, so it meets the
+                # surface again and again until it leaves (probability 1). Its weight is tallied as reflected at
+                # r >= r_max (after max_events steps it is ~sqrt(2 n / 3) mfp from the axis); waiting for it
+                # would cost without bound, as the return time has an n^-1/2 tail
+                escapes = alive & (n >= max_events) & (albedo >= 1)
+            capped = alive & ~escapes & (n >= max_events_hard)
+            exit_top, exit_bottom, was_capped, was_escaped = done
+            done = (exit_top | (leaves & hits_top), exit_bottom | (leaves & hits_bottom), was_capped | capped,
+                    was_escaped | escapes)
+            active = alive & ~escapes & ~capped
             st = dict(x=x, y=y, z=z, ux=ux, uy=uy, uz=uz, w=w.astype(f32), n=n, events=events, active=active)
             return st, rng, done
 
         def tally(st, done, acc):
             """All exits of one iteration in one histogram scatter; rows R, R^2, T, T^2 per radial bin."""
-            exit_top, exit_bottom, capped = done
+            exit_top, exit_bottom, capped, escaped = done
             x, y, w, n = st["x"], st["y"], st["w"], st["n"]
             r = jnp.sqrt(x * x + y * y)
-            cell = jnp.minimum((r * inv_dr).astype(i32), bins) + jnp.where(exit_bottom, n_cells, 0)
-            exit_w = jnp.where(exit_top | exit_bottom, w, 0.0)
+            cell = jnp.where(escaped, bins, jnp.minimum((r * inv_dr).astype(i32), bins))
+            cell = cell + jnp.where(exit_bottom, n_cells, 0)
+            exit_w = jnp.where(exit_top | exit_bottom | escaped, w, 0.0)
             h = jnp.zeros(2 * n_cells, f32).at[cell].add(exit_w, mode="promise_in_bounds")
             h2 = jnp.zeros(2 * n_cells, f32).at[cell].add(exit_w * exit_w, mode="promise_in_bounds")
             hist = jnp.stack([h[:n_cells], h2[:n_cells], h[n_cells:], h2[n_cells:]])
@@ -247,7 +265,7 @@ def _make_kernel(lanes: int, bins: int, r_max: float, max_events: int, slab: boo
         def iterate(st, rng, acc):
             width = st["x"].shape[0]
             false = jnp.zeros(width, bool)
-            done = (false, false, false)
+            done = (false, false, false, false)
             st, rng, done = jax.lax.fori_loop(0, unroll, lambda _, c: event(*c), (st, rng, done))
             return st, rng, tally(st, done, acc)
 
@@ -412,6 +430,7 @@ def simulate(
     lanes: int = 1 << 12,
     batch_photons: int = 1 << 16,
     max_events: int = 100_000,
+    max_events_hard: int | None = None,
     progress: bool = False,
     workers: int | None = None,
     unroll: int | None = None,
@@ -422,6 +441,14 @@ def simulate(
     relative index of refraction (>= 1); ``slab_mfp``: slab thickness (None: semi-infinite); ``incidence``:
     ``"pencil"`` (normal) or ``"diffuse"``. Returns tallies with standard errors (per photon, so bins and totals
     carry their own statistical error).
+
+    Termination, unbiased: for its first ``max_events`` scatterings a photon carries the albedo in its weight
+    (implicit capture, Russian roulette below weight 1e-3); after them it is absorbed at each scattering with
+    probability ``1 - albedo`` (analog, weight unchanged). In a half-space without absorption (albedo 1) a photon
+    that has scattered ``max_events`` times is certain to leave through the top: its weight is tallied there, in the
+    overflow bin ``r >= r_max_mfp``. Only a photon still inside after ``max_events_hard`` scatterings (default
+    ``1000 max_events``; in practice a thick non-absorbing slab) is dropped, and counted in ``capped_photons`` and
+    ``capped_weight`` (the fraction of the incident power it carried).
 
     Execution (none of it changes the physics; the numbers depend on ``seed``, ``photons``, ``batch_photons``,
     ``lanes`` and ``unroll``, never on ``workers``): photons run in batches of at most ``batch_photons`` (split evenly),
@@ -442,6 +469,13 @@ def simulate(
         raise ValueError(f"slab thickness must be a finite positive length, got {slab_mfp}")
     if incidence not in ("pencil", "diffuse"):
         raise ValueError(f"incidence must be 'pencil' or 'diffuse', got {incidence!r}")
+    if not isinstance(max_events, (int, np.integer)) or max_events < 1:
+        raise ValueError(f"max_events must be a positive integer, got {max_events!r}")
+    if max_events_hard is None:
+        max_events_hard = min(1000 * int(max_events), 2**31 - 2)
+    if not isinstance(max_events_hard, (int, np.integer)) or not (max_events <= max_events_hard <= 2**31 - 2):
+        raise ValueError(f"max_events_hard must be an integer from max_events ({max_events}) to 2^31 - 2, "
+                         f"got {max_events_hard!r}")
     batch_photons = int(batch_photons)
     if batch_photons < 1:
         raise ValueError(f"batch_photons must be a positive integer, got {batch_photons!r}")
@@ -452,7 +486,7 @@ def simulate(
         unroll = 4 if albedo >= 0.8 else 2
     if int(unroll) < 1:
         raise ValueError(f"unroll must be a positive integer, got {unroll!r}")
-    key_cfg = (lanes, bins, float(r_max_mfp), int(max_events), slab_mfp is not None, incidence == "diffuse",
+    key_cfg = (lanes, bins, float(r_max_mfp), int(max_events), int(max_events_hard), slab_mfp is not None, incidence == "diffuse",
                g == 0.0, eta == 1.0, int(unroll))
     if key_cfg not in _KERNELS:
         _KERNELS[key_cfg] = _make_kernel(*key_cfg)

@@ -7,7 +7,9 @@ The fields read (the preset format of the fitting issue; anything else in the fi
      "separable": {"two_gaussian": {"w": [...], "sigma_near_mm": [...], "sigma_far_mm": [...]}},
      "sta": {"distortion": d, "power": p, "scale": [...], "ambient": [...], "thickness_mm": [...]}}
 
-``albedo`` and ``burley`` are required; the two-Gaussian kernel and the STA parameters are optional. A name is looked
+``albedo`` and ``burley`` are required; the two-Gaussian kernel, the STA parameters and the medium's slab
+transmittance (``transmittance``: ``thickness_mm``, ``T``, ``resolved`` per channel, as ``_slab.medium_slab_table``
+writes them; ``Preset.medium``, what ``translucency(model="slab")`` transmits) are optional. A name is looked
 up in the directories of ``SSS_JAX_PRESETS`` (``os.pathsep``-separated) and then in the presets that ship with the
 package (the repository's ``fits/``, installed as the package data ``sss_jax.fits``).
 """
@@ -23,6 +25,7 @@ from typing import Any
 
 from ._io import SSSInputError
 from ._materials import BurleyMaterial, STAParams, TwoGaussianMaterial
+from ._slab import MediumMaterial
 
 __all__ = ["Preset", "list_presets", "load_preset", "material_for", "preset_dirs", "preset_home"]
 
@@ -35,6 +38,7 @@ class Preset:
     two_gaussian: TwoGaussianMaterial | None
     sta: STAParams | None
     raw: dict[str, Any]
+    medium: MediumMaterial | None = None
 
 
 def preset_home() -> pathlib.Path:
@@ -107,12 +111,18 @@ def load_preset(name_or_path: str | os.PathLike) -> Preset:
                 raise SSSInputError(f"{path}: sta must be an object of STA parameters")
             allowed = {"distortion", "power", "scale", "ambient", "thickness_mm"}
             sta = STAParams(**{k: v for k, v in s.items() if k in allowed})
+        medium = None
+        if "transmittance" in data:
+            tr = data["transmittance"]
+            if not isinstance(tr, dict) or not all(k in tr for k in ("thickness_mm", "T", "resolved")):
+                raise SSSInputError(f"{path}: transmittance must be an object with thickness_mm, T and resolved")
+            medium = MediumMaterial.from_tables(burley, [tr])
     except SSSInputError:
         raise
     except (ValueError, TypeError) as exc:
         raise SSSInputError(f"{path}: invalid preset: {exc}") from None
     return Preset(name=str(data.get("name", path.stem)), path=str(path), burley=burley, two_gaussian=tg, sta=sta,
-                  raw=data)
+                  raw=data, medium=medium)
 
 
 def material_for(technique: str, preset: Preset, *, albedo=None):

@@ -26,14 +26,17 @@ import math
 from importlib import resources
 from typing import Any
 
+import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike
+from jaxtyping import Array, ArrayLike, Float
 
+from ._materials import BurleyMaterial
 from ._profiles import scaling_searchlight
 
 __all__ = ["TABLE_PATH", "single_scattering_albedo", "slab_transmittance", "slab_transmittance_mfp", "table_stderr",
-           "tau_max"]
+           "tau_max", "MEDIUM_TAU_NODES", "MediumMaterial", "medium_slab_table", "unscattered_transmittance_at_zero"]
 
 TABLE_PATH = "data/slab_transmittance.json"
 
@@ -229,3 +232,126 @@ def slab_transmittance(thickness_mm: ArrayLike, albedo: ArrayLike, d_mm: ArrayLi
     ok = mfp > 0
     tau = jnp.where(ok, t / jnp.where(ok, mfp, 1.0), jnp.where(t > 0, jnp.inf, 0.0))
     return _transmittance_w(_w_from_albedo(A), tau)
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# the measured medium itself: its coefficients, its boundaries
+# ------------------------------------------------------------------------------------------------------------------
+# A preset that carries its medium (reduced scattering and absorption, eta) transmits through that medium, not
+# through the index-matched one rebuilt from (A, d) above: ``medium_slab_table`` runs the Monte Carlo walk through
+# slabs of it (Fresnel on both faces), ``MediumMaterial`` interpolates that table per pixel.
+
+# slab thicknesses of the table, in mean free paths of each channel (t = 0 is added exactly)
+MEDIUM_TAU_NODES = (0.1, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 10.0, 16.0)
+
+
+def unscattered_transmittance_at_zero(eta: float) -> float:
+    """A slab of zero thickness between two faces of relative index ``eta``: normal light crosses the first face,
+    bounces between both, ``sum_k (1 - R)^2 R^(2k) = (1 - R) / (1 + R)`` with ``R = ((eta - 1)/(eta + 1))^2``."""
+    r = ((eta - 1.0) / (eta + 1.0)) ** 2
+    return (1.0 - r) / (1.0 + r)
+
+
+def medium_slab_table(sigma_s_prime_per_mm, sigma_a_per_mm, eta: float, *, photons: int = 10_000, seed: int = 0,
+                      tau_nodes=MEDIUM_TAU_NODES) -> dict[str, Any]:
+    """Total transmittance (unscattered and scattered) of slabs of a medium, per channel, by the Monte Carlo walk.
+
+    The medium: reduced scattering ``sigma_s'`` and absorption ``sigma_a`` (1/mm, (3,) each), isotropic phase
+    function (similarity theory), relative index ``eta`` on both faces. Light: a normal pencil beam (by translation
+    invariance the same as a uniform normal back light) entering one face; T: the fraction of it that leaves the
+    other face. Thicknesses ``tau_nodes`` mean free paths of each channel, and 0 (``unscattered_transmittance_at_zero``).
+    Nodes the walk cannot resolve (T < 50 / photons) are marked in ``resolved`` and extrapolated by
+    ``MediumMaterial``. Returns JSON-ready lists, ``(3, N)`` each, thicknesses in mm."""
+    from ._montecarlo import simulate
+
+    s = np.asarray(sigma_s_prime_per_mm, np.float64)
+    a = np.asarray(sigma_a_per_mm, np.float64)
+    if s.shape != (3,) or a.shape != (3,) or not np.all((s >= 0) & (a >= 0) & (s + a > 0) & np.isfinite(s + a)):
+        raise ValueError(f"sigma_s_prime_per_mm and sigma_a_per_mm must be 3 finite values >= 0 with a positive sum, "
+                         f"got {s.tolist()} and {a.tolist()}")
+    if not (eta >= 1.0 and math.isfinite(eta)):
+        raise ValueError(f"eta must be a finite number >= 1, got {eta}")
+    t0 = unscattered_transmittance_at_zero(eta)
+    out: dict[str, Any] = {"eta": float(eta), "photons": int(photons), "seed": int(seed),
+                           "tau_nodes": [0.0, *map(float, tau_nodes)], "thickness_mm": [], "T": [], "T_stderr": [],
+                           "resolved": []}
+    for c in range(3):
+        mfp = 1.0 / (s[c] + a[c])
+        albedo = float(s[c] * mfp)
+        runs = [simulate(albedo, photons=photons, eta=eta, slab_mfp=float(tau), seed=seed + 1000 * (c + 1) + i,
+                         bins=8, r_max_mfp=1.0) for i, tau in enumerate(tau_nodes)]
+        T = [t0] + [r.total_transmittance for r in runs]
+        out["thickness_mm"].append([0.0] + [float(tau * mfp) for tau in tau_nodes])
+        out["T"].append([float(v) for v in T])
+        out["T_stderr"].append([0.0] + [r.total_transmittance_stderr for r in runs])
+        out["resolved"].append([True] + [bool(r.total_transmittance > 50.0 / photons) for r in runs])
+    return out
+
+
+def _table_log_T(table: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+    """``(thickness_mm, log T)``, ``(N, 3)`` each, from a ``medium_slab_table`` result: unresolved nodes continue the
+    last resolved segment's log-linear decay (T of a thick slab falls as C exp(-k t))."""
+    t = np.asarray(table["thickness_mm"], np.float64).T
+    T = np.asarray(table["T"], np.float64).T
+    ok = np.asarray(table["resolved"], bool).T & (T > 0)
+    logT = np.log(np.where(ok, T, 1.0))
+    for c in range(t.shape[1]):
+        good = np.flatnonzero(ok[:, c])
+        if good.size < 2 or not np.all(good == np.arange(good.size)):
+            raise ValueError(f"medium table: channel {'RGB'[c]} needs resolved nodes from t = 0 on, got {ok[:, c]}")
+        last, prev = good[-1], good[-2]
+        rate = min((logT[last, c] - logT[prev, c]) / (t[last, c] - t[prev, c]), 0.0)
+        logT[last + 1:, c] = logT[last, c] + rate * (t[last + 1:, c] - t[last, c])
+    return t, logT
+
+
+class MediumMaterial(eqx.Module):
+    """A Burley material with the slab transmittance of its own medium (per material row): what
+    ``translucency(..., model="slab")`` transmits where a preset carries its medium.
+
+    ``thickness_mm``, ``log_T``: ``(M, N, 3)`` table nodes (increasing thicknesses per row and channel, the first 0);
+    between nodes log T is linear in t (exponential decay), beyond the last it continues at the last segment's rate.
+    """
+
+    burley: BurleyMaterial
+    thickness_mm: Float[Array, "M N 3"]
+    log_T: Float[Array, "M N 3"]
+
+    def __check_init__(self):
+        m = self.burley.d_mm.shape[0]
+        if self.thickness_mm.ndim != 3 or self.thickness_mm.shape != self.log_T.shape or \
+                self.thickness_mm.shape[0] not in (1, m) or self.thickness_mm.shape[2] != 3:
+            raise ValueError(f"MediumMaterial needs thickness_mm and log_T of shape (M, N, 3) with M = {m} materials; "
+                             f"got {self.thickness_mm.shape} and {self.log_T.shape}")
+
+    @classmethod
+    def from_tables(cls, burley: BurleyMaterial, tables: list[dict[str, Any]]) -> "MediumMaterial":
+        """One ``medium_slab_table`` result per material row of ``burley`` (host side)."""
+        pairs = [_table_log_T(t) for t in tables]
+        if len({p[0].shape for p in pairs}) != 1:
+            raise ValueError("medium tables must have the same number of thickness nodes")
+        dtype = burley.d_mm.dtype
+        return cls(burley, jnp.asarray(np.stack([p[0] for p in pairs]), dtype),
+                   jnp.asarray(np.stack([p[1] for p in pairs]), dtype))
+
+    def transmittance(self, thickness_mm: ArrayLike, rows: ArrayLike | None = None) -> Array:
+        """T per channel, ``(..., 3)``, at thicknesses ``(...)`` in mm (>= 0) of material rows ``(...)`` (default 0):
+        the fraction of a normally incident back light that leaves the front face."""
+        t = jnp.asarray(thickness_mm)
+        t = jnp.maximum(t.astype(jnp.result_type(t.dtype, self.log_T.dtype)), 0.0)
+        rows = jnp.zeros(t.shape, jnp.int32) if rows is None else jnp.asarray(rows)
+        rows = jnp.clip(rows, 0, self.log_T.shape[0] - 1)
+        x = self.thickness_mm.astype(t.dtype)
+        y = self.log_T.astype(t.dtype)
+        finite = jnp.isfinite(t)
+        t_s = jnp.where(finite, t, 0.0)
+
+        def one(xm, ym):  # (N,), (N,) -> log T at every t
+            inside = jnp.interp(t_s, xm, ym)
+            rate = (ym[-1] - ym[-2]) / (xm[-1] - xm[-2])
+            return jnp.where(t_s > xm[-1], ym[-1] + rate * (t_s - xm[-1]), inside)
+
+        per = jax.vmap(jax.vmap(one, in_axes=(1, 1)), in_axes=(0, 0))(x, y)  # (M, 3, ...)
+        per = jnp.moveaxis(per, 1, -1)  # (M, ..., 3)
+        log_t = jnp.take_along_axis(per, rows[None, ..., None], axis=0)[0]
+        return jnp.where(finite[..., None], jnp.exp(log_t), 0.0)

@@ -34,13 +34,14 @@ def test_burley_fit_is_scale_invariant_and_records_itself():
     assert np.all(sn < sf)
     rec = fit["fit"]
     assert rec["solver"] == "optimistix" and rec["outcome"] == "successful" and rec["seconds"] > 0
-    # a separable product cannot be radial: the weighted profile-space error stays large (measured 0.558), which is
-    # why the image-space error below is the one that matters
-    assert 0.3 < rec["error_relative_l2"][0] < 0.7
+    # what separable renders, a(x) a(y), against Burley on pixels of side d (issue #18's goal: <= 0.25; the kernel
+    # fitted before, radial and r-weighted, w 0.628, sigma 0.904 d / 3.07 d, was 0.55 on this measure). A separable
+    # product cannot be radial, so the error stays well above 0: measured 0.196
+    assert 0.1 < rec["error_relative_l2"][0] <= 0.25
 
 
 def test_fitted_kernel_image_error_is_bounded():
-    # bound: 12% relative L2 over the five test patterns (measured 9.5%). Justification: the point light dominates
+    # bound: 12% relative L2 over the five test patterns (measured 5.7%; 9.5% with the r-weighted fit before). Justification: the point light dominates
     # it (a delta shows the kernel itself, and no separable product matches the radial 1/r peak); the pre-integrated
     # kernel of the same profile, measured beside it, is the best a separable pass does; local shading (no
     # scattering) is at 67%. A kernel within 12% is doing the job; a broken fit is several times worse.
@@ -88,3 +89,47 @@ def test_sta_fit_reduces_the_error_against_slab_transmission():
     # target by hand: T(t) = (e^{-t/d} + 3 e^{-t/3d})/4 at t = d is (e^-1 + 3 e^{-1/3})/4
     np.testing.assert_allclose(np.asarray(F.burley_slab_transmittance(np.array([3.0]), d))[0, 0],
                                (np.exp(-1) + 3 * np.exp(-1 / 3)) / 4)
+
+
+def _burley_pixels_by_hand(d, pixel, half):
+    """Burley's R(r) = (e^{-r/d} + e^{-r/3d}) / (8 pi d r) (Christensen & Burley 2015) integrated over pixels of side
+    ``pixel``: 16x16 midpoints per pixel, the centre pixel in polar form through the CDF
+    1 - e^{-r/d}/4 - 3 e^{-r/3d}/4 (8 wedges, Gauss-Legendre in the angle). NumPy only."""
+    import math
+
+    sub = 16
+    offs = (np.arange(sub) + 0.5) / sub - 0.5
+    xs = (np.arange(-half, half + 1)[:, None] + offs).reshape(-1) * pixel
+    r = np.hypot(xs[:, None], xs[None, :])
+    n = 2 * half + 1
+    m = ((np.exp(-r / d) + np.exp(-r / (3 * d))) / (8 * math.pi * d * r)).reshape(n, sub, n, sub).mean(axis=(1, 3))
+    m *= pixel**2
+    t, wt = np.polynomial.legendre.leggauss(48)
+    t = (t + 1) * math.pi / 8
+    a = 0.5 * pixel / np.cos(t)
+    m[half, half] = 8 * np.sum(wt * math.pi / 8 * (1 - np.exp(-a / d) / 4 - 3 * np.exp(-a / (3 * d)) / 4)) / (2 * math.pi)
+    return m
+
+
+def test_rendered_kernel_errors_against_a_hand_computation():
+    # the stored errors of a kernel against an independent NumPy integration: the rendered product a(x) a(y) with
+    # a(x) = w N(x; sigma_n) + (1 - w) N(x; sigma_f) integrated over each pixel (erf), and the radial mix
+    # w N2(r; sigma_n) + (1 - w) N2(r; sigma_f) (isotropic, so also a product of erf differences per Gaussian)
+    from math import sqrt
+
+    from scipy.special import erf
+
+    d, half = np.array([2.0, 1.0, 0.5]), 20
+    tg = {"w": [0.6, 0.5, 0.4], "sigma_near_mm": [0.9, 0.4, 0.2], "sigma_far_mm": [8.0, 3.0, 1.5]}
+    got = F.rendered_kernel_errors(tg, sj.BurleyProfile(jnp.asarray(d)), d, half=half)
+    for c in range(3):
+        edges = (np.arange(-half, half + 2) - 0.5) * d[c]
+        g = lambda s: np.diff(0.5 * (1 + erf(edges / (sqrt(2) * s))))
+        w, sn, sf = tg["w"][c], tg["sigma_near_mm"][c], tg["sigma_far_mm"][c]
+        a = w * g(sn) + (1 - w) * g(sf)
+        product = a[:, None] * a[None, :]
+        mix = w * g(sn)[:, None] * g(sn)[None, :] + (1 - w) * g(sf)[:, None] * g(sf)[None, :]
+        target = _burley_pixels_by_hand(d[c], d[c], half)
+        rel = lambda m: np.linalg.norm(m - target) / np.linalg.norm(target)
+        assert got["rendered_product"][c] == pytest.approx(rel(product), abs=2e-3)
+        assert got["radial_mix"][c] == pytest.approx(rel(mix), abs=2e-3)

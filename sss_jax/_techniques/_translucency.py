@@ -14,7 +14,7 @@ from .._custom_types import ParamLike
 from .._materials import BurleyMaterial, DirectionalLight, STAParams
 from .._profiles import burley_cdf
 from .._scene import Buffers, Camera, camera_positions, normals_from_depth
-from .._slab import slab_transmittance
+from .._slab import MediumMaterial, slab_transmittance
 from ._common import _prepare, _work_dtype
 
 
@@ -97,8 +97,10 @@ _TRANSMITTANCE: dict[str, Callable[[Array, Array, Array], Array]] = {"thin": _th
 
 @eqx.filter_jit
 def _transmission_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, light: DirectionalLight,
-                       thickness: ParamLike | None, model: str) -> Array:
-    """``albedo * (irradiance + light * T * max(0, -N . L))``: the models differ only in T (``model`` is static)."""
+                       thickness: ParamLike | None, model: str, medium: MediumMaterial | None = None) -> Array:
+    """``albedo * (irradiance + light * T * max(0, -N . L))`` ("thin", HDRP's convention), or
+    ``albedo * irradiance + light * T * max(0, -N . L)`` ("slab": T already holds all of the medium's absorption; T of
+    ``medium`` where given)."""
     dtype = _work_dtype(buffers.irradiance.dtype)
     prep = _prepare(buffers, material.albedo, "post", dtype)
     normal = buffers.normal.astype(dtype) if buffers.normal is not None else normals_from_depth(prep.depth, camera)
@@ -107,11 +109,12 @@ def _transmission_impl(buffers: Buffers, material: BurleyMaterial, camera: Camer
     # the medium is the material's (its A and d per material id), not the albedo texture's, which only tints
     medium_albedo = jnp.clip(material.albedo.astype(dtype), 0.0, 1.0)[prep.rows]
     t = jnp.where(jnp.isfinite(thick_mm), thick_mm, 0.0)[..., None]
-    transmitted = jnp.where(jnp.isfinite(thick_mm)[..., None], _TRANSMITTANCE[model](t, medium_albedo, d), 0.0)
+    T = _TRANSMITTANCE[model](t, medium_albedo, d) if medium is None else medium.transmittance(t[..., 0], prep.rows)
+    transmitted = jnp.where(jnp.isfinite(thick_mm)[..., None], T, 0.0)
     # light reaching the back face: the cosine between the back-facing normal and the light
     back_cos = jnp.clip(jnp.sum(-normal * light.direction.astype(dtype).reshape(1, 1, 3), axis=-1), 0.0, 1.0)
     added = light.colour.astype(dtype).reshape(1, 1, 3) * transmitted * back_cos[..., None]
-    out = prep.albedo_out * (prep.irradiance + added)
+    out = prep.albedo_out * (prep.irradiance + (added if model == "thin" else 0.0)) + (added if model == "slab" else 0.0)
     out = jnp.where(prep.valid[..., None], out, buffers.irradiance.astype(dtype))
     return out.astype(buffers.irradiance.dtype)
 
@@ -121,7 +124,7 @@ TRANSLUCENCY_MODELS = ("sta", "thin", "slab")
 
 def translucency(
     buffers: Buffers,
-    params: STAParams | BurleyMaterial,
+    params: STAParams | BurleyMaterial | MediumMaterial,
     camera: Camera,
     light: DirectionalLight,
     *,
@@ -137,22 +140,26 @@ def translucency(
 
     - ``model="sta"`` (default): the simple translucency approximation with ``STAParams``; ``albedo (3,)`` is used
       where the buffers carry none (default white).
-    - ``model="thin"``: the physically based thin-object transmission that follows from the profile, as HDRP's thin
-      mode computes it: ``light * thin_transmittance(thickness_mm, d) * max(0, -N . L)`` with ``params`` a
-      ``BurleyMaterial`` (its d per material id, its albedo where the buffers carry none). HDRP wraps the cosine;
-      this uses the plain clamped cosine.
-    - ``model="slab"``: as ``"thin"`` with ``slab_transmittance(thickness_mm, A, d)`` for T: the Monte Carlo
-      transmittance of a slab of the medium behind the material (A and d of the ``BurleyMaterial`` per material id),
-      which agrees with transport where the profile's CCDF does not (docs/engines.md).
+    - ``model="thin"``: the HDRP engine model, thin-object transmission as HDRP's thin mode computes it:
+      ``albedo * light * thin_transmittance(thickness_mm, d) * max(0, -N . L)`` with ``params`` a ``BurleyMaterial``
+      (its d per material id, its albedo where the buffers carry none). HDRP wraps the cosine; this uses the plain
+      clamped cosine.
+    - ``model="slab"``: slab transport, ``light * T * max(0, -N . L)`` added to ``albedo * irradiance``: T, the
+      fraction of a normal back light leaving the front face, already holds all absorption (no albedo factor). With
+      ``params`` a ``MediumMaterial`` (a preset that carries its medium: ``load_preset(...).medium``) T is that of the
+      measured medium with its boundaries (``_slab.MediumMaterial``); with a ``BurleyMaterial``,
+      ``slab_transmittance(thickness_mm, A, d)``, the index-matched medium rebuilt from A and d.
     """
     if model not in TRANSLUCENCY_MODELS:
         raise ValueError(f"model={model!r} is not one of {TRANSLUCENCY_MODELS}")
     if not isinstance(light, DirectionalLight):
         raise TypeError(f"translucency needs a DirectionalLight, got {type(light).__name__}")
     if model in _TRANSMITTANCE:
+        medium = params if model == "slab" and isinstance(params, MediumMaterial) else None
+        params = medium.burley if medium is not None else params
         if not isinstance(params, BurleyMaterial):
             raise TypeError(f"translucency(model={model!r}) needs a BurleyMaterial, got {type(params).__name__}")
-        return _transmission_impl(buffers, params, camera, light, thickness, model)
+        return _transmission_impl(buffers, params, camera, light, thickness, model, medium)
     if not isinstance(params, STAParams):
         raise TypeError(f"translucency needs STAParams, got {type(params).__name__}")
     table = jnp.ones((1, 3), buffers.irradiance.dtype) if albedo is None else jnp.reshape(jnp.asarray(albedo), (-1, 3))

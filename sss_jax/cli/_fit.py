@@ -15,8 +15,10 @@ EPILOG = """examples:
   sss-jax fit --list
 
 Measured materials come from Jensen et al. 2001, Table 2 (or --measured-csv with the same columns); artist materials
-are surface albedo and Burley d per channel. Each preset holds Burley d, the two-Gaussian kernel, the STA parameters,
-their errors against Burley and Monte Carlo, the fit records, engine parameters and HLSL/GLSL taps; see fits/README.md.
+are surface albedo and Burley d per channel. Each preset holds Burley d, the two-Gaussian kernel (fitted as separable
+renders it: the product a(x) a(y), pixel-integrated), the STA parameters, the slab transmittance of its own medium
+(sss-jax transmit), their errors against Burley and Monte Carlo, the fit records, engine parameters and HLSL/GLSL
+taps; see fits/README.md.
 Monte Carlo runs are cached in OUT/montecarlo and reused when photons, seed and version match.
 """
 

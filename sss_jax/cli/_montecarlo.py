@@ -33,8 +33,9 @@ def register(subparsers) -> None:
     p.add_argument("--mfp-mm", type=float, default=1.0, help="mean free path in mm (default 1)")
     p.add_argument("--incidence", choices=("pencil", "diffuse"), default="pencil")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--max-events", type=int, default=100_000, help="scattering events after which a photon is dropped "
-                   "(counted in capped_photons)")
+    p.add_argument("--max-events", type=int, default=100_000, help="scattering events after which absorption turns "
+                   "analog (unbiased: no photon is dropped there; only after 1000 times as many, counted in "
+                   "capped_photons)")
     p.add_argument("--json", type=pathlib.Path, required=True, help="output JSON")
     p.set_defaults(func=run)
 
