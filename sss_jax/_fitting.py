@@ -307,6 +307,30 @@ def image_error(material: TwoGaussianMaterial, target, camera: Camera, patterns:
     return float(np.sqrt(num / sum(np.sum(r**2) for r in refs)))
 
 
+# The residuals are module-level functions with their data in ``args``: one function object across fits, so a second
+# material of the same shape reuses the compiled solver (a fresh closure per call would recompile every time).
+
+
+def _image_residual(x, data):
+    patterns, refs, norm, camera, taps = data
+    mat = TwoGaussianMaterial(jnp.ones(3, x.dtype), x[0:3], x[3:6], x[6:9])
+    return jnp.concatenate([((separable(b, mat, camera, taps=taps) - r) / norm).reshape(-1)
+                            for b, r in zip(patterns, refs)])
+
+
+def _sta_residual(x, data):
+    lights, views, thickness_mm, target = data
+    p = STAParams(distortion=x[0], power=x[1], scale=x[2:5], ambient=x[5:8], thickness_mm=x[8:11])
+    values = jax.vmap(lambda light, view: sta_slab_response(p, thickness_mm, light, view))(lights, views)
+    return (values - target).reshape(-1)
+
+
+def _burley_image_residual(x, data):
+    buffers, target, norm, albedo, camera, samples = data
+    out = burley(buffers, BurleyMaterial(albedo, x), camera, samples=samples, interpolation="bilinear")
+    return ((out - target) / norm).reshape(-1)
+
+
 def fit_two_gaussian_image(target: BurleyMaterial, camera: Camera, *, taps: int = 25, init: dict | None = None,
                            solver: str = "optimistix", size: int = 32) -> dict[str, Any]:
     """Image-space fit: separable with the two-Gaussian kernel against reference with the target (one material)."""
@@ -314,21 +338,17 @@ def fit_two_gaussian_image(target: BurleyMaterial, camera: Camera, *, taps: int 
     patterns = image_patterns(size)
     refs = [reference(b, target, camera) for b in patterns]
     norm = float(np.sqrt(sum(np.sum(np.asarray(r) ** 2) for r in refs)))
-    ones = jnp.ones(3)
     if init is None:
         init = fit_two_gaussian_to_burley(np.asarray(target.d_mm[0]))
     x0 = np.concatenate([init["w"], init["sigma_near_mm"], init["sigma_far_mm"]])
 
-    def residual(x, _=None):
-        mat = TwoGaussianMaterial(ones, x[0:3], x[3:6], x[6:9])
-        return jnp.concatenate([((separable(b, mat, camera, taps=taps) - r) / norm).reshape(-1)
-                                for b, r in zip(patterns, refs)])
-
+    data = (patterns, refs, jnp.asarray(norm), camera, taps)
+    residual = lambda x: _image_residual(x, data)
     s = np.concatenate([init["sigma_near_mm"], init["sigma_far_mm"]])
     lower = np.concatenate([np.zeros(3), 1e-3 * s])
     upper = np.concatenate([np.ones(3), 10 * s])
     t0 = time.perf_counter()
-    x, outcome, it = _solve(residual, x0, lower, upper, solver, max_steps=100)
+    x, outcome, it = _solve(_image_residual, x0, lower, upper, solver, max_steps=100, args=data)
     err = float(jnp.linalg.norm(residual(jnp.asarray(x))))
     near, far = x[3:6], x[6:9]
     w = np.where(near <= far, x[0:3], 1 - x[0:3])
@@ -397,17 +417,14 @@ def fit_sta(d_mm, *, solver: str = "jaxopt", transmittance: Callable | None = No
     target = jnp.asarray(T)[None, :, :] * cosl[:, None, None]  # (A, Nt, 3)
     tt = jnp.asarray(t)
 
-    def sta_values(x):
-        p = STAParams(distortion=x[0], power=x[1], scale=x[2:5], ambient=x[5:8], thickness_mm=x[8:11])
-        return jax.vmap(lambda light, view: sta_slab_response(p, tt, light, view))(L, V)
-
-    residual = lambda x, _=None: (sta_values(x) - target).reshape(-1)
+    data = (L, V, tt, target)
+    residual = lambda x: _sta_residual(x, data)
     x0 = np.concatenate([[0.2, 2.0], np.full(3, 1.0), np.full(3, 0.05), d * 2])
     lower = np.concatenate([[0.0, 0.0], np.zeros(3), np.zeros(3), d * 0.01])
     upper = np.concatenate([[1.0, 16.0], np.full(3, 4.0), np.full(3, 2.0), d * 100])
     t0 = time.perf_counter()
     # Levenberg-Marquardt needs ~350 steps here to meet its 1e-8 tolerance (L-BFGS-B ~150); both reach one optimum
-    x, outcome, it = _solve(residual, x0, lower, upper, solver, max_steps=1000)
+    x, outcome, it = _solve(_sta_residual, x0, lower, upper, solver, max_steps=1000, args=data)
     err = float(jnp.linalg.norm(residual(jnp.asarray(x))) / jnp.linalg.norm(target))
     return {"distortion": float(x[0]), "power": float(x[1]), "scale": x[2:5].tolist(), "ambient": x[5:8].tolist(),
             "thickness_mm": x[8:11].tolist(),
@@ -430,13 +447,11 @@ def fit_burley_from_image(buffers: Buffers, target_image, camera: Camera, *, alb
     norm = float(jnp.linalg.norm(target))
     alb = jnp.asarray(albedo, jnp.float64)
 
-    def residual(x, _=None):
-        out = burley(buffers, BurleyMaterial(alb, x), camera, samples=samples, interpolation="bilinear")
-        return ((out - target) / norm).reshape(-1)
-
+    data = (buffers, target, jnp.asarray(norm), alb, camera, int(samples))
+    residual = lambda x: _burley_image_residual(x, data)
     d0 = np.asarray(d0_mm, np.float64)
     t0 = time.perf_counter()
-    x, outcome, it = _solve(residual, d0, d0 / 20, d0 * 20, solver, max_steps=200)
+    x, outcome, it = _solve(_burley_image_residual, d0, d0 / 20, d0 * 20, solver, max_steps=200, args=data)
     return {"d_mm": x.tolist(), "fit": {"solver": solver, "outcome": outcome, "iterations": it,
                                        "seconds": round(time.perf_counter() - t0, 3),
                                        "error_relative_l2": float(jnp.linalg.norm(residual(jnp.asarray(x))))}}
