@@ -77,3 +77,12 @@ from ._engines import (
     unreal_to_burley as unreal_to_burley,
 )
 from ._advise import advise as advise
+from ._match import (
+    MatchFrame as MatchFrame,
+    MatchResult as MatchResult,
+    load_match_frame as load_match_frame,
+    match_frame as match_frame,
+    match_render as match_render,
+    match_report_html as match_report_html,
+    write_match_html as write_match_html,
+)
