@@ -274,6 +274,7 @@ class _Problem(eqx.Module):
 def _render(problem: _Problem, frame: _FrameData, y) -> jax.Array:
     from ._techniques import burley, separable, translucency
 
+    y = jax.tree_util.tree_map(lambda v: jnp.asarray(v, problem.albedo.dtype), y)
     p = _natural(problem.technique, y, problem.albedo)
     material = _material_of(problem.technique, p)
     if problem.technique == "burley":
@@ -474,8 +475,15 @@ def match_render(
             raise TypeError(f"frames must be MatchFrame (match_frame / load_match_frame), got {type(f).__name__}")
     ids = sorted({int(k) for f in frames for k in np.unique(f.material_id) if k > 0})
     count = max(ids)
+    for f in holdout:
+        extra = sorted({int(k) for k in np.unique(f.material_id) if k > 0} - set(ids))
+        if extra:
+            raise ValueError(f"held-back frame {f.name} has material id(s) {extra} that no fitted frame has: "
+                             "nothing is fitted for them")
     y0, albedo = _start_params(technique, material, count, fit_albedo)
-    dtype = jnp.result_type(frames[0].buffers.irradiance.dtype, jnp.float32)
+    # one dtype for parameters and images (lineax wants the Jacobian's input and output to agree): JAX's default
+    # float, float32 unless x64 is on
+    dtype = jnp.result_type(float)
     norms, means = _pooled_stats(frames, ids)
     data = tuple(_frame_data(f, norms, means, dtype) for f in frames)
     problem = _Problem(data, jnp.asarray(albedo, dtype), jnp.asarray(gain, dtype), light, technique, int(samples), int(taps),

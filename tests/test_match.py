@@ -89,7 +89,7 @@ def test_fit_burley_from_2x_off_beats_the_exact_conversion_and_apply_reproduces_
     out_json, out_html = tmp_path / "fit.json", tmp_path / "fit.html"
     argv = ["fit", "--render", str(frame["render"]), "--truth", str(frame["truth"]), "--technique", "burley",
             "--samples", str(SAMPLES), "--albedo", ",".join(map(repr, ALBEDO)),
-            "--d-mm", ",".join(repr(2 * v) for v in d_exact), "--max-steps", str(STEPS),
+            "--d-mm", ",".join(repr(2 * float(v)) for v in d_exact), "--max-steps", str(STEPS),
             "--json", str(out_json), "--html", str(out_html)]
     assert main(argv) == 0
     assert "rel_l2 on fitted frames" in capsys.readouterr().out

@@ -14,8 +14,7 @@ EPILOG = """examples:
   sss-jax fit --material skin --material marble --out my_fits
   sss-jax fit --name velvet_wax --albedo 0.9,0.7,0.5 --d-mm 3,2,1.2 --out my_fits
   sss-jax fit --list
-  sss-jax fit --render white.exr --truth cycles.exr --technique burley --albedo 0.85,0.75,0.55 --d-mm 30,20,12 \
-      --json fit.json --html fit.html      # match Burley's d per material id to the Cycles render
+  sss-jax fit --render white.exr --truth cycles.exr --technique burley --albedo 0.85,0.75,0.55 --d-mm 30,20,12 --json fit.json --html fit.html
 
 Measured materials come from Jensen et al. 2001, Table 2 (or --measured-csv with the same columns); artist materials
 are surface albedo and Burley d per channel. Each preset holds Burley d, the two-Gaussian kernel, the STA parameters,
