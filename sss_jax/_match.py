@@ -569,16 +569,17 @@ def _frame_figure(name: str, role: str, truth, before, after, ids, exposure: flo
         ax.imshow(display_transform(img, exposure=exposure), interpolation="nearest")
         ax.set_title(title, fontsize=8)
         ax.axis("off")
+    ax = fig.add_subplot(2, 3, 4)
+    ax.axis("off")
+    ax.text(0.0, 0.5, f"{name}\n({role})", fontsize=8, va="center")
+    error_axes = []
     for i, (e, title) in enumerate([(eb, "|before - truth|"), (ea, "|after - truth|")]):
         ax = fig.add_subplot(2, 3, 5 + i)
         im = ax.imshow(e, cmap="magma", vmin=0, vmax=vmax, interpolation="nearest")
         ax.set_title(f"{title} / mean truth", fontsize=8)
         ax.axis("off")
-    ax = fig.add_subplot(2, 3, 4)
-    ax.axis("off")
-    ax.text(0.0, 0.5, f"{name}\n({role})", fontsize=8, va="center")
-    fig.colorbar(im, ax=fig.axes[-1], fraction=0.046, pad=0.02)
-    fig.tight_layout()
+        error_axes.append(ax)
+    fig.colorbar(im, ax=error_axes, fraction=0.03, pad=0.02)
     return fig
 
 
@@ -602,7 +603,8 @@ def match_report_html(result: MatchResult, *, max_frames: int = 4, exposure: flo
         for key, before in e[role]["before"]["pooled"].items():
             rows.append(f"<tr><td>{role} ({len(e[role]['frames'])} frame(s))</td><td>{key}</td>"
                         f"<td>{before:.4f}</td><td>{e[role]['after']['pooled'][key]:.4f}</td></tr>")
-    parts = [f"<p>Technique <b>{html.escape(result.technique)}</b> ({html.escape(_cell(result.options))}), "
+    opts = ", ".join(f"{k} {_cell(v)}" for k, v in result.options.items() if v is not None)
+    parts = [f"<p>Technique <b>{html.escape(result.technique)}</b> ({opts}), "
              f"loss {html.escape(result.loss['name'])}, solver {html.escape(result.solver['name'])}: "
              f"{html.escape(result.solver['result'])} after {result.solver['iterations']} iterations, "
              f"{result.solver['seconds']:.1f} s. Metric: {html.escape(METRIC)}.</p>",
