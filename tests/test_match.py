@@ -167,6 +167,8 @@ def test_fit_on_noisy_truth_reports_the_held_back_frame(blender):
     assert ho["after"]["pooled"]["all"] < ho["before"]["pooled"]["all"] - 0.005, ho
     for k in (1, 2):
         assert ho["after"]["pooled"][f"id{k}"] < ho["before"]["pooled"][f"id{k}"]
+    print("noisy fit, held back f01:", ho["before"]["pooled"], "->", ho["after"]["pooled"], res.solver["result"],
+          res.solver["iterations"], {k: v["d_mm"] for k, v in res.parameters.items()})
     data = json.loads(json.dumps(res.to_json()))
     assert data["errors"]["holdout"]["after"]["pooled"]["all"] == ho["after"]["pooled"]["all"]
     assert "<img" in sj.match_report_html(res)
@@ -197,7 +199,7 @@ def test_separable_and_sta_fits_recover_their_own_render():
     start = sj.TwoGaussianMaterial(np.full((rows, 3), 0.8), np.full((rows, 3), 0.4), np.full((rows, 3), 3.0),
                                    np.full((rows, 3), 12.0))
     res = sj.match_render(sj.match_frame(b, cam, truth), start, technique="separable", taps=9, loss="l2",
-                          max_steps=15)
+                          max_steps=10)
     before, after = (res.errors["fitted"][w]["pooled"]["all"] for w in ("before", "after"))
     assert after < 0.2 * before, (before, after)
 
@@ -206,10 +208,11 @@ def test_separable_and_sta_fits_recover_their_own_render():
     truth = np.asarray(sj.translucency(b, true_sta, cam, light, albedo=jnp.full((rows, 3), 0.8), thickness=0.5))
     start = sj.STAParams(distortion=0.6, power=6.0, scale=(0.5, 0.3, 0.15), ambient=0.1, thickness_mm=10.0)
     res = sj.match_render(sj.match_frame(b, cam, truth), (start, (0.8, 0.8, 0.8)), technique="sta", light=light,
-                          thickness=0.5, loss="l2", max_steps=15)
+                          thickness=0.5, loss="l2", max_steps=10)
     before, after = (res.errors["fitted"][w]["pooled"]["all"] for w in ("before", "after"))
     assert after < 0.2 * before, (before, after)
     assert res.engines is None
+    print("separable/sta self-fit:", res.errors["fitted"]["before"]["pooled"], res.errors["fitted"]["after"]["pooled"])
 
 
 @pytest.mark.parametrize("extra, message", [
