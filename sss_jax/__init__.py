@@ -82,3 +82,12 @@ from ._report import (
     TechniqueRun as TechniqueRun,
     report as report,
 )
+from ._match import (
+    MatchFrame as MatchFrame,
+    MatchResult as MatchResult,
+    load_match_frame as load_match_frame,
+    match_frame as match_frame,
+    match_render as match_render,
+    match_report_html as match_report_html,
+    write_match_html as write_match_html,
+)

@@ -1,4 +1,5 @@
-"""``sss-jax fit``: presets (``fits/<material>.json``) for measured and artist materials."""
+"""``sss-jax fit``: presets (``fits/<material>.json``) for measured and artist materials; with ``--render``, a
+technique's material matched to a path-traced render of the same view (``sss_jax._match``)."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ EPILOG = """examples:
   sss-jax fit --material skin --material marble --out my_fits
   sss-jax fit --name velvet_wax --albedo 0.9,0.7,0.5 --d-mm 3,2,1.2 --out my_fits
   sss-jax fit --list
+  sss-jax fit --render white.exr --truth cycles.exr --technique burley --albedo 0.85,0.75,0.55 --d-mm 30,20,12 --json fit.json --html fit.html
 
 Measured materials come from Jensen et al. 2001, Table 2 (or --measured-csv with the same columns); artist materials
 are surface albedo and Burley d per channel. Each preset holds Burley d, the two-Gaussian kernel (fitted as separable
@@ -20,6 +22,12 @@ renders it: the product a(x) a(y), pixel-integrated), the STA parameters, the sl
 (sss-jax transmit), their errors against Burley and Monte Carlo, the fit records, engine parameters and HLSL/GLSL
 taps; see fits/README.md.
 Monte Carlo runs are cached in OUT/montecarlo and reused when photons, seed and version match.
+
+With --render (repeatable, one --truth per --render) the command matches instead: per material id it fits Burley d
+(burley), the two-Gaussian kernel (separable) or the STA parameters (sta), starting from the material given as
+`apply` takes it (--preset, --albedo with --d-mm/--mfp-mm, STA flags), so the technique at --samples/--taps
+looks like the offline render on the material's pixels; --holdout IN TRUTH frames are measured, not fitted.
+See docs/match.md.
 """
 
 
@@ -37,19 +45,25 @@ def register(subparsers) -> None:
     which.add_argument("--material", action="append", metavar="NAME", help="a material by name (repeatable)")
     which.add_argument("--list", action="store_true", help="list the known materials and exit")
     p.add_argument("--name", help="a new artist material's name (with --albedo and --d-mm)")
-    p.add_argument("--albedo", type=rgb_triple, help="new artist material: surface albedo R,G,B in [0,1)")
-    p.add_argument("--d-mm", type=rgb_triple, help="new artist material: Burley d R,G,B in mm")
+    p.add_argument("--albedo", type=rgb_triple, help="new artist material (or with --render: the starting material): "
+                   "surface albedo R,G,B in [0,1)")
+    p.add_argument("--d-mm", type=rgb_triple, help="new artist material (or with --render: the starting material): "
+                   "Burley d R,G,B in mm")
     p.add_argument("--out", type=pathlib.Path, default=pathlib.Path("fits"), help="output directory (default fits)")
     p.add_argument("--photons", type=int, default=None, help="Monte Carlo photons per channel (default 100000)")
     p.add_argument("--seed", type=int, default=0, help="Monte Carlo seed (default 0)")
     p.add_argument("--solver", choices=("optimistix", "jaxopt"), default="optimistix", help="least-squares solver")
-    p.add_argument("--taps", type=int, default=25, help="taps of the exported HLSL/GLSL kernel (default 25)")
+    p.add_argument("--taps", type=int, default=25, help="taps of the exported HLSL/GLSL kernel; with --render, the "
+                   "separable technique's taps the fit is for (default 25)")
     p.add_argument("--measured-csv", type=pathlib.Path, help="measured coefficients (default: Jensen et al. 2001)")
     p.add_argument("--no-plots", action="store_true", help="skip the per-preset plots")
+    _register_match(p)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    if args.render is not None or args.truth is not None or args.holdout is not None:
+        return _run_match(args)
     from .._fit_presets import (
         ARTIST_MATERIALS,
         DEFAULT_PHOTONS,
@@ -90,3 +104,112 @@ def run(args) -> int:
     print(f"wrote {len(result['written'])} presets to {args.out}"
           + (f"; {len(result['failed'])} failed" if result["failed"] else ""))
     return 1 if result["failed"] else 0
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# match mode: sss-jax fit --render IN.exr --truth TRUTH.exr --technique burley|separable|sta
+# ------------------------------------------------------------------------------------------------------------------
+
+
+def _register_match(p) -> None:
+    m = p.add_argument_group("match a path-traced render (--render; the material flags as `apply` takes them)")
+    m.add_argument("--render", action="append", type=pathlib.Path, metavar="IN.exr",
+                   help="the technique's input frame (repeatable: several frames of one shot are fitted at once)")
+    m.add_argument("--truth", action="append", type=pathlib.Path, metavar="TRUTH.exr",
+                   help="the offline render of the same view, one per --render (Blender's Combined pass, else R,G,B)")
+    m.add_argument("--holdout", nargs=2, action="append", type=pathlib.Path, metavar=("IN.exr", "TRUTH.exr"),
+                   help="a frame and its truth measured before and after but not fitted (repeatable)")
+    m.add_argument("--truth-channels", help="the truth's pass (e.g. Combined) or three channels R,G,B")
+    m.add_argument("--technique", choices=("burley", "separable", "sta"), help="the technique to match")
+    m.add_argument("--samples", type=int, default=32, help="Burley spiral samples the fit is for (default 32)")
+    m.add_argument("--mfp-mm", type=rgb_triple, help="starting mean free path per channel, mm (d = mfp / s(A))")
+    m.add_argument("--preset", help="starting material: a preset name or JSON file")
+    m.add_argument("--fit-albedo", action="store_true", help="fit the albedo too (the albedo pass is not used)")
+    m.add_argument("--loss", choices=("huber", "l2"), default="huber",
+                   help="huber (default: robust to path-tracing noise) or l2 (plain rel_l2)")
+    m.add_argument("--huber-delta", type=float, default=0.5,
+                   help="Huber threshold in units of the material's mean truth value (default 0.5)")
+    m.add_argument("--max-steps", type=int, default=20, help="Levenberg-Marquardt steps at most (default 20)")
+    m.add_argument("--focal-px", type=float, help="focal length in pixels")
+    m.add_argument("--mm-per-unit", type=float, help="millimetres per scene unit of the depth buffer")
+    m.add_argument("--depth-kind", choices=("planar", "distance"), default="planar")
+    m.add_argument("--channel-map", help="JSON/TOML channel map for the input frames (as in `apply`)")
+    m.add_argument("--json", type=pathlib.Path, metavar="OUT.json", help="write the result as JSON")
+    m.add_argument("--html", type=pathlib.Path, metavar="OUT.html",
+                   help="write a standalone HTML page: before/after renders, error maps, fitted parameters")
+    sta = p.add_argument_group("STA start (with --render --technique sta)")
+    sta.add_argument("--light-dir", type=rgb_triple, help="direction towards the light, camera space")
+    sta.add_argument("--light-colour", type=rgb_triple, default=(1.0, 1.0, 1.0))
+    sta.add_argument("--sta-distortion", type=float, default=0.2)
+    sta.add_argument("--sta-power", type=float, default=4.0)
+    sta.add_argument("--sta-scale", type=rgb_triple, default=(1.0, 1.0, 1.0))
+    sta.add_argument("--sta-ambient", type=rgb_triple, default=(0.0, 0.0, 0.0))
+    sta.add_argument("--sta-thickness-mm", type=rgb_triple, default=(1.0, 1.0, 1.0))
+    sta.add_argument("--thickness", type=float, help="constant thickness in scene units where frames carry none")
+
+
+def _run_match(args) -> int:
+    from .._io import SSSInputError, write_json_atomic
+    from .._match import load_match_frame, match_render, write_match_html
+    from ._apply import _material
+
+    try:
+        if args.all or args.material or args.list or args.name is not None:
+            raise ValueError("--render matches a render; --all, --material, --list and --name make presets: "
+                             "give one or the other")
+        renders, truths = args.render or [], args.truth or []
+        if not renders or len(renders) != len(truths):
+            raise ValueError(f"give one --truth per --render: got {len(renders)} --render and {len(truths)} --truth")
+        if args.technique is None:
+            raise ValueError("--render needs --technique burley, separable or sta")
+        for name in ("samples", "taps", "max_steps"):
+            if getattr(args, name) < 1:
+                raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
+        if args.taps % 2 == 0:
+            raise ValueError(f"--taps must be odd, got {args.taps}")
+        for name in ("focal_px", "mm_per_unit", "huber_delta"):
+            v = getattr(args, name)
+            if v is not None and not (v > 0 and v < float("inf")):
+                raise ValueError(f"--{name.replace('_', '-')} must be a finite positive number, got {v}")
+        material, light = _material(args)  # the starting material, exactly as `apply` reads it
+        if args.technique == "sta":
+            material = (material, args.albedo if args.albedo is not None else (1.0, 1.0, 1.0))
+        use_albedo_pass = args.albedo is None and not args.fit_albedo
+        read = lambda r, t: load_match_frame(r, t, truth_channels=args.truth_channels, channel_map=args.channel_map,
+                                             focal_px=args.focal_px, mm_per_unit=args.mm_per_unit,
+                                             depth_kind=args.depth_kind, use_albedo_pass=use_albedo_pass)
+        frames = [read(r, t) for r, t in zip(renders, truths)]
+        holdout = [read(r, t) for r, t in (args.holdout or [])]
+        for out in (args.json, args.html):
+            if out is not None and out.parent.exists() and not out.parent.is_dir():
+                raise ValueError(f"{out}: its folder {out.parent} is not a directory")
+        result = match_render(frames, material, technique=args.technique, holdout=holdout, samples=args.samples,
+                              taps=args.taps, light=light, thickness=args.thickness, fit_albedo=args.fit_albedo,
+                              loss=args.loss, huber_delta=args.huber_delta, max_steps=args.max_steps)
+    except (ValueError, TypeError, OSError, SSSInputError) as exc:
+        print(f"sss-jax fit: {exc}", file=sys.stderr)
+        return 2
+    data = result.to_json()
+    data["inputs"] = {"render": [str(r) for r in renders], "truth": [str(t) for t in truths],
+                      "holdout": [[str(r), str(t)] for r, t in (args.holdout or [])],
+                      "truth_channels": args.truth_channels,
+                      "camera": [{"frame": f.name, "focal_px": float(f.camera.focal_px),
+                                  "mm_per_unit": float(f.camera.mm_per_unit)} for f in frames + holdout],
+                      "albedo_from": "albedo pass" if use_albedo_pass else "material"}
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        write_json_atomic(args.json, data)
+    if args.html is not None:
+        args.html.parent.mkdir(parents=True, exist_ok=True)
+        write_match_html(args.html, result)
+    e = result.errors
+    s = result.solver
+    print(f"{args.technique}: {s['result']} after {s['iterations']} iterations ({s['seconds']:.1f} s); "
+          f"rel_l2 on fitted frames {e['fitted']['before']['pooled']['all']:.4f} -> "
+          f"{e['fitted']['after']['pooled']['all']:.4f}"
+          + ("" if e["holdout"] is None else f", held back {e['holdout']['before']['pooled']['all']:.4f} -> "
+             f"{e['holdout']['after']['pooled']['all']:.4f}"))
+    for k, params in result.parameters.items():
+        print(f"  {k}: " + "; ".join(f"{n} = {', '.join(f'{v:.4g}' for v in (x if isinstance(x, list) else [x]))}"
+                                     for n, x in params.items()))
+    return 0

@@ -1,0 +1,646 @@
+"""Match offline: fit a real-time technique's material to a path-traced render of the same view.
+
+Given the screen-space inputs of one or more frames of a shot (irradiance, depth, material ids: what ``apply``
+reads) and an offline render of each (e.g. Cycles' Combined pass), find per material id the parameters that make
+the technique look like the offline render:
+
+- ``burley``: Burley's d per channel (mm), and the albedo with ``fit_albedo``;
+- ``separable``: the two-Gaussian kernel (``w``, ``sigma_near_mm``, ``sigma_far_mm`` per channel) (+ albedo);
+- ``sta``: the STA parameters (``distortion``, ``power``, ``scale``, ``ambient``, ``thickness_mm``) (+ albedo).
+
+The metric is ``rel_l2 = ||out - truth||_2 / ||truth||_2`` over RGB on a material's SSS pixels (finite depth and
+id == k; "all": id > 0), pooled over frames. The objective is the sum over materials of that error squared
+(``loss="l2"``) or of its Huber version (``loss="huber"``, the default): each pixel's residual, in units of the
+material's mean truth value, counts quadratically up to ``huber_delta`` and linearly beyond, so path-tracing
+fireflies and what screen space cannot know (light entering unseen surfaces) pull less on the fit. Errors reported
+before and after are always the plain ``rel_l2``.
+
+Solver: optimistix Levenberg–Marquardt on the residual vector, parameters in log space (d, widths, STA terms:
+positive) or logit space (albedo, ``w``: in (0, 1)), ``throw=False``; its result code and iterations are kept.
+Several frames are fitted at once (one material, many views); frames given as ``holdout`` are not fitted, only
+measured before and after.
+"""
+
+from __future__ import annotations
+
+import base64
+import dataclasses
+import html
+import io
+import math
+import os
+import pathlib
+import time
+from typing import Any, Mapping, Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._io import SSSInputError, display_transform, read_channels, read_frame, write_bytes_atomic
+from ._materials import BurleyMaterial, DirectionalLight, STAParams, TwoGaussianMaterial
+from ._scene import Buffers, Camera
+
+__all__ = ["MATCH_TECHNIQUES", "MATCH_LOSSES", "MatchFrame", "MatchResult", "match_frame", "load_match_frame",
+           "read_truth", "match_render", "match_report_html", "write_match_html"]
+
+MATCH_TECHNIQUES = ("burley", "separable", "sta")
+MATCH_LOSSES = ("huber", "l2")
+METRIC = "rel_l2 = ||out - truth||_2 / ||truth||_2 over RGB on the material's SSS pixels (finite depth, id == k; " \
+         "'all': id > 0), pooled over the frames"
+_MAX_ID = 255
+_FLOOR = 1e-4  # smallest start value of a log-space parameter (an STA ambient of 0 starts here)
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# frames
+# ------------------------------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class MatchFrame:
+    """One view to match: the technique's input buffers, the camera, and the offline render of the same view.
+
+    ``truth``: ``(H, W, 3)`` float32 linear RGB; ``material_id``: ``(H, W)`` int32, 0 where there is no SSS
+    surface (no id channel: 1 on every pixel of finite depth)."""
+
+    buffers: Buffers
+    camera: Camera
+    truth: np.ndarray
+    material_id: np.ndarray
+    name: str = "frame"
+
+
+def match_frame(buffers: Buffers, camera: Camera, truth, *, name: str = "frame") -> MatchFrame:
+    """A ``MatchFrame`` from arrays; ``truth`` is ``(H, W, 3)`` linear RGB of the same view as ``buffers``."""
+    truth = np.asarray(truth, np.float32)
+    shape = tuple(buffers.depth.shape)
+    if truth.shape != shape + (3,):
+        raise SSSInputError(f"{name}: truth is {truth.shape}, the buffers are {shape} (expected truth {shape + (3,)})")
+    if not np.all(np.isfinite(truth)):
+        raise SSSInputError(f"{name}: truth has {int(np.sum(~np.isfinite(truth)))} non-finite values")
+    depth = np.asarray(buffers.depth)
+    ids = (np.ones(shape, np.int32) if buffers.material_id is None else np.asarray(buffers.material_id, np.int32))
+    ids = np.where(np.isfinite(depth) & (depth > 0), ids, 0).astype(np.int32)
+    if not np.any(ids > 0):
+        raise SSSInputError(f"{name}: no SSS pixels (finite depth and material id > 0)")
+    if ids.max() > _MAX_ID:
+        raise SSSInputError(f"{name}: material id {int(ids.max())} is above {_MAX_ID}")
+    return MatchFrame(buffers, camera, truth, ids, name)
+
+
+def read_truth(path: str | os.PathLike, *, channels: str | Sequence[str] | None = None) -> np.ndarray:
+    """The offline render's RGB, ``(H, W, 3)`` float32, from an EXR.
+
+    ``channels``: a pass name (``"Combined"``: Blender's ``<layer>.Combined.R/G/B``), three channel names
+    (``"R,G,B"`` or a list), or None: Blender's Combined pass if there is one, else ``R, G, B``."""
+    path = pathlib.Path(path)
+    chans, _, _ = read_channels(path)
+    names = list(chans)
+    if isinstance(channels, str) and "," in channels:
+        channels = [c.strip() for c in channels.split(",")]
+    if channels is None or isinstance(channels, str):
+        passname = channels or "Combined"
+        picked = []
+        for c in "RGB":
+            hits = [n for n in names if n.endswith(f".{passname}.{c}") or n == f"{passname}.{c}"]
+            picked.append(hits[0] if hits else None)
+        if not all(picked):
+            if channels is None and all(c in chans for c in "RGB"):
+                picked = ["R", "G", "B"]
+            else:
+                raise SSSInputError(f"{path}: no {passname} pass (R, G, B); channels found: {', '.join(names[:24])}")
+    else:
+        picked = list(channels)
+        if len(picked) != 3:
+            raise SSSInputError(f"{path}: truth channels must name three channels (R, G, B), got {picked}")
+        missing = [c for c in picked if c not in chans]
+        if missing:
+            raise SSSInputError(f"{path}: truth channel(s) {missing} missing; channels found: {', '.join(names[:24])}")
+    rgb = np.stack([chans[c] for c in picked], axis=-1).astype(np.float32)
+    if not np.all(np.isfinite(rgb)):
+        raise SSSInputError(f"{path}: truth has {int(np.sum(~np.isfinite(rgb)))} non-finite values")
+    return rgb
+
+
+def load_match_frame(render: str | os.PathLike, truth: str | os.PathLike, *, truth_channels=None, channel_map=None,
+                     focal_px: float | None = None, mm_per_unit: float | None = None, depth_kind: str = "planar",
+                     use_albedo_pass: bool = True) -> MatchFrame:
+    """A ``MatchFrame`` from the technique's input EXR (read as ``apply`` reads it: Blender multi-layer passes,
+    generic channels or a channel map; camera from the arguments, the header or a sidecar JSON) and the truth EXR
+    (``read_truth``). ``use_albedo_pass=False`` drops the albedo buffer so the material's albedo decides (as
+    ``apply --albedo`` does)."""
+    frame = read_frame(render, channel_map=channel_map, focal_px=focal_px, mm_per_unit=mm_per_unit,
+                       depth_kind=depth_kind)
+    if frame.focal_px is None:
+        raise SSSInputError(f"{render}: no focal length: give focal_px (--focal-px), the EXR header "
+                            "sss_jax:focal_px or a sidecar JSON with camera.focal_px")
+    rgb = read_truth(truth, channels=truth_channels)
+    if rgb.shape[:2] != frame.shape:
+        raise SSSInputError(f"{truth}: truth is {rgb.shape[1]}x{rgb.shape[0]}, the render {render} is "
+                            f"{frame.shape[1]}x{frame.shape[0]}: they must show the same view")
+    camera = Camera(frame.focal_px, frame.mm_per_unit if frame.mm_per_unit is not None else 1.0)
+    return match_frame(frame.to_buffers(use_albedo=use_albedo_pass), camera, rgb, name=pathlib.Path(render).name)
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# parameters: natural <-> unconstrained
+# ------------------------------------------------------------------------------------------------------------------
+
+
+def _rows(x, count: int, name: str) -> np.ndarray:
+    """``(count, 3)`` float64 from a ``(3,)``, ``(1, 3)`` or ``(count, 3)`` table."""
+    a = np.asarray(x, np.float64)
+    a = a.reshape(1, -1) if a.ndim <= 1 else a
+    if a.shape[-1] != 3 and a.shape[-1] != 1:
+        raise ValueError(f"{name} must have 3 channels, got shape {np.shape(x)}")
+    if a.shape[0] == 1:
+        a = np.broadcast_to(a, (count, a.shape[-1]))
+    if a.shape[0] < count:
+        raise ValueError(f"{name} has {a.shape[0]} material rows; the frames use material ids up to {count}")
+    return np.broadcast_to(a[:count], (count, 3)).copy()
+
+
+def _log(x) -> np.ndarray:
+    return np.log(np.maximum(np.asarray(x, np.float64), _FLOOR))
+
+
+def _logit(x) -> np.ndarray:
+    p = np.clip(np.asarray(x, np.float64), _FLOOR, 1 - _FLOOR)
+    return np.log(p / (1 - p))
+
+
+def _start_params(technique: str, material, count: int, fit_albedo: bool) -> tuple[dict, np.ndarray]:
+    """Unconstrained start and the ``(count, 3)`` albedo table, from the starting material."""
+    if technique == "burley":
+        if not isinstance(material, BurleyMaterial):
+            raise TypeError(f"technique 'burley' starts from a BurleyMaterial, got {type(material).__name__}")
+        albedo = _rows(material.albedo, count, "albedo")
+        y = {"log_d_mm": _log(_rows(material.d_mm, count, "d_mm"))}
+    elif technique == "separable":
+        if isinstance(material, BurleyMaterial):
+            material = _two_gaussian_from_burley(material, count)
+        if not isinstance(material, TwoGaussianMaterial):
+            raise TypeError("technique 'separable' starts from a TwoGaussianMaterial or a BurleyMaterial, got "
+                            f"{type(material).__name__}")
+        albedo = _rows(material.albedo, count, "albedo")
+        y = {"logit_w": _logit(_rows(material.w, count, "w")),
+             "log_sigma_near_mm": _log(_rows(material.sigma_near_mm, count, "sigma_near_mm")),
+             "log_sigma_far_mm": _log(_rows(material.sigma_far_mm, count, "sigma_far_mm"))}
+    elif technique == "sta":
+        if not (isinstance(material, tuple) and len(material) == 2 and isinstance(material[0], STAParams)):
+            raise TypeError("technique 'sta' starts from (STAParams, albedo (3,) or (M, 3))")
+        params, alb = material
+        albedo = _rows(alb, count, "albedo")
+        one = lambda v: np.broadcast_to(np.asarray(v, np.float64), (count,)).copy()
+        y = {"log_distortion": _log(one(params.distortion)), "log_power": _log(one(params.power)),
+             "log_scale": _log(_rows(params.scale, count, "scale")),
+             "log_ambient": _log(_rows(params.ambient, count, "ambient")),
+             "log_thickness_mm": _log(_rows(params.thickness_mm, count, "thickness_mm"))}
+    else:
+        raise ValueError(f"unknown technique {technique!r}; valid techniques to fit: {', '.join(MATCH_TECHNIQUES)}")
+    if fit_albedo:
+        y["logit_albedo"] = _logit(albedo)
+    return y, albedo
+
+
+def _two_gaussian_from_burley(material: BurleyMaterial, count: int) -> TwoGaussianMaterial:
+    """The start of a separable fit from a Burley material: the profile-space two-Gaussian fit per row."""
+    from ._fitting import fit_two_gaussian_to_burley
+
+    d = _rows(material.d_mm, count, "d_mm")
+    fits = {}
+    rows = {"w": [], "sigma_near_mm": [], "sigma_far_mm": []}
+    for row in d:
+        key = tuple(np.round(row, 9))
+        if key not in fits:
+            fits[key] = fit_two_gaussian_to_burley(np.maximum(row, 1e-3))
+        for k in rows:
+            rows[k].append(fits[key][k])
+    return TwoGaussianMaterial(_rows(material.albedo, count, "albedo"), rows["w"], rows["sigma_near_mm"],
+                               rows["sigma_far_mm"])
+
+
+def _natural(technique: str, y: Mapping[str, Any], albedo) -> dict[str, Any]:
+    """Natural parameters from unconstrained ones (works on traced arrays and on NumPy)."""
+    xp = jnp if any(isinstance(v, jax.Array) for v in y.values()) else np
+    sig = lambda v: 1 / (1 + xp.exp(-v))
+    a = sig(y["logit_albedo"]) if "logit_albedo" in y else albedo
+    if technique == "burley":
+        return {"albedo": a, "d_mm": xp.exp(y["log_d_mm"])}
+    if technique == "separable":
+        return {"albedo": a, "w": sig(y["logit_w"]), "sigma_near_mm": xp.exp(y["log_sigma_near_mm"]),
+                "sigma_far_mm": xp.exp(y["log_sigma_far_mm"])}
+    return {"albedo": a, **{k[4:]: xp.exp(v) for k, v in y.items() if k.startswith("log_")}}
+
+
+def _material_of(technique: str, p: Mapping[str, Any]):
+    if technique == "burley":
+        return BurleyMaterial(p["albedo"], p["d_mm"])
+    if technique == "separable":
+        return TwoGaussianMaterial(p["albedo"], p["w"], p["sigma_near_mm"], p["sigma_far_mm"])
+    return [STAParams(distortion=p["distortion"][k], power=p["power"][k], scale=p["scale"][k],
+                      ambient=p["ambient"][k], thickness_mm=p["thickness_mm"][k]) for k in range(p["scale"].shape[0])]
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# the problem: rendering and the residual
+# ------------------------------------------------------------------------------------------------------------------
+
+
+class _FrameData(eqx.Module):
+    buffers: Buffers
+    camera: Camera
+    truth: jax.Array  # (H, W, 3)
+    weight: jax.Array  # (H, W): 1 / ||truth_k|| (pooled over the fitted frames) on id k, 0 elsewhere
+    scale: jax.Array  # (H, W): the Huber unit, mean truth of the pixel's material (1 where no SSS)
+    ids: jax.Array  # (H, W) int32
+
+
+class _Problem(eqx.Module):
+    frames: tuple
+    albedo: jax.Array  # (M, 3): used where the albedo is not fitted
+    gain: jax.Array  # () constant factor on the residual: puts J^T J near 1 for the solver's first damping
+    light: DirectionalLight | None
+    technique: str = eqx.field(static=True)
+    samples: int = eqx.field(static=True)
+    taps: int = eqx.field(static=True)
+    thickness: float | None = eqx.field(static=True)
+    loss: str = eqx.field(static=True)
+    huber_delta: float = eqx.field(static=True)
+
+
+def _render(problem: _Problem, frame: _FrameData, y) -> jax.Array:
+    from ._techniques import burley, separable, translucency
+
+    y = jax.tree_util.tree_map(lambda v: jnp.asarray(v, problem.albedo.dtype), y)
+    p = _natural(problem.technique, y, problem.albedo)
+    material = _material_of(problem.technique, p)
+    if problem.technique == "burley":
+        return burley(frame.buffers, material, frame.camera, samples=problem.samples, interpolation="bilinear")
+    if problem.technique == "separable":
+        return separable(frame.buffers, material, frame.camera, taps=problem.taps, interpolation="linear")
+    out = frame.buffers.irradiance
+    for k, params in enumerate(material):  # STA parameters are one set per call: one pass per material id
+        o = translucency(frame.buffers, params, frame.camera, problem.light, albedo=p["albedo"],
+                         thickness=problem.thickness)
+        out = jnp.where((frame.ids == k + 1)[..., None], o, out)
+    return out
+
+
+def _huber_residual(e: jax.Array, delta: float) -> jax.Array:
+    """``sign(e) sqrt(2 huber_delta(e))``: its square is twice the Huber loss, so least squares minimises Huber.
+    The double ``where`` keeps the gradient finite at e = 0."""
+    a = jnp.abs(e)
+    big = a > delta
+    safe = jnp.where(big, a, 2 * delta)
+    return jnp.where(big, jnp.sign(e) * jnp.sqrt(2 * delta * safe - delta**2), e)
+
+
+def _residual(y, problem: _Problem):
+    parts = []
+    for frame in problem.frames:
+        out = _render(problem, frame, y)
+        e = (out - frame.truth) / frame.scale[..., None]
+        if problem.loss == "huber":
+            e = _huber_residual(e, problem.huber_delta)
+        parts.append((e * (problem.gain * frame.scale * frame.weight)[..., None]).reshape(-1))
+    return jnp.concatenate(parts)
+
+
+@eqx.filter_jit
+def _render_jit(problem: _Problem, frame: _FrameData, y):
+    return _render(problem, frame, y)
+
+
+def _frame_data(frame: MatchFrame, norms: Mapping[int, float], means: Mapping[int, float], dtype) -> _FrameData:
+    ids = frame.material_id
+    weight = np.zeros(ids.shape, np.float64)
+    scale = np.ones(ids.shape, np.float64)
+    for k, n in norms.items():
+        weight[ids == k] = 1.0 / n if n > 0 else 0.0
+        scale[ids == k] = means[k] if means[k] > 0 else 1.0
+    b = jax.tree_util.tree_map(lambda a: jnp.asarray(a, dtype) if jnp.issubdtype(a.dtype, jnp.floating) else a,
+                               frame.buffers)
+    return _FrameData(b, Camera(jnp.asarray(frame.camera.focal_px, dtype), jnp.asarray(frame.camera.mm_per_unit, dtype),
+                                frame.camera.principal_point),
+                      jnp.asarray(frame.truth, dtype), jnp.asarray(weight, dtype), jnp.asarray(scale, dtype),
+                      jnp.asarray(ids, jnp.int32))
+
+
+def _pooled_stats(frames: Sequence[MatchFrame], ids: Sequence[int]) -> tuple[dict[int, float], dict[int, float]]:
+    norms, means = {}, {}
+    for k in ids:
+        sq, total, count = 0.0, 0.0, 0
+        for f in frames:
+            t = f.truth[f.material_id == k].astype(np.float64)
+            sq += float(np.sum(t**2))
+            total += float(np.sum(t))
+            count += t.size
+        norms[k] = math.sqrt(sq)
+        means[k] = total / count if count else 0.0
+    return norms, means
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# errors
+# ------------------------------------------------------------------------------------------------------------------
+
+
+def _errors(frames: Sequence[MatchFrame], outputs: Sequence[np.ndarray], ids: Sequence[int]) -> dict[str, Any]:
+    """rel_l2 per material id and over all SSS pixels, pooled over ``frames`` and per frame (NumPy, float64)."""
+
+    def rel(pairs):
+        num = sum(float(np.sum((o - t) ** 2)) for o, t in pairs)
+        den = sum(float(np.sum(t**2)) for _, t in pairs)
+        return math.sqrt(num / den) if den > 0 else None
+
+    def groups(f, out):
+        o, t = out.astype(np.float64), f.truth.astype(np.float64)
+        g = {"all": (o[f.material_id > 0], t[f.material_id > 0])}
+        for k in ids:
+            m = f.material_id == k
+            if m.any():
+                g[f"id{k}"] = (o[m], t[m])
+        return g
+
+    per = [groups(f, o) for f, o in zip(frames, outputs)]
+    keys = ["all"] + [f"id{k}" for k in ids]
+    pooled = {k: rel([g[k] for g in per if k in g]) for k in keys}
+    return {"pooled": {k: v for k, v in pooled.items() if v is not None},
+            "per_frame": [{"frame": f.name, **{k: rel([g[k]]) for k in keys if k in g}} for f, g in zip(frames, per)]}
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# the result
+# ------------------------------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class MatchResult:
+    """The outcome of ``match_render``.
+
+    ``material``: the fitted material (``BurleyMaterial`` / ``TwoGaussianMaterial`` with one row per material id
+    1..M, or for ``sta`` a list of ``STAParams`` per id and the albedo in ``parameters``); ``parameters`` and
+    ``start``: ``{"id<k>": {name: values}}`` in natural units (mm, albedo in [0, 1]); ``errors``: ``{"fitted",
+    "holdout"}`` each ``{"before": ..., "after": ...}`` as ``_errors`` gives (``holdout`` None without held-back
+    frames); ``solver``: name, result (``optx.RESULTS`` name and message), iterations, seconds; ``engines``:
+    ``{"id<k>": engine_blocks(...)}`` for a Burley fit (None otherwise); ``images``: per frame the truth, before
+    and after renders and the id map (host arrays, for the report; not in ``to_json``)."""
+
+    technique: str
+    material: Any
+    parameters: dict
+    start: dict
+    ids: tuple
+    options: dict
+    loss: dict
+    solver: dict
+    errors: dict
+    engines: dict | None
+    images: tuple = dataclasses.field(repr=False, default=())
+
+    def to_json(self) -> dict[str, Any]:
+        return {"technique": self.technique, "options": self.options, "material_ids": list(self.ids),
+                "start": self.start, "fitted": self.parameters, "metric": METRIC, "loss": self.loss,
+                "solver": self.solver, "errors": self.errors, "engines": self.engines}
+
+
+def _result_name(result) -> tuple[str, str]:
+    import optimistix as optx
+
+    for name in ("successful", "max_steps_reached", "nonlinear_max_steps_reached", "nonlinear_divergence",
+                 "nonfinite", "singular", "breakdown", "stagnation", "nonfinite_input"):
+        item = getattr(optx.RESULTS, name, None)
+        if item is not None and bool(result == item):
+            return name, str(optx.RESULTS[result]).strip()
+    return "unknown", str(optx.RESULTS[result]).strip()
+
+
+def _table(technique: str, p: Mapping[str, Any], ids: Sequence[int]) -> dict[str, dict[str, Any]]:
+    return {f"id{k}": {name: np.asarray(v)[k - 1].tolist() for name, v in p.items()} for k in ids}
+
+
+def match_render(
+    frames: MatchFrame | Sequence[MatchFrame],
+    material,
+    *,
+    technique: str = "burley",
+    holdout: Sequence[MatchFrame] = (),
+    samples: int = 32,
+    taps: int = 25,
+    light: DirectionalLight | None = None,
+    thickness: float | None = None,
+    fit_albedo: bool = False,
+    loss: str = "huber",
+    huber_delta: float = 0.5,
+    max_steps: int = 20,
+    rtol: float = 1e-3,
+    atol: float = 1e-6,
+    gain: float = 100.0,
+) -> MatchResult:
+    """Fit ``technique``'s material per material id so its output on ``frames`` matches their truth renders.
+
+    ``material``: the start, one row for every id or one per id 1..M: a ``BurleyMaterial`` (``burley``; for
+    ``separable`` it is turned into the two-Gaussian kernel by the profile-space fit), a ``TwoGaussianMaterial``
+    (``separable``) or ``(STAParams, albedo (3,) or (M, 3))`` (``sta``, which also needs ``light`` and takes
+    ``thickness`` in scene units where frames carry none). ``samples`` (Burley) and ``taps`` (separable) are the
+    technique's sample counts: the fit is for that count. ``loss``: ``"huber"`` (``huber_delta`` in units of the
+    material's mean truth value) or ``"l2"``. ``holdout``: frames measured before and after, not fitted.
+    Solver: optimistix Levenberg–Marquardt (``rtol``, ``atol``, ``max_steps``), ``throw=False``.
+    """
+    import optimistix as optx
+
+    frames = [frames] if isinstance(frames, MatchFrame) else list(frames)
+    holdout = list(holdout)
+    if not frames:
+        raise ValueError("match_render needs at least one frame to fit")
+    if technique not in MATCH_TECHNIQUES:
+        raise ValueError(f"unknown technique {technique!r}; valid techniques to fit: {', '.join(MATCH_TECHNIQUES)}")
+    if loss not in MATCH_LOSSES:
+        raise ValueError(f"unknown loss {loss!r}; valid losses: {', '.join(MATCH_LOSSES)}")
+    if not (huber_delta > 0):
+        raise ValueError(f"huber_delta must be > 0, got {huber_delta}")
+    if not isinstance(samples, (int, np.integer)) or samples < 1:
+        raise ValueError(f"samples must be a positive integer, got {samples!r}")
+    if not isinstance(taps, (int, np.integer)) or taps < 1 or taps % 2 == 0:
+        raise ValueError(f"taps must be an odd positive integer, got {taps!r}")
+    if not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
+        raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
+    if technique == "sta" and not isinstance(light, DirectionalLight):
+        raise ValueError("technique 'sta' needs light=DirectionalLight(direction, colour)")
+    for f in frames + holdout:
+        if not isinstance(f, MatchFrame):
+            raise TypeError(f"frames must be MatchFrame (match_frame / load_match_frame), got {type(f).__name__}")
+    ids = sorted({int(k) for f in frames for k in np.unique(f.material_id) if k > 0})
+    count = max(ids)
+    for f in holdout:
+        extra = sorted({int(k) for k in np.unique(f.material_id) if k > 0} - set(ids))
+        if extra:
+            raise ValueError(f"held-back frame {f.name} has material id(s) {extra} that no fitted frame has: "
+                             "nothing is fitted for them")
+    y0, albedo = _start_params(technique, material, count, fit_albedo)
+    # one dtype for parameters and images (lineax wants the Jacobian's input and output to agree): JAX's default
+    # float, float32 unless x64 is on
+    dtype = jnp.result_type(float)
+    norms, means = _pooled_stats(frames, ids)
+    data = tuple(_frame_data(f, norms, means, dtype) for f in frames)
+    problem = _Problem(data, jnp.asarray(albedo, dtype), jnp.asarray(gain, dtype), light, technique, int(samples), int(taps),
+                       None if thickness is None else float(thickness), loss, float(huber_delta))
+    y0 = {k: jnp.asarray(v, dtype) for k, v in y0.items()}
+
+    t0 = time.perf_counter()
+    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+    sol = optx.least_squares(_residual, solver, y0, args=problem, max_steps=int(max_steps), throw=False)
+    y = jax.tree_util.tree_map(lambda v: v.block_until_ready(), sol.value)
+    seconds = time.perf_counter() - t0
+    name, message = _result_name(sol.result)
+    if name != "successful" and not all(bool(jnp.all(jnp.isfinite(v))) for v in y.values()):
+        y = y0  # a diverged solve keeps the start; the result code says so
+
+    # errors, before and after, in the plain metric, on fitted and held-back frames (same dense pass as the fit)
+    def run(fs, params):
+        ns, ms = _pooled_stats(fs, ids)
+        return [np.asarray(_render_jit(problem, _frame_data(f, ns, ms, dtype), params)) for f in fs]
+
+    before, after = run(frames, y0), run(frames, y)
+    errors = {"fitted": {"frames": [f.name for f in frames], "before": _errors(frames, before, ids),
+                         "after": _errors(frames, after, ids)}, "holdout": None}
+    images = [(f.name, "fitted", f.truth, b, a, f.material_id) for f, b, a in zip(frames, before, after)]
+    if holdout:
+        hb, ha = run(holdout, y0), run(holdout, y)
+        errors["holdout"] = {"frames": [f.name for f in holdout], "before": _errors(holdout, hb, ids),
+                             "after": _errors(holdout, ha, ids)}
+        images += [(f.name, "holdout", f.truth, b, a, f.material_id) for f, b, a in zip(holdout, hb, ha)]
+
+    host = lambda yy: {k: np.asarray(v, np.float64) for k, v in yy.items()}
+    p_start = _natural(technique, host(y0), np.asarray(albedo))
+    p_fit = _natural(technique, host(y), np.asarray(albedo))
+    engines = None
+    if technique == "burley":
+        from ._engines import engine_blocks
+
+        engines = {f"id{k}": engine_blocks(albedo=p_fit["albedo"][k - 1], d_mm=p_fit["d_mm"][k - 1]) for k in ids}
+    fitted = _material_of(technique, {k: jnp.asarray(v, dtype) for k, v in p_fit.items()})
+    options = {"samples": int(samples)} if technique == "burley" else (
+        {"taps": int(taps)} if technique == "separable" else {"thickness": thickness,
+                                                               "light_direction": np.asarray(light.direction).tolist(),
+                                                               "light_colour": np.asarray(light.colour).tolist()})
+    options["fit_albedo"] = bool(fit_albedo)
+    loss_info = {"name": loss, "note": "plain least squares on rel_l2 per material" if loss == "l2" else
+                 "Huber on each pixel's residual in units of its material's mean truth value (quadratic up to "
+                 "huber_delta, linear beyond), against the truth as given (not denoised)"}
+    if loss == "huber":
+        loss_info["huber_delta"] = float(huber_delta)
+    return MatchResult(
+        technique=technique, material=fitted, parameters=_table(technique, p_fit, ids),
+        start=_table(technique, p_start, ids), ids=tuple(ids), options=options, loss=loss_info,
+        solver={"name": "optimistix.LevenbergMarquardt", "rtol": rtol, "atol": atol, "max_steps": int(max_steps),
+                "result": name, "message": message, "iterations": int(sol.stats["num_steps"]),
+                "seconds": round(seconds, 3), "parameters": sorted(y0)},
+        errors=errors, engines=engines, images=tuple(images))
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# the report section
+# ------------------------------------------------------------------------------------------------------------------
+
+
+def _png(fig) -> str:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=fig.dpi)
+    return base64.b64encode(buf.getvalue()).decode()
+
+
+def _frame_figure(name: str, role: str, truth, before, after, ids, exposure: float):
+    from matplotlib.figure import Figure
+
+    mask = ids > 0
+    level = float(np.mean(truth[mask])) if mask.any() else 1.0
+    err = lambda o: np.where(mask, np.sqrt(np.sum((o - truth) ** 2, axis=-1)) / max(level, 1e-12), 0.0)
+    eb, ea = err(before), err(after)
+    vmax = max(float(np.percentile(eb[mask], 99)) if mask.any() else 1.0, 1e-6)
+    h, w = ids.shape
+    fig = Figure(figsize=(3 * 2.6, 2 * 2.6 * h / w + 0.6), dpi=100)
+    panels = [(truth, "truth"), (before, "before (start)"), (after, "after (fitted)")]
+    for i, (img, title) in enumerate(panels):
+        ax = fig.add_subplot(2, 3, i + 1)
+        ax.imshow(display_transform(img, exposure=exposure), interpolation="nearest")
+        ax.set_title(title, fontsize=8)
+        ax.axis("off")
+    ax = fig.add_subplot(2, 3, 4)
+    ax.axis("off")
+    ax.text(0.0, 0.5, f"{name}\n({role})", fontsize=8, va="center")
+    error_axes = []
+    for i, (e, title) in enumerate([(eb, "|before - truth|"), (ea, "|after - truth|")]):
+        ax = fig.add_subplot(2, 3, 5 + i)
+        im = ax.imshow(e, cmap="magma", vmin=0, vmax=vmax, interpolation="nearest")
+        ax.set_title(f"{title} / mean truth", fontsize=8)
+        ax.axis("off")
+        error_axes.append(ax)
+    fig.colorbar(im, ax=error_axes, fraction=0.03, pad=0.02)
+    return fig
+
+
+def _cell(v) -> str:
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    if isinstance(v, list):
+        return ", ".join(_cell(x) for x in v)
+    return html.escape(str(v))
+
+
+def match_report_html(result: MatchResult, *, max_frames: int = 4, exposure: float = 0.0) -> str:
+    """A self-contained HTML fragment (no ``<html>``; images embedded as base64 PNG) for a report section: the
+    errors before and after, the fitted parameters beside the start, the solver's outcome, and per frame (up to
+    ``max_frames``) the truth, the renders before and after, and their error maps."""
+    e = result.errors
+    rows = []
+    for role in ("fitted", "holdout"):
+        if e.get(role) is None:
+            continue
+        for key, before in e[role]["before"]["pooled"].items():
+            rows.append(f"<tr><td>{role} ({len(e[role]['frames'])} frame(s))</td><td>{key}</td>"
+                        f"<td>{before:.4f}</td><td>{e[role]['after']['pooled'][key]:.4f}</td></tr>")
+    opts = ", ".join(f"{k} {_cell(v)}" for k, v in result.options.items() if v is not None)
+    parts = [f"<p>Technique <b>{html.escape(result.technique)}</b> ({opts}), "
+             f"loss {html.escape(result.loss['name'])}, solver {html.escape(result.solver['name'])}: "
+             f"{html.escape(result.solver['result'])} after {result.solver['iterations']} iterations, "
+             f"{result.solver['seconds']:.1f} s. Metric: {html.escape(METRIC)}.</p>",
+             "<table><tr><th>frames</th><th>pixels</th><th>rel_l2 before</th><th>rel_l2 after</th></tr>"
+             + "".join(rows) + "</table>"]
+    prow = []
+    for k, fitted in result.parameters.items():
+        for name, v in fitted.items():
+            prow.append(f"<tr><td>{k}</td><td>{html.escape(name)}</td><td>{_cell(result.start[k][name])}</td>"
+                        f"<td>{_cell(v)}</td></tr>")
+    parts.append("<table><tr><th>material</th><th>parameter</th><th>start</th><th>fitted</th></tr>"
+                 + "".join(prow) + "</table>")
+    if result.engines:
+        erow = []
+        for k, blocks in result.engines.items():
+            for engine, block in blocks.items():
+                text = "; ".join(f"{a}: {_cell(b)}" for a, b in block.items())
+                erow.append(f"<tr><td>{k}</td><td>{html.escape(engine)}</td><td style='text-align:left'>{text}"
+                            "</td></tr>")
+        parts.append("<table><tr><th>material</th><th>engine</th><th>parameters</th></tr>" + "".join(erow)
+                     + "</table>")
+    for name, role, truth, before, after, ids in result.images[:max_frames]:
+        fig = _frame_figure(name, role, truth, before, after, ids, exposure)
+        parts.append(f"<figure><img src='data:image/png;base64,{_png(fig)}' alt='{html.escape(name)}'>"
+                     f"<figcaption>{html.escape(name)} ({role}): truth, before and after; error maps "
+                     f"||out - truth||_RGB / mean truth on SSS pixels, one scale</figcaption></figure>")
+    return "<div class='sss-jax-match'>" + "".join(parts) + "</div>"
+
+
+def write_match_html(path: str | os.PathLike, result: MatchResult, **options) -> pathlib.Path:
+    """A standalone HTML page holding ``match_report_html(result)``. Atomic."""
+    title = f"sss-jax fit: {result.technique} matched to the truth render"
+    page = ("<!doctype html><html><head><meta charset='utf-8'><title>" + html.escape(title) + "</title><style>"
+            "body{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;color:#222}"
+            "table{border-collapse:collapse;margin:1em 0;font-size:.9em}th,td{border:1px solid #ddd;"
+            "padding:.3em .6em;text-align:right}th{background:#f4f4f4}figure{margin:1em 0}figure img{max-width:100%}"
+            "figcaption{font-size:.85em;color:#555}</style></head><body><h1>" + html.escape(title) + "</h1>"
+            + match_report_html(result, **options) + "</body></html>")
+    return write_bytes_atomic(path, page.encode())
