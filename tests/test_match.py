@@ -99,7 +99,7 @@ def test_fit_burley_from_2x_off_beats_the_exact_conversion_and_apply_reproduces_
     argv = ["fit", "--render", str(frame["render"]), "--truth", str(frame["truth"]), "--technique", "burley",
             "--samples", str(SAMPLES), "--albedo", ",".join(map(repr, ALBEDO)),
             "--d-mm", ",".join(repr(2 * float(v)) for v in d_exact), "--max-steps", str(STEPS),
-            "--json", str(out_json), "--html", str(out_html)]
+            "--json", str(out_json), "--html", str(out_html), "--report", str(tmp_path / "report"), "--radius-px", "2"]
     assert main(argv) == 0
     assert "rel_l2 on fitted frames" in capsys.readouterr().out
     res = json.loads(out_json.read_text())
@@ -138,6 +138,12 @@ def test_fit_burley_from_2x_off_beats_the_exact_conversion_and_apply_reproduces_
 
     page = out_html.read_text()
     assert page.count("data:image/png;base64,") >= 1 and "src='http" not in page and "d_mm" in page
+    # the report of the fitted material carries the fit's section (before/after, fitted parameters)
+    rep = json.loads((tmp_path / "report" / "report.json").read_text())
+    (row,) = rep["techniques"]
+    assert row["technique"] == "burley" and row["vs_truth"]["rel_l2"] == pytest.approx(claimed, rel=2e-2)
+    report_page = (tmp_path / "report" / "report.html").read_text()
+    assert "Match to the truth render" in report_page and "d_mm" in report_page
 
 
 @pytest.mark.usefixtures("float32")

@@ -137,6 +137,12 @@ def _register_match(p) -> None:
     m.add_argument("--json", type=pathlib.Path, metavar="OUT.json", help="write the result as JSON")
     m.add_argument("--html", type=pathlib.Path, metavar="OUT.html",
                    help="write a standalone HTML page: before/after renders, error maps, fitted parameters")
+    m.add_argument("--report", type=pathlib.Path, metavar="DIR",
+                   help="also write the error report (as `sss-jax report` does) of the fitted material on these "
+                        "frames against the reference and the truth, with a section showing the fit's before/after "
+                        "and the fitted parameters (burley and separable)")
+    m.add_argument("--radius-px", type=int, metavar="N", help="the report's reference window radius in px (default: "
+                   "the radius holding 99.9%% of the profile's energy)")
     sta = p.add_argument_group("STA start (with --render --technique sta)")
     sta.add_argument("--light-dir", type=rgb_triple, help="direction towards the light, camera space")
     sta.add_argument("--light-colour", type=rgb_triple, default=(1.0, 1.0, 1.0))
@@ -183,6 +189,8 @@ def _run_match(args) -> int:
         for out in (args.json, args.html):
             if out is not None and out.parent.exists() and not out.parent.is_dir():
                 raise ValueError(f"{out}: its folder {out.parent} is not a directory")
+        if args.report is not None and args.technique == "sta":
+            raise ValueError("--report needs --technique burley or separable (the report's reference is a profile)")
         result = match_render(frames, material, technique=args.technique, holdout=holdout, samples=args.samples,
                               taps=args.taps, light=light, thickness=args.thickness, fit_albedo=args.fit_albedo,
                               loss=args.loss, huber_delta=args.huber_delta, max_steps=args.max_steps)
@@ -202,6 +210,8 @@ def _run_match(args) -> int:
     if args.html is not None:
         args.html.parent.mkdir(parents=True, exist_ok=True)
         write_match_html(args.html, result)
+    if args.report is not None:
+        _match_report(args, result, material, use_albedo_pass)
     e = result.errors
     s = result.solver
     print(f"{args.technique}: {s['result']} after {s['iterations']} iterations ({s['seconds']:.1f} s); "
@@ -213,3 +223,21 @@ def _run_match(args) -> int:
         print(f"  {k}: " + "; ".join(f"{n} = {', '.join(f'{v:.4g}' for v in (x if isinstance(x, list) else [x]))}"
                                      for n, x in params.items()))
     return 0
+
+
+def _match_report(args, result, start, use_albedo_pass: bool) -> None:
+    """The report of the fitted material on the fitted frames (``sj.evaluate_frames`` measures, ``sj.report`` lays
+    out), with the fit's own section: the report and the match share one page."""
+    from .._evaluate import evaluate_frames
+    from .._match import match_report_html
+    from .._report import report
+
+    burley_fit = args.technique == "burley"
+    data = evaluate_frames(args.render, result.material if burley_fit else start, truth=args.truth,
+                           truth_channels=args.truth_channels, techniques=[args.technique], samples=[args.samples],
+                           taps=[args.taps], separable_material=None if burley_fit else result.material,
+                           focal_px=args.focal_px, mm_per_unit=args.mm_per_unit, channel_map=args.channel_map,
+                           depth_kind=args.depth_kind, use_albedo_pass=use_albedo_pass, radius_px=args.radius_px,
+                           cache_dir=args.report / "cache", repeats=1, progress=True)
+    report(data, args.report, extra_sections=[("Match to the truth render", match_report_html(result))])
+    print(f"wrote {args.report / 'report.html'}")
