@@ -55,6 +55,7 @@ from ._fitting import (
 from ._io import SSSInputError, write_bytes_atomic
 from ._kernels import two_gaussian_kernel
 from ._materials import BurleyMaterial, ProfileMaterial, STAParams, TwoGaussianMaterial
+from ._metrics import rel_l2
 from ._montecarlo import MCResult, simulate, to_tabulated_profile
 from ._profiles import BurleyProfile, burley_R, marginal_cdf, scaling_searchlight
 from ._scene import Camera
@@ -396,15 +397,11 @@ def fit_burley_d(result: MCResult, mfp_mm: float, d0_mm: float, *, solver: str =
 # ------------------------------------------------------------------------------------------------------------------
 
 
-def _rel_l2(a: np.ndarray, b: np.ndarray) -> float:
-    return float(np.linalg.norm(np.asarray(a) - np.asarray(b)) / np.linalg.norm(np.asarray(b)))
-
-
 def _burley_vs_mc(res: MCResult, mfp_mm: float, d_mm: float) -> float:
     """``||r (R_burley - R_mc)|| / ||r R_mc||`` on the run's bins, both profiles of unit energy."""
     r = res.r_mfp * mfp_mm
     R_mc = res.R / (mfp_mm**2) / max(res.total_reflectance, 1e-300)
-    return _rel_l2(r * np.asarray(burley_R(r, d_mm)), r * R_mc)
+    return rel_l2(r * np.asarray(burley_R(r, d_mm)), r * R_mc)
 
 
 def _radial_two_gaussian(tg: dict, r_mm: np.ndarray, angles: int = 64) -> np.ndarray:
@@ -438,9 +435,9 @@ def profile_errors(d_mm: np.ndarray, mc: list[MCResult], mfp_mm: np.ndarray, tg_
         R_tg = _radial_two_gaussian(tg_burley, r)[:, c]
         R_tgm = _radial_two_gaussian(tg_mc, r)[:, c]
         out["burley_vs_montecarlo"].append(_burley_vs_mc(res, float(mfp_mm[c]), float(d_mm[c])))
-        out["two_gaussian_vs_montecarlo"].append(_rel_l2(r * R_tg, r * R_mc))
-        out["two_gaussian_vs_burley"].append(_rel_l2(r * R_tg, r * R_b))
-        out["two_gaussian_montecarlo_vs_montecarlo"].append(_rel_l2(r * R_tgm, r * R_mc))
+        out["two_gaussian_vs_montecarlo"].append(rel_l2(r * R_tg, r * R_mc))
+        out["two_gaussian_vs_burley"].append(rel_l2(r * R_tg, r * R_b))
+        out["two_gaussian_montecarlo_vs_montecarlo"].append(rel_l2(r * R_tgm, r * R_mc))
     return out
 
 
@@ -511,8 +508,8 @@ def sta_errors(sta: dict, d_mm: np.ndarray, slab: dict) -> dict[str, Any]:
     sta_v, b_v, mc_v = (np.concatenate(v) for v in (sta_vals, burley_vals, mc_vals))
     return {"metric": "relative L2 of slab transmittance at normal light and view, thicknesses "
                       f"t/d = {', '.join(f'{k:g}' for k in SLAB_T_OVER_D)} per channel",
-            "sta_vs_burley": _rel_l2(sta_v, b_v), "sta_vs_montecarlo": _rel_l2(sta_v, mc_v),
-            "burley_vs_montecarlo": _rel_l2(b_v, mc_v)}
+            "sta_vs_burley": rel_l2(sta_v, b_v), "sta_vs_montecarlo": rel_l2(sta_v, mc_v),
+            "burley_vs_montecarlo": rel_l2(b_v, mc_v)}
 
 
 def transmission_curves(preset: dict, slab: dict, *, points: int = 60) -> dict[str, Any]:
@@ -546,7 +543,7 @@ def transmission_curves(preset: dict, slab: dict, *, points: int = 60) -> dict[s
     return {"t_over_d": [(np.asarray(t) / d[c]).tolist() for c, t in enumerate(slab["thickness_mm"])],
             "montecarlo": slab["T"], "montecarlo_stderr": slab["T_stderr"],
             "models": {m: [v.tolist() for v in vals] for m, vals in at_mc.items()},
-            "rel_l2": {m: _rel_l2(np.concatenate(vals), mc) for m, vals in at_mc.items()},
+            "rel_l2": {m: rel_l2(np.concatenate(vals), mc) for m, vals in at_mc.items()},
             "fine_t_over_d": fine_t_over_d.tolist(), "fine": fine}
 
 
