@@ -519,7 +519,7 @@ def match_render(
     p_fit = _natural(technique, host(y), np.asarray(albedo))
     engines = None
     if technique == "burley":
-        from ._engines import engine_blocks
+        from .engines import engine_blocks
 
         engines = {f"id{k}": engine_blocks(albedo=p_fit["albedo"][k - 1], d_mm=p_fit["d_mm"][k - 1]) for k in ids}
     fitted = _material_of(technique, {k: jnp.asarray(v, dtype) for k, v in p_fit.items()})

@@ -128,7 +128,7 @@ def translucency(
     camera: Camera,
     light: DirectionalLight,
     *,
-    albedo: Array | None = None,
+    albedo: ParamLike | None = None,
     thickness: float | None = None,
     model: str = "sta",
 ) -> Float[Array, "H W 3"]:
