@@ -748,7 +748,7 @@ def plot_preset(preset: dict, out_dir: pathlib.Path) -> pathlib.Path:
     cache = json.loads((out_dir / preset["montecarlo"]["cache"]).read_text())
     mfp = np.asarray(cache["mean_free_path_mm"])
     d = np.asarray(preset["burley"]["d_mm"])
-    fig = Figure(figsize=(12, 3.6), layout="constrained")  # no pyplot: no global state
+    fig = Figure(figsize=(12, 3.6), layout="constrained")  # a Figure of its own: no global matplotlib state
     axes = fig.subplots(1, 3)
     for c, ax in enumerate(axes):
         prof = cache["profiles"][c]
