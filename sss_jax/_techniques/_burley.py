@@ -17,6 +17,7 @@ from .._materials import BurleyMaterial
 from .._profiles import burley_cdf, burley_inverse_ccdf
 from .._scene import Buffers, Camera
 from .._units import px_per_mm
+from ._dispatch import resolve_impl
 from ._common import (
     MIN_FOOTPRINT_PX,
     _check_albedo_mode,
@@ -171,6 +172,7 @@ def burley(
     interpolation: str = "bilinear",
     min_footprint_px: float = MIN_FOOTPRINT_PX,
     compact: bool | None = None,
+    impl: str = "auto",
 ) -> Float[Array, "H W 3"]:
     """Screen-space Christensen–Burley normalised diffusion (one pass, ``samples`` spiral samples per pixel).
 
@@ -189,6 +191,10 @@ def burley(
     never. Under ``jit``/``vmap`` every pixel is computed (one compilation per shape). Compacted and dense results
     agree to rounding. Channels that share one d (a grey material, or every material grey) share one kernel
     evaluation per sample instead of three; the result is the same.
+
+    ``impl`` (``_dispatch``): "auto" runs the formulation above on a CPU backend ("xla-cpu") and elsewhere the
+    whole-frame one with no host round trip ("xla-gpu": every pixel computed and masked, ``compact`` unused, three
+    kernel evaluations per sample); "pallas" is that as one Pallas kernel (blocks without active pixels skip it).
     """
     _check_albedo_mode(albedo_mode)
     if interpolation not in ("bilinear", "nearest"):
@@ -199,6 +205,12 @@ def burley(
         raise ValueError(f"samples must be a positive integer, got {samples!r}")
     if not (float(min_footprint_px) >= 0):
         raise ValueError(f"min_footprint_px must be >= 0, got {min_footprint_px!r}")
+    which = resolve_impl(impl)
+    if which != "xla-cpu":  # no host count, no host read of d: nothing waits for the device
+        from ._burley_gpu import burley_gpu_impl
+
+        return burley_gpu_impl(buffers, material, camera, int(samples), albedo_mode, interpolation,
+                               float(min_footprint_px), 3, which)
     capacity, truncate = None, True
     weight_channels = weight_channel_count(material.d_mm)
     if _is_concrete(buffers, material, camera):

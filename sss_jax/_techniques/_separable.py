@@ -19,6 +19,8 @@ from .._materials import (
 )
 from .._scene import Buffers, Camera
 from .._units import px_per_mm
+from ._dispatch import resolve_impl
+from ._separable_gpu import separable_gpu_impl
 from ._common import (
     MIN_FOOTPRINT_PX,
     _check_albedo_mode,
@@ -238,6 +240,7 @@ def separable(
     interpolation: str = "linear",
     min_footprint_px: float = MIN_FOOTPRINT_PX,
     scale_levels: int = SCALE_LEVELS,
+    impl: str = "auto",
 ) -> Float[Array, "H W 3"]:
     """Separable subsurface scattering (Jimenez et al. 2015): a horizontal then a vertical 1D pass.
 
@@ -256,6 +259,10 @@ def separable(
     holding 99% of the widest channel's energy, in px) is below ``min_footprint_px`` keep their local shading
     (``albedo * irradiance``, the paper's Fig. 1); 0 disables that. Several materials in one frame cost one pass;
     materials that share a kernel (differing only in albedo) share its table row and per-pixel weight term.
+
+    ``impl`` (``_dispatch``): "auto" runs the formulation above on a CPU backend ("xla-cpu") and the whole-frame one
+    elsewhere ("xla-gpu": per tap a gather at each pixel's own offset, Jimenez's shader, so no reach levels and no
+    level error; ``scale_levels`` is unused); "pallas" is that as a Pallas kernel per pass.
     """
     _check_albedo_mode(albedo_mode)
     if not isinstance(material, AbstractMaterial):
@@ -270,6 +277,10 @@ def separable(
     if not (float(min_footprint_px) >= 0):
         raise ValueError(f"min_footprint_px must be >= 0, got {min_footprint_px!r}")
     mode = "bilinear" if interpolation == "linear" else "nearest"
+    which = resolve_impl(impl)
+    if which != "xla-cpu":  # no host read of the parameters (kernel_groups) off the CPU
+        return separable_gpu_impl(buffers, material, camera, int(taps), albedo_mode, bool(follow_surface), mode,
+                                  float(min_footprint_px), None, which)
     return _separable_impl(buffers, material, camera, int(taps), albedo_mode, bool(follow_surface), mode,
                            int(scale_levels), float(min_footprint_px), kernel_groups(material))
 
