@@ -17,6 +17,7 @@ from sss_jax._advise import (
     advise,
     choose,
     known_materials,
+    measure_candidates,
     resolve_material,
 )
 from sss_jax._techniques import burley_active_count, compaction_capacity, kernel_groups, weight_channel_count
@@ -539,3 +540,47 @@ def test_advise_measures_for_real():
                     candidates=(("local", None), ("separable", 5), ("burley", 8)))
     assert {c.technique for c in advice.candidates} == {"local", "separable", "burley"}
     assert all(c.ms > 0 and c.delta_e >= 0 for c in advice.candidates)
+
+
+# the fastest within the budget, separable 9 (6.0 ms), and burley 16 (6.4 ms, more accurate) overlap in their
+# interquartile ranges; burley 32 is slower beyond the noise
+NOISY = [Candidate("local", None, 0.5, 3.0, 0.45, 0.55), Candidate("separable", 9, 6.0, 0.8, 5.5, 6.9),
+         Candidate("burley", 16, 6.4, 0.5, 6.2, 7.5), Candidate("burley", 32, 20.0, 0.4, 19.0, 21.0)]
+
+
+def test_choose_prefers_the_more_accurate_where_timings_are_within_the_noise():
+    assert NOISY[1].within_noise_of(NOISY[2]) and not NOISY[2].within_noise_of(NOISY[3])
+    pick, why = choose(NOISY, 1.0)
+    assert (pick.technique, pick.count) == ("burley", 16)
+    assert "separable 9 has the lowest median time" in why and "within the timing noise" in why
+    assert "misses the budget" in why and "local" in why  # the cheaper local shading misses the budget
+    # the same medians with ranges that do not overlap: the fastest wins, as before
+    apart = [Candidate(c.technique, c.count, c.ms, c.delta_e, c.ms - 0.1, c.ms + 0.1) for c in NOISY]
+    pick, why = choose(apart, 1.0)
+    assert (pick.technique, pick.count) == ("separable", 9) and "noise" not in why
+    # no spread known (one timing each): medians decide
+    assert choose(TABLE, 1.0)[0].count == 9
+    # ties only among candidates within the budget: separable 9 over a 0.6 budget leaves burley 16 the fastest, and
+    # burley 32 (more accurate still) is beyond its noise; under 0.45 only burley 32 is left
+    assert choose(NOISY, 0.6)[0].count == 16 and choose(NOISY, 0.9)[0].count == 16
+    assert choose(NOISY, 0.45)[0].count == 32
+
+
+def test_measure_candidates_keeps_the_median_and_spread_of_the_timings(monkeypatch):
+    # injected timings (ms), no clock: median and quartiles as np.percentile's linear rule gives them by hand
+    # ([1, 2, 3, 4, 100]: 25% at position 1 -> 2, 50% -> 3, 75% at position 3 -> 4)
+    fake = {"local": [1.0, 2.0, 3.0, 4.0, 100.0], "separable": [10.0, 12.0, 11.0, 13.0, 14.0]}
+    seen = []
+
+    def timer(fn, repeats):
+        seen.append(repeats)
+        return fake["local" if len(seen) == 1 else "separable"]
+
+    cands = measure_candidates(sj.BurleyMaterial([0.8] * 3, [2.0, 1.0, 0.5]), size=(24, 32), repeats=5,
+                               candidates=(("local", None), ("separable", 5)), timer=timer)
+    assert seen == [5, 5]
+    assert (cands[0].ms, cands[0].ms_low, cands[0].ms_high) == (3.0, 2.0, 4.0)
+    assert (cands[1].ms, cands[1].ms_low, cands[1].ms_high) == (12.0, 11.0, 13.0)
+    assert cands[1].delta_e > 0
+    advice = Advice("x", 10.0, cands[0], cands, "r")
+    assert "2.00-4.00" in advice.table() and advice.to_json()["candidates"][1]["ms_high"] == 13.0
