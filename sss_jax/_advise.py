@@ -2,10 +2,11 @@
 
 Every candidate (local shading, ``separable`` at several tap counts, ``burley`` at several sample counts) is run on
 the scene (the demo scene with every object made of the material, or the caller's buffers), timed on this machine
-(median and interquartile range of repeated runs after a compile run) and compared with ``reference``: the error is the mean CIEDE2000 over the SSS pixels
-(colour-science, on the host, linear sRGB at exposure 0). The choice is the fastest candidate whose ΔE is within the
-budget; timings are repeated, and where the fastest one's interquartile range of times overlaps another's within
-the budget, the two are within the noise of this machine: the advisor says so and takes the more accurate of them.
+(median and interquartile range of repeated runs after a compile run) and compared with ``reference``: the error is
+the mean CIEDE2000 over the SSS pixels (colour-science, on the host, linear sRGB at exposure 0). The choice is the
+fastest candidate whose ΔE is within the budget; where the fastest one's interquartile range of times overlaps
+another's within the budget, the two are within the noise of this machine: the advisor says so and takes the more
+accurate of them.
 Errors depend on the material's scattering distance against the scene's scale in pixels, so the scene scale
 matters as much as the material: ``scene_scale`` multiplies the size of a scene unit in millimetres.
 """

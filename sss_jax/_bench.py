@@ -160,7 +160,8 @@ def _default(fn, name: str):
 
 
 # what the rows run: each technique's default interpolation (the cost model counts its fetches)
-_DEFAULT_INTERPOLATION = {"separable": _default(separable, "interpolation"), "burley": _default(burley, "interpolation")}
+_DEFAULT_INTERPOLATION = {name: _default(fn, "interpolation") for name, fn in (("separable", separable),
+                                                                               ("burley", burley))}
 
 
 def run_bench(*, quick: bool = False, repeats: int = 3, progress: Callable[[str], None] | None = None,

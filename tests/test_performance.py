@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 import sss_jax as sj
-from sss_jax._techniques import _separable as separable_module
 from sss_jax._advise import (
     Advice,
     Candidate,
@@ -20,7 +19,13 @@ from sss_jax._advise import (
     measure_candidates,
     resolve_material,
 )
-from sss_jax._techniques import burley_active_count, compaction_capacity, kernel_groups, weight_channel_count
+from sss_jax._techniques import _separable as separable_module
+from sss_jax._techniques import (
+    burley_active_count,
+    compaction_capacity,
+    kernel_groups,
+    weight_channel_count,
+)
 from sss_jax._techniques._burley import _burley_impl
 from sss_jax._techniques._burley_gpu import gather_burley, pixel_planes, sample_pattern
 from sss_jax._techniques._common import _prepare
@@ -115,11 +120,12 @@ def test_grey_channels_share_one_kernel_evaluation():
     # the per-sample kernel (one exponential per pixel, corner and channel plane) is evaluated on one channel for the
     # grey material, on three otherwise: two fewer per corner, four corners (bilinear)
     n = 24 * 32
-    grey_exps = _exp_shapes(lambda bb: sj.burley(bb, grey, CAM, samples=8, compact=False), b)
-    rgb_exps = _exp_shapes(lambda bb: sj.burley(bb, MAT, CAM, samples=8, compact=False), b)
+    bilinear = dict(samples=8, compact=False, interpolation="bilinear")
+    grey_exps = _exp_shapes(lambda bb: sj.burley(bb, grey, CAM, **bilinear), b)
+    rgb_exps = _exp_shapes(lambda bb: sj.burley(bb, MAT, CAM, **bilinear), b)
     assert grey_exps.count((n,)) >= 4 and rgb_exps.count((n,)) - grey_exps.count((n,)) == 2 * 4
     # and the image is the one the three-channel evaluation gives
-    shared = np.asarray(sj.burley(b, grey, CAM, samples=8, compact=False))
+    shared = np.asarray(sj.burley(b, grey, CAM, **bilinear))
     per_channel = np.asarray(_burley_impl(b, grey, CAM, 8, "post", "bilinear", None, 0.5, 3, True))
     np.testing.assert_allclose(shared, per_channel, rtol=1e-12, atol=1e-14)
     assert np.abs(shared - 0.9 * np.asarray(b.irradiance)[..., :1]).max() > 1e-3  # it did scatter
@@ -133,10 +139,11 @@ def test_untruncated_frames_share_the_sample_radii():
     small = sj.BurleyMaterial(albedo=[0.9, 0.8, 0.7], d_mm=[0.6, 0.3, 0.15])  # 0.12 px: diagonal 40 px = 333 d
     large = sj.BurleyMaterial(albedo=[0.9, 0.8, 0.7], d_mm=[60.0, 30.0, 15.0])  # 12 px: diagonal 3.3 d
     impl = lambda m, truncate: np.asarray(_burley_impl(b, m, CAM, 8, "post", "bilinear", None, 0.0, 3, truncate))
-    out_small = np.asarray(sj.burley(b, small, CAM, samples=8, min_footprint_px=0.0, compact=False))
+    kw = dict(samples=8, min_footprint_px=0.0, compact=False, interpolation="bilinear")
+    out_small = np.asarray(sj.burley(b, small, CAM, **kw))
     np.testing.assert_allclose(out_small, impl(small, True), rtol=1e-12, atol=1e-14)
     np.testing.assert_array_equal(out_small, impl(small, False))  # the shared radii are what ran
-    out_large = np.asarray(sj.burley(b, large, CAM, samples=8, min_footprint_px=0.0, compact=False))
+    out_large = np.asarray(sj.burley(b, large, CAM, **kw))
     np.testing.assert_array_equal(out_large, impl(large, True))
     assert np.abs(impl(large, False) - out_large).max() > 1e-3
 
@@ -471,10 +478,11 @@ def test_separable_formulations_agree_where_the_reach_is_one_and_the_gather_foll
     for out in outs.values():  # every pixel has one reach: the levels are exact, the formulations agree
         np.testing.assert_allclose(np.asarray(out), cpu, rtol=1e-12, atol=1e-13)
     # a tilted plane: the gather takes each pixel's own reach, which the levels approach as they grow in number
-    tilted = sj.Buffers(irradiance=e, depth=jnp.asarray(45.0 + 15.0 * np.linspace(0, 1, 12)[None, :] * np.ones((10, 1))))
+    slope = 15.0 * np.linspace(0, 1, 12)[None, :] * np.ones((10, 1))
+    tilted = sj.Buffers(irradiance=e, depth=jnp.asarray(45.0 + slope))
     gather = np.asarray(sj.separable(tilted, MAT, CAM, taps=9, impl="xla-gpu"))
-    err = {n: np.abs(np.asarray(sj.separable(tilted, MAT, CAM, taps=9, scale_levels=n, impl="xla-cpu")) - gather).max()
-           for n in (2, 16)}
+    levels = lambda n: np.asarray(sj.separable(tilted, MAT, CAM, taps=9, scale_levels=n, impl="xla-cpu"))
+    err = {n: np.abs(levels(n) - gather).max() for n in (2, 16)}
     assert err[16] < err[2] / 4
     with pytest.raises(ValueError, match="impl='gpu' is not one of"):
         sj.separable(flat, MAT, CAM, impl="gpu")

@@ -19,8 +19,6 @@ from .._materials import (
 )
 from .._scene import Buffers, Camera
 from .._units import px_per_mm
-from ._dispatch import resolve_impl
-from ._separable_gpu import separable_gpu_impl
 from ._common import (
     MIN_FOOTPRINT_PX,
     _check_albedo_mode,
@@ -30,10 +28,14 @@ from ._common import (
     _safe_log,
     _work_dtype,
 )
+from ._dispatch import resolve_impl
+from ._separable_gpu import separable_gpu_impl
 
 # Pixel-scale levels of the separable pass: each level is one shifted-slice pass at a constant reach; a pixel
 # blends the two levels that bracket its own reach (in log scale), so the result stays continuous in d and depth.
-SCALE_LEVELS = 4
+# Two levels: on the demo scene (640x360, 25 taps) as accurate against the reference as four (rel. L2 0.0161 against
+# 0.0164; the levels' own error is ~0.0015 next to the technique's ~0.016) and ~1.4-2x faster on a CPU.
+SCALE_LEVELS = 2
 
 
 def _separable_level(fetch: Callable[[Array], tuple[Array, Array, Array]], e: Array, z: Array, reach_px: Array,
