@@ -79,7 +79,8 @@ def test_footprint_below_half_a_pixel_keeps_local_shading(technique):
     b = _scene(coverage_rows=24)
     # d = 0.05 mm: 99% of the energy within ~0.65 mm = 0.13 px at 0.2 px/mm, under half a pixel
     tiny = sj.BurleyMaterial(albedo=[0.9, 0.8, 0.7], d_mm=[0.05, 0.04, 0.03])
-    run = {"burley": lambda **kw: sj.burley(b, tiny, CAM, samples=8, **kw),
+    # (bilinear: a nearest fetch of samples 0.13 px away reads the centre pixel itself, local shading exactly)
+    run = {"burley": lambda **kw: sj.burley(b, tiny, CAM, samples=8, interpolation="bilinear", **kw),
            "separable": lambda **kw: sj.separable(b, tiny, CAM, taps=9, **kw)}[technique]
     local = np.asarray([0.9, 0.8, 0.7]) * np.asarray(b.irradiance)
     np.testing.assert_allclose(np.asarray(run()), local, rtol=1e-12)
@@ -244,7 +245,7 @@ def test_materials_sharing_a_kernel_share_its_weight_term():
     ids = np.ones((24, 32), np.int32)
     ids[:, 10:20], ids[:, 20:] = 2, 3
     b = sj.Buffers(irradiance=b.irradiance, depth=b.depth, material_id=jnp.asarray(ids))
-    args = (b, mats, CAM, 9, "post", True, "bilinear", 4, 0.5)
+    args = (b, mats, CAM, 9, "post", True, "bilinear", separable_module.SCALE_LEVELS, 0.5)
     shared = np.asarray(sj.separable(b, mats, CAM, taps=9))
     np.testing.assert_allclose(shared, np.asarray(_separable_impl(*args, None)), rtol=1e-12, atol=1e-14)
     albedo = np.asarray(mats.albedo)[ids - 1]

@@ -28,8 +28,8 @@ from ._burley import (
     weight_channel_count as weight_channel_count,
 )
 from ._common import ALBEDO_MODES as ALBEDO_MODES
-from ._dispatch import IMPLS as IMPLS
 from ._common import MIN_FOOTPRINT_PX as MIN_FOOTPRINT_PX
+from ._dispatch import IMPLS as IMPLS
 from ._reference import reference as reference
 from ._reference import reference_radius_px as reference_radius_px
 from ._registry import ENERGY_CONSERVING as ENERGY_CONSERVING
