@@ -169,7 +169,7 @@ def burley(
     *,
     samples: int = 32,
     albedo_mode: str = "post",
-    interpolation: str = "nearest",
+    interpolation: str = "bilinear",
     min_footprint_px: float = MIN_FOOTPRINT_PX,
     compact: bool | None = None,
     impl: str = "auto",
@@ -180,10 +180,11 @@ def burley(
     serves R, G and B), its angle from the golden-angle spiral; it is placed in millimetres on the surface and
     projected with the pixel's depth. Its weight per channel is ``R_c(sqrt(r^2 + dz^2)) / pdf(r)`` (the depth
     difference dz makes light fall off across depth steps), and the weights are normalised per channel so flat
-    lighting stays flat: energy is redistributed, not created. ``interpolation="nearest"`` (default; what HDRP does)
-    fetches one pixel per sample, a quarter of the fetches and kernel evaluations of ``"bilinear"``, which makes the
-    result continuous in d and depth (smooth for fitting) at ~4x the cost on a CPU (demo scene, 32 samples: rel. L2
-    against the reference 0.0127 nearest, 0.0118 bilinear).
+    lighting stays flat: energy is redistributed, not created. ``interpolation="bilinear"`` (default) makes the
+    result continuous in d and depth (smooth for fitting); ``"nearest"`` (what HDRP does) fetches one pixel per
+    sample, a quarter of the fetches and kernel evaluations, ~3.5x faster on a CPU, at some accuracy (demo scene,
+    32 samples, rel. L2 against the reference: 0.0127 against 0.0118; point light 0.47 against 0.29; and more
+    sampling noise where the footprint spans few pixels).
 
     Cost follows the scene: pixels without SSS, and pixels whose footprint (the radius holding 99% of the widest
     channel's energy, in px) is below ``min_footprint_px`` (they keep their local shading, the paper's Fig. 1; 0
