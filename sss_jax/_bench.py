@@ -270,6 +270,8 @@ def run_bench(*, quick: bool = False, repeats: int = 3, progress: Callable[[str]
     t_xla_plain = _median_time(lambda: xla_plain_separable(planar, k25_jax), peer_repeats)
     c_sep, t_sep = _compile_and_time(lambda: separable(b, mat, cam, taps=25), repeats)
     c_bur, t_bur = _compile_and_time(lambda: burley(b, mat, cam, samples=32), repeats)
+    # the point-fetch lever (HDRP's): a quarter of the fetches and kernel evaluations, side by side with the default
+    _, t_bur_nearest = _compile_and_time(lambda: burley(b, mat, cam, samples=32, interpolation="nearest"), repeats)
     # 10% coverage: the same frame with SSS on a tenth of the pixels (a band of rows) against SSS on all of them;
     # the background gets a far wall (depth 80) so that every pixel has a surface and the fractions are exact
     wall = jnp.where(jnp.isfinite(b.depth), b.depth, 80.0)
@@ -314,7 +316,7 @@ def run_bench(*, quick: bool = False, repeats: int = 3, progress: Callable[[str]
                "burley_32_10pct_coverage_ms": 1e3 * t_10, "separable_25_full_coverage_ms": 1e3 * t_sep_full,
                "separable_25_10pct_coverage_ms": 1e3 * t_sep_10, "burley_32_three_materials_ms": 1e3 * t_three,
                "burley_32_one_material_ms": 1e3 * t_one, "burley_32_grey_ms": 1e3 * t_grey,
-               "burley_32_rgb_ms": 1e3 * t_rgb, "xla_plain_separable_25_ms": 1e3 * t_xla_plain,
+               "burley_32_rgb_ms": 1e3 * t_rgb, "burley_32_nearest_ms": 1e3 * t_bur_nearest, "xla_plain_separable_25_ms": 1e3 * t_xla_plain,
                **{k + "_ms": 1e3 * v for k, v in peers.items()}}
 
     # --- Pareto front (error against time) at the first resolution ----------------------------------------------------
@@ -339,7 +341,10 @@ def run_bench(*, quick: bool = False, repeats: int = 3, progress: Callable[[str]
                          "separable_vs_xla_plain_separable": round(t_sep / t_xla_plain, 3),
                          "separable_coverage10_vs_full": round(t_sep_10 / t_sep_full, 3),
                          "burley_three_materials_vs_one": round(t_three / t_one, 3),
-                         "burley_grey_vs_rgb": round(t_grey / t_rgb, 3)},
+                         "burley_grey_vs_rgb": round(t_grey / t_rgb, 3),
+                         "burley_nearest_vs_filter2D": (round(t_bur_nearest / peers["cv2.filter2D_25x25"], 3)
+                                                        if peers else None),
+                         "burley_nearest_vs_bilinear": round(t_bur_nearest / t_bur, 3)},
         "footprint_skip": footprint,
         "pareto": [dict(technique=r["technique"], count=r["count"], ms_per_frame=r["ms_per_frame"],
                         error_demo=r["error_demo"]) for r in front],

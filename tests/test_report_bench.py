@@ -74,7 +74,8 @@ def test_bench_reports_every_ratio_with_its_goal():
     assert res["pareto"] and res["pareto"][0]["ms_per_frame"] == min(r["ms_per_frame"] for r in res["rows"])
     assert set(res["other_ratios"]) == {"separable_coverage10_vs_full", "burley_three_materials_vs_one",
                                         "burley_grey_vs_rgb", "xla_plain_separable_vs_sepFilter2D",
-                                        "separable_vs_xla_plain_separable"}
+                                        "separable_vs_xla_plain_separable", "burley_nearest_vs_filter2D",
+                                        "burley_nearest_vs_bilinear"}
     skips = res["footprint_skip"]
     assert [r["d_scale"] for r in skips] == [1 / 8, 1 / 32, 1 / 64]
     assert skips[0]["skipped_fraction"] < skips[-1]["skipped_fraction"]  # smaller d: more pixels under half a pixel
