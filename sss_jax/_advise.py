@@ -2,9 +2,12 @@
 
 Every candidate (local shading, ``separable`` at several tap counts, ``burley`` at several sample counts) is run on
 the scene (the demo scene with every object made of the material, or the caller's buffers), timed on this machine
-(median after a compile run) and compared with ``reference``: the error is the mean CIEDE2000 over the SSS pixels
-(colour-science, on the host, linear sRGB at exposure 0). The choice is the fastest candidate whose ΔE is within the
-budget. Errors depend on the material's scattering distance against the scene's scale in pixels, so the scene scale
+(median and interquartile range of repeated runs after a compile run) and compared with ``reference``: the error is
+the mean CIEDE2000 over the SSS pixels (colour-science, on the host, linear sRGB at exposure 0). The choice is the
+fastest candidate whose ΔE is within the budget; where the fastest one's interquartile range of times overlaps
+another's within the budget, the two are within the noise of this machine: the advisor says so and takes the more
+accurate of them.
+Errors depend on the material's scattering distance against the scene's scale in pixels, so the scene scale
 matters as much as the material: ``scene_scale`` multiplies the size of a scene unit in millimetres.
 """
 
@@ -45,10 +48,22 @@ class Candidate:
     count: int | None  # taps or samples
     ms: float  # median time per frame on this machine
     delta_e: float  # mean CIEDE2000 against the reference over SSS pixels
+    ms_low: float | None = None  # the timings' 25th percentile (None: one timing, no spread known)
+    ms_high: float | None = None  # their 75th percentile
 
     @property
     def label(self) -> str:
         return self.technique if self.count is None else f"{self.technique} {self.count}"
+
+    @property
+    def interval(self) -> tuple[float, float]:
+        """The range of time per frame this machine's noise allows (ms): the interquartile range, or the median."""
+        return (self.ms if self.ms_low is None else self.ms_low, self.ms if self.ms_high is None else self.ms_high)
+
+    def within_noise_of(self, other: "Candidate") -> bool:
+        """Whether the two cannot be told apart by time: their intervals overlap."""
+        (lo, hi), (olo, ohi) = self.interval, other.interval
+        return lo <= ohi and olo <= hi
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,15 +75,17 @@ class Advice:
     reason: str
 
     def table(self) -> str:
-        lines = [f"{'candidate':14s} {'ms/frame':>10s} {'mean dE2000':>12s}  within budget"]
+        lines = [f"{'candidate':14s} {'ms/frame':>10s} {'(25-75%)':>15s} {'mean dE2000':>12s}  within budget"]
         for c in sorted(self.candidates, key=lambda c: c.ms):
             mark = "yes" if c.delta_e <= self.max_delta_e else "no"
             pick = "  <- choice" if c == self.choice else ""
-            lines.append(f"{c.label:14s} {c.ms:10.2f} {c.delta_e:12.3f}  {mark}{pick}")
+            lo, hi = c.interval
+            lines.append(f"{c.label:14s} {c.ms:10.2f} {f'{lo:.2f}-{hi:.2f}':>15s} {c.delta_e:12.3f}  {mark}{pick}")
         return "\n".join(lines + [self.reason])
 
     def to_json(self) -> dict:
         as_dict = lambda c: None if c is None else {"technique": c.technique, "count": c.count, "ms": c.ms,
+                                                        "ms_low": c.interval[0], "ms_high": c.interval[1],
                                                         "delta_e": c.delta_e}
         return {"material": self.material, "max_delta_e": self.max_delta_e, "choice": as_dict(self.choice),
                     "candidates": [as_dict(c) for c in self.candidates], "reason": self.reason}
@@ -104,14 +121,15 @@ def resolve_material(material: str | BurleyMaterial) -> tuple[str, BurleyMateria
     return preset.name, BurleyMaterial(np.asarray(b.albedo, np.float32), np.asarray(b.d_mm, np.float32))
 
 
-def _median_ms(fn: Callable[[], jax.Array], repeats: int) -> float:
+def time_ms(fn: Callable[[], jax.Array], repeats: int) -> list[float]:
+    """``repeats`` timings of ``fn`` (ms, each until its result is ready), after one run that compiles it."""
     fn().block_until_ready()  # compile
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
         fn().block_until_ready()
-        times.append(time.perf_counter() - t0)
-    return 1e3 * float(np.median(times))
+        times.append(1e3 * (time.perf_counter() - t0))
+    return times
 
 
 def _scene(size: tuple[int, int], scene_scale: float) -> tuple[Buffers, Camera]:
@@ -125,9 +143,12 @@ def _scene(size: tuple[int, int], scene_scale: float) -> tuple[Buffers, Camera]:
 
 def measure_candidates(material: BurleyMaterial, *, buffers: Buffers | None = None, camera: Camera | None = None,
                        size: tuple[int, int] = (72, 96), scene_scale: float = 1.0,
-                       candidates: Sequence[tuple[str, int | None]] = DEFAULT_CANDIDATES, repeats: int = 2,
-                       progress: Callable[[str], None] | None = None) -> list[Candidate]:
-    """Time and ΔE2000 (against ``reference``) of each candidate on the scene; host-side ΔE via colour-science."""
+                       candidates: Sequence[tuple[str, int | None]] = DEFAULT_CANDIDATES, repeats: int = 5,
+                       progress: Callable[[str], None] | None = None,
+                       timer: Callable[[Callable[[], jax.Array], int], list[float]] = time_ms) -> list[Candidate]:
+    """Time (median and interquartile range of ``repeats`` runs) and ΔE2000 (against ``reference``) of each
+    candidate on the scene; host-side ΔE via colour-science. ``timer(fn, repeats)`` returns the timings in ms
+    (``time_ms``; tests inject their own)."""
     from ._metrics import delta_e_2000
     from ._techniques._common import _sss_mask
 
@@ -157,27 +178,45 @@ def measure_candidates(material: BurleyMaterial, *, buffers: Buffers | None = No
             raise ValueError(f"unknown candidate technique {tech!r}; valid: {', '.join(runs)}")
         say(f"[{i + 1}/{len(candidates)}] {tech} {n or ''}")
         fn = runs[tech](n)
-        ms = _median_ms(fn, repeats)
+        times = np.asarray(timer(fn, repeats), np.float64)
         de = delta_e_2000(np.asarray(fn()), ref, mask=mask)["mean"]
-        out.append(Candidate(tech, n, round(ms, 3), round(float(de), 4)))
+        low, median, high = (round(float(v), 3) for v in np.percentile(times, [25, 50, 75]))
+        out.append(Candidate(tech, n, median, round(float(de), 4), low, high))
     return out
 
 
 def choose(candidates: Sequence[Candidate], max_delta_e: float) -> tuple[Candidate | None, str]:
-    """The fastest candidate whose ΔE is within the budget (ties: the more accurate), and why."""
+    """The fastest candidate whose ΔE is within the budget, and why. Candidates within the budget whose timings
+    cannot be told from the fastest one's (``Candidate.within_noise_of``: interquartile ranges overlap) tie with it,
+    and the most accurate of the tie is the choice."""
     within = [c for c in candidates if c.delta_e <= max_delta_e]
     if not within:
         best = min(candidates, key=lambda c: (c.delta_e, c.ms))
         return None, (f"no candidate stays within mean dE2000 {max_delta_e:g}; the most accurate is {best.label} "
                       f"(dE {best.delta_e:.3f}, {best.ms:.2f} ms): raise the budget or use the reference")
-    pick = min(within, key=lambda c: (c.ms, c.delta_e))
+    fastest = min(within, key=lambda c: (c.ms, c.delta_e))
+    tied = [c for c in within if c.within_noise_of(fastest)]
+    pick = min(tied, key=lambda c: (c.delta_e, c.ms))
     slower_better = [c for c in within if c is not pick]
-    why = (f"choice: {pick.label}, the fastest of the {len(within)} candidates within mean dE2000 {max_delta_e:g} "
-           f"({pick.ms:.2f} ms, dE {pick.delta_e:.3f})")
+    if pick is fastest:
+        why = (f"choice: {pick.label}, the fastest of the {len(within)} candidates within mean dE2000 "
+               f"{max_delta_e:g} ({pick.ms:.2f} ms, dE {pick.delta_e:.3f})")
+    else:
+        lo, hi = fastest.interval
+        why = (f"choice: {pick.label} ({pick.ms:.2f} ms, dE {pick.delta_e:.3f}): {fastest.label} has the lowest "
+               f"median time ({fastest.ms:.2f} ms, {lo:.2f}-{hi:.2f}) but "
+               f"{', '.join(c.label for c in tied if c is not fastest)} {'is' if len(tied) == 2 else 'are'} within "
+               f"the timing noise of this machine "
+               f"(overlapping interquartile ranges), and of those {pick.label} is the most accurate")
+    others_tied = [c.label for c in tied if c is not pick and c is not fastest]
+    if pick is fastest and len(tied) > 1:
+        why += f"; within the timing noise of it: {', '.join(c.label for c in tied if c is not pick)}, less accurate"
+    elif others_tied:
+        why += f"; also within the noise: {', '.join(others_tied)}"
     if slower_better:
         runner = min(slower_better, key=lambda c: (c.ms, c.delta_e))
         why += f"; next: {runner.label} ({runner.ms:.2f} ms, dE {runner.delta_e:.3f})"
-    cheaper = [c for c in candidates if c.ms < pick.ms]
+    cheaper = [c for c in candidates if c.ms < pick.ms and c.delta_e > max_delta_e]
     if cheaper:
         c = min(cheaper, key=lambda c: c.delta_e)
         why += f"; the best cheaper one, {c.label}, misses the budget (dE {c.delta_e:.3f})"
@@ -186,7 +225,7 @@ def choose(candidates: Sequence[Candidate], max_delta_e: float) -> tuple[Candida
 
 def advise(material: str | BurleyMaterial, *, max_delta_e: float = 1.0, buffers: Buffers | None = None,
            camera: Camera | None = None, size: tuple[int, int] = (72, 96), scene_scale: float = 1.0,
-           candidates: Sequence[tuple[str, int | None]] = DEFAULT_CANDIDATES, repeats: int = 2,
+           candidates: Sequence[tuple[str, int | None]] = DEFAULT_CANDIDATES, repeats: int = 5,
            progress: Callable[[str], None] | None = None,
            measure: Callable[..., list[Candidate]] | None = None) -> Advice:
     """Measure the candidates for ``material`` on the scene and pick the cheapest within ``max_delta_e``.

@@ -32,6 +32,46 @@ GOALS = {
 }
 
 
+# Arithmetic per pixel of the pieces of a pass, as a shader executes them (an add, a multiply, a compare, a select or
+# a transcendental each count one; a fused multiply-add counts two). Counted from the formulation
+# (``_techniques/_separable_gpu.tap_term``, ``_techniques/_burley_gpu.sample_term``), not measured.
+_SEPARABLE_FLOPS_PER_TAP = 10  # offset (mul, clip), its corner(s) (floor, sub), the 3-channel weighted add (3 FMA)
+_SEPARABLE_FLOPS_PER_FETCH = 14  # follow the surface (sub, abs, mul, sub, max), validity (2), frac, 3 x (sub, FMA)
+_BURLEY_FLOPS_PER_SAMPLE = 30  # inverse CCDF (~12 with log, sqrt, exp), sin/cos and position (6), 1/pdf (5), corners
+_BURLEY_FLOPS_PER_FETCH = 33  # validity (3), dz (2), r (3 with sqrt), 3 x kernel (exp, 2 mul, FMA, div), num/den (9)
+_STA_COST = {"fetches": 4, "flops": 40}  # irradiance, normal, thickness, albedo; the transmittance and the light
+
+
+def cost_per_pixel(technique: str, count: int | None, interpolation: str = "linear") -> dict[str, int]:
+    """Engine-comparable cost of one pixel of the technique: ``fetches`` (texels read, each RGB + depth, what a
+    shader's texture fetches are) and ``flops`` (arithmetic per pixel, counted from the formulation). The same on
+    every machine, so the trade reads the same where wall times differ by orders of magnitude.
+
+    separable: 2 passes x ``count`` taps x (2 pixels per linear fetch, 1 nearest), plus the centre per pass.
+    burley: ``count`` samples x (4 pixels per bilinear fetch, 1 nearest), plus the centre."""
+    if technique == "sta":
+        return dict(_STA_COST)
+    per_fetch = 1 if interpolation == "nearest" else (4 if technique == "burley" else 2)
+    if technique == "separable":
+        fetches = count * per_fetch
+        return {"fetches": 2 * (fetches + 1),
+                "flops": 2 * (count * _SEPARABLE_FLOPS_PER_TAP + fetches * _SEPARABLE_FLOPS_PER_FETCH)}
+    if technique == "burley":
+        fetches = count * per_fetch
+        return {"fetches": fetches + 1, "flops": count * _BURLEY_FLOPS_PER_SAMPLE + fetches * _BURLEY_FLOPS_PER_FETCH}
+    raise ValueError(f"no cost model for technique {technique!r}")
+
+
+def machine() -> dict[str, Any]:
+    """Where the bench ran: the backend JAX runs on, its device, the formulation ``"auto"`` picks there."""
+    from ._techniques._dispatch import resolve_impl
+
+    device = jax.devices()[0]
+    return {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
+            "backend": jax.default_backend(), "device": getattr(device, "device_kind", str(device)),
+            "devices": [str(d) for d in jax.devices()], "impl": resolve_impl("auto"), "jax": jax.__version__}
+
+
 def _median_time(fn: Callable[[], Any], repeats: int) -> float:
     times = []
     for _ in range(repeats):
@@ -113,20 +153,37 @@ def _footprint_skip_errors(buffers: Buffers, camera: Camera, material: BurleyMat
     return out
 
 
+def _default(fn, name: str):
+    import inspect
+
+    return inspect.signature(fn).parameters[name].default
+
+
+# what the rows run: each technique's default interpolation (the cost model counts its fetches)
+_DEFAULT_INTERPOLATION = {name: _default(fn, "interpolation") for name, fn in (("separable", separable),
+                                                                               ("burley", burley))}
+
+
 def run_bench(*, quick: bool = False, repeats: int = 3, progress: Callable[[str], None] | None = None,
               grid: dict[str, Any] | None = None) -> dict:
     """Measure the grid; returns the table (rows), the peers, the ratios with their goals, and the Pareto front.
 
     ``grid`` overrides any of ``taps``, ``samples``, ``resolutions`` (list of (w, h)) and ``ratio_resolution``.
     """
-    import cv2
-    from scipy.signal import fftconvolve
+    try:  # the peers run on the host; a GPU machine may lack them: the bench then reports no peer ratios
+        import cv2
+        from scipy.signal import fftconvolve
+    except ImportError:
+        cv2 = fftconvolve = None
 
     say = progress or (lambda m: None)
     taps_grid = (9, 25) if quick else (5, 9, 17, 25, 33, 65)
     samples_grid = (8, 32) if quick else (4, 8, 16, 32, 64, 128)
     res_grid = ((256, 256), (384, 384)) if quick else ((256, 256), (512, 512), (1280, 720), (1920, 1080))
     ratio_res = (640, 360) if quick else (1920, 1080)
+    if jax.default_backend() == "gpu":  # the frame sizes real-time runs at, where the goals are set
+        res_grid = ((256, 256), (1920, 1080), (3840, 2160))
+        ratio_res = (1920, 1080)
     if grid:
         taps_grid = tuple(grid.get("taps", taps_grid))
         samples_grid = tuple(grid.get("samples", samples_grid))
@@ -175,7 +232,8 @@ def run_bench(*, quick: bool = False, repeats: int = 3, progress: Callable[[str]
             say(f"{tech} {n or ''} at {w}x{h} ...")
             compile_s, seconds = _compile_and_time(lambda: run_full(b, cam, scene), repeats)
             row = dict(technique=tech, count=n, width=w, height=h, compile_seconds=round(compile_s, 3),
-                       ms_per_frame=round(1e3 * seconds, 3), input_bytes=input_bytes)
+                       ms_per_frame=round(1e3 * seconds, 3), input_bytes=input_bytes,
+                       cost_per_pixel=cost_per_pixel(tech, n, _DEFAULT_INTERPOLATION.get(tech, "linear")))
             mem = _memory_bytes(jax.jit(lambda bb, cc: run_full(bb, cc, scene)), b, cam)
             row["peak_memory_bytes"] = mem
             row["peak_memory_vs_input"] = None if mem is None else round(mem / input_bytes, 2)
@@ -194,21 +252,26 @@ def run_bench(*, quick: bool = False, repeats: int = 3, progress: Callable[[str]
     scene = demo_scene(h, w)
     b, cam = scene.buffers, scene.camera
     img = np.ascontiguousarray(np.asarray(b.irradiance, np.float32))
-    k25 = cv2.getGaussianKernel(25, 4.0).astype(np.float32)
+    # the same 25-tap Gaussian OpenCV's getGaussianKernel(25, 4.0) makes (sum-normalised)
+    k25 = np.exp(-0.5 * ((np.arange(25) - 12) / 4.0) ** 2).astype(np.float32)[:, None]
+    k25 /= k25.sum()
     k_dense = (k25 @ k25.T).astype(np.float32)
     # the peers take milliseconds: more repeats cost little and steady the ratios' denominators
     peer_repeats = max(repeats, 11)
-    peers = {
+    peers = {} if cv2 is None else {
         "cv2.sepFilter2D_25": _median_time(lambda: cv2.sepFilter2D(img, -1, k25, k25), peer_repeats),
         "cv2.filter2D_25x25": _median_time(lambda: cv2.filter2D(img, -1, k_dense), peer_repeats),
         "scipy.fftconvolve_25x25": _median_time(
             lambda: fftconvolve(img, k_dense[..., None], mode="same", axes=(0, 1)), peer_repeats),
     }
+    peer = lambda name: peers.get(name, float("nan"))
     planar, k25_jax = jnp.asarray(np.moveaxis(img, -1, 0)), jnp.asarray(k25[:, 0])
     xla_plain_separable(planar, k25_jax).block_until_ready()  # compiled before it is timed
     t_xla_plain = _median_time(lambda: xla_plain_separable(planar, k25_jax), peer_repeats)
     c_sep, t_sep = _compile_and_time(lambda: separable(b, mat, cam, taps=25), repeats)
     c_bur, t_bur = _compile_and_time(lambda: burley(b, mat, cam, samples=32), repeats)
+    # the point-fetch lever (HDRP's): a quarter of the fetches and kernel evaluations, side by side with the default
+    _, t_bur_nearest = _compile_and_time(lambda: burley(b, mat, cam, samples=32, interpolation="nearest"), repeats)
     # 10% coverage: the same frame with SSS on a tenth of the pixels (a band of rows) against SSS on all of them;
     # the background gets a far wall (depth 80) so that every pixel has a surface and the fractions are exact
     wall = jnp.where(jnp.isfinite(b.depth), b.depth, 80.0)
@@ -239,12 +302,13 @@ def run_bench(*, quick: bool = False, repeats: int = 3, progress: Callable[[str]
     mem = _memory_bytes(jax.jit(lambda bb, cc: burley(bb, mat, cc, samples=32)), b, cam)
     compile_max = max([r["compile_seconds"] for r in rows] + [c_sep, c_bur])
     ratios = {
-        "separable_vs_sepFilter2D": t_sep / peers["cv2.sepFilter2D_25"],
-        "burley_vs_filter2D": t_bur / peers["cv2.filter2D_25x25"],
+        "separable_vs_sepFilter2D": t_sep / peer("cv2.sepFilter2D_25"),
+        "burley_vs_filter2D": t_bur / peer("cv2.filter2D_25x25"),
         "coverage10_vs_full": t_10 / t_full,
         "compile_seconds": compile_max,
         "peak_memory_vs_input": None if mem is None else mem / input_bytes,
     }
+    ratios = {k: None if v is None or not np.isfinite(v) else v for k, v in ratios.items()}
     ratio_table = {k: {"value": None if v is None else round(v, 3), "goal": f"{GOALS[k][0]} {GOALS[k][1]}",
                        "met": None if v is None else bool(v <= GOALS[k][1] if GOALS[k][0] == "<=" else v < GOALS[k][1])}
                    for k, v in ratios.items()}
@@ -252,7 +316,7 @@ def run_bench(*, quick: bool = False, repeats: int = 3, progress: Callable[[str]
                "burley_32_10pct_coverage_ms": 1e3 * t_10, "separable_25_full_coverage_ms": 1e3 * t_sep_full,
                "separable_25_10pct_coverage_ms": 1e3 * t_sep_10, "burley_32_three_materials_ms": 1e3 * t_three,
                "burley_32_one_material_ms": 1e3 * t_one, "burley_32_grey_ms": 1e3 * t_grey,
-               "burley_32_rgb_ms": 1e3 * t_rgb, "xla_plain_separable_25_ms": 1e3 * t_xla_plain,
+               "burley_32_rgb_ms": 1e3 * t_rgb, "burley_32_nearest_ms": 1e3 * t_bur_nearest, "xla_plain_separable_25_ms": 1e3 * t_xla_plain,
                **{k + "_ms": 1e3 * v for k, v in peers.items()}}
 
     # --- Pareto front (error against time) at the first resolution ----------------------------------------------------
@@ -264,8 +328,7 @@ def run_bench(*, quick: bool = False, repeats: int = 3, progress: Callable[[str]
     for r in rows:
         r["pareto"] = any(r is f for f in front)
     return {
-        "machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
-                    "devices": [str(d) for d in jax.devices()], "jax": jax.__version__},
+        "machine": machine(),
         "date": time.strftime("%Y-%m-%d"),
         "quick": quick,
         "ratio_resolution": list(ratio_res),
@@ -273,11 +336,15 @@ def run_bench(*, quick: bool = False, repeats: int = 3, progress: Callable[[str]
         "peers_ms": {k: round(1e3 * v, 3) for k, v in peers.items()},
         "timings_ms": {k: round(v, 3) for k, v in timings.items()},
         "ratios": ratio_table,
-        "other_ratios": {"xla_plain_separable_vs_sepFilter2D": round(t_xla_plain / peers["cv2.sepFilter2D_25"], 3),
+        "other_ratios": {"xla_plain_separable_vs_sepFilter2D": (round(t_xla_plain / peers["cv2.sepFilter2D_25"], 3)
+                                                                if peers else None),
                          "separable_vs_xla_plain_separable": round(t_sep / t_xla_plain, 3),
                          "separable_coverage10_vs_full": round(t_sep_10 / t_sep_full, 3),
                          "burley_three_materials_vs_one": round(t_three / t_one, 3),
-                         "burley_grey_vs_rgb": round(t_grey / t_rgb, 3)},
+                         "burley_grey_vs_rgb": round(t_grey / t_rgb, 3),
+                         "burley_nearest_vs_filter2D": (round(t_bur_nearest / peers["cv2.filter2D_25x25"], 3)
+                                                        if peers else None),
+                         "burley_nearest_vs_bilinear": round(t_bur_nearest / t_bur, 3)},
         "footprint_skip": footprint,
         "pareto": [dict(technique=r["technique"], count=r["count"], ms_per_frame=r["ms_per_frame"],
                         error_demo=r["error_demo"]) for r in front],

@@ -1,5 +1,6 @@
 """Cost that follows the scene: compaction, the footprint skip, the scale levels, one trace per shape, the advisor."""
 
+import functools
 import json
 
 import equinox as eqx
@@ -9,18 +10,28 @@ import numpy as np
 import pytest
 
 import sss_jax as sj
-from sss_jax._techniques import _separable as separable_module
 from sss_jax._advise import (
     Advice,
     Candidate,
     advise,
     choose,
     known_materials,
+    measure_candidates,
     resolve_material,
 )
-from sss_jax._techniques import burley_active_count, compaction_capacity, kernel_groups, weight_channel_count
+from sss_jax._techniques import _separable as separable_module
+from sss_jax._techniques import (
+    burley_active_count,
+    compaction_capacity,
+    kernel_groups,
+    weight_channel_count,
+)
 from sss_jax._techniques._burley import _burley_impl
+from sss_jax._techniques._burley_gpu import gather_burley, pixel_planes, sample_pattern
+from sss_jax._techniques._common import _prepare
+from sss_jax._techniques._pallas import burley_pallas, separable_pass_pallas
 from sss_jax._techniques._separable import _separable_impl, _separable_pass
+from sss_jax._techniques._separable_gpu import gather_pass
 from sss_jax.cli import main
 
 CAM = sj.Camera(focal_px=100.0, mm_per_unit=10.0)  # at depth 50: 0.2 px per mm
@@ -68,7 +79,8 @@ def test_footprint_below_half_a_pixel_keeps_local_shading(technique):
     b = _scene(coverage_rows=24)
     # d = 0.05 mm: 99% of the energy within ~0.65 mm = 0.13 px at 0.2 px/mm, under half a pixel
     tiny = sj.BurleyMaterial(albedo=[0.9, 0.8, 0.7], d_mm=[0.05, 0.04, 0.03])
-    run = {"burley": lambda **kw: sj.burley(b, tiny, CAM, samples=8, **kw),
+    # (bilinear: a nearest fetch of samples 0.13 px away reads the centre pixel itself, local shading exactly)
+    run = {"burley": lambda **kw: sj.burley(b, tiny, CAM, samples=8, interpolation="bilinear", **kw),
            "separable": lambda **kw: sj.separable(b, tiny, CAM, taps=9, **kw)}[technique]
     local = np.asarray([0.9, 0.8, 0.7]) * np.asarray(b.irradiance)
     np.testing.assert_allclose(np.asarray(run()), local, rtol=1e-12)
@@ -109,11 +121,12 @@ def test_grey_channels_share_one_kernel_evaluation():
     # the per-sample kernel (one exponential per pixel, corner and channel plane) is evaluated on one channel for the
     # grey material, on three otherwise: two fewer per corner, four corners (bilinear)
     n = 24 * 32
-    grey_exps = _exp_shapes(lambda bb: sj.burley(bb, grey, CAM, samples=8, compact=False), b)
-    rgb_exps = _exp_shapes(lambda bb: sj.burley(bb, MAT, CAM, samples=8, compact=False), b)
+    bilinear = dict(samples=8, compact=False, interpolation="bilinear")
+    grey_exps = _exp_shapes(lambda bb: sj.burley(bb, grey, CAM, **bilinear), b)
+    rgb_exps = _exp_shapes(lambda bb: sj.burley(bb, MAT, CAM, **bilinear), b)
     assert grey_exps.count((n,)) >= 4 and rgb_exps.count((n,)) - grey_exps.count((n,)) == 2 * 4
     # and the image is the one the three-channel evaluation gives
-    shared = np.asarray(sj.burley(b, grey, CAM, samples=8, compact=False))
+    shared = np.asarray(sj.burley(b, grey, CAM, **bilinear))
     per_channel = np.asarray(_burley_impl(b, grey, CAM, 8, "post", "bilinear", None, 0.5, 3, True))
     np.testing.assert_allclose(shared, per_channel, rtol=1e-12, atol=1e-14)
     assert np.abs(shared - 0.9 * np.asarray(b.irradiance)[..., :1]).max() > 1e-3  # it did scatter
@@ -127,10 +140,11 @@ def test_untruncated_frames_share_the_sample_radii():
     small = sj.BurleyMaterial(albedo=[0.9, 0.8, 0.7], d_mm=[0.6, 0.3, 0.15])  # 0.12 px: diagonal 40 px = 333 d
     large = sj.BurleyMaterial(albedo=[0.9, 0.8, 0.7], d_mm=[60.0, 30.0, 15.0])  # 12 px: diagonal 3.3 d
     impl = lambda m, truncate: np.asarray(_burley_impl(b, m, CAM, 8, "post", "bilinear", None, 0.0, 3, truncate))
-    out_small = np.asarray(sj.burley(b, small, CAM, samples=8, min_footprint_px=0.0, compact=False))
+    kw = dict(samples=8, min_footprint_px=0.0, compact=False, interpolation="bilinear")
+    out_small = np.asarray(sj.burley(b, small, CAM, **kw))
     np.testing.assert_allclose(out_small, impl(small, True), rtol=1e-12, atol=1e-14)
     np.testing.assert_array_equal(out_small, impl(small, False))  # the shared radii are what ran
-    out_large = np.asarray(sj.burley(b, large, CAM, samples=8, min_footprint_px=0.0, compact=False))
+    out_large = np.asarray(sj.burley(b, large, CAM, **kw))
     np.testing.assert_array_equal(out_large, impl(large, True))
     assert np.abs(impl(large, False) - out_large).max() > 1e-3
 
@@ -166,6 +180,7 @@ def _numpy_depth_aware_pass(e, z, valid, w_table, rows, reach_px, reach_mm, unit
     and at the centre's depth ("follow the surface", full at equal depth, none at the kernel's reach), the rest of
     the tap counting as the centre colour. An independent check of the fused shifted-slice pass."""
     h, w = z.shape
+    reach_px = np.broadcast_to(reach_px, (h, w))  # one reach, or each pixel's own (the shader's)
     out = np.array(e, np.float64)
     for y in range(h):
         for x in range(w):
@@ -173,7 +188,7 @@ def _numpy_depth_aware_pass(e, z, valid, w_table, rows, reach_px, reach_mm, unit
                 continue
             acc = np.zeros(3)
             for i, u in enumerate(unit_offsets):
-                pos = x + np.clip(u * reach_px, -(w + 1.0), w + 1.0)
+                pos = x + np.clip(u * reach_px[y, x], -(w + 1.0), w + 1.0)
                 x0, f = np.floor(pos), pos - np.floor(pos)
                 corners = [(int(x0), 1 - f), (int(x0) + 1, f)] if linear else [(int(np.round(pos)), 1.0)]
                 sample = e[:, y, x].copy()
@@ -230,7 +245,7 @@ def test_materials_sharing_a_kernel_share_its_weight_term():
     ids = np.ones((24, 32), np.int32)
     ids[:, 10:20], ids[:, 20:] = 2, 3
     b = sj.Buffers(irradiance=b.irradiance, depth=b.depth, material_id=jnp.asarray(ids))
-    args = (b, mats, CAM, 9, "post", True, "bilinear", 4, 0.5)
+    args = (b, mats, CAM, 9, "post", True, "bilinear", separable_module.SCALE_LEVELS, 0.5)
     shared = np.asarray(sj.separable(b, mats, CAM, taps=9))
     np.testing.assert_allclose(shared, np.asarray(_separable_impl(*args, None)), rtol=1e-12, atol=1e-14)
     albedo = np.asarray(mats.albedo)[ids - 1]
@@ -269,6 +284,209 @@ def test_one_trace_per_shape_in_a_batch():
         batch = sj.Buffers(irradiance=jnp.asarray(rng.uniform(0, 1, (2, 12, 16, 3))),
                            depth=jnp.full((2, 12, 16), 50.0), material_id=jnp.asarray(ids))
         assert np.all(np.isfinite(np.asarray(run(batch))))
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# the whole-frame (GPU) formulation, in XLA and as Pallas kernels (interpret mode here), against pixel-by-pixel loops
+# ------------------------------------------------------------------------------------------------------------------
+
+
+def _pass_case(seed=5, h=11, w=13, n=7):
+    """A depth step, invalid pixels (the first two rows wholly: a Pallas block of them skips its loop), two
+    materials, and a reach that differs at every pixel (what the quantised levels cannot follow)."""
+    rng = np.random.default_rng(seed)
+    e = rng.uniform(0.0, 2.0, (3, h, w))
+    z = 50.0 + 4.0 * (np.arange(w)[None, :] >= 6) + rng.uniform(0.0, 0.5, (h, w))
+    valid = rng.uniform(size=(h, w)) > 0.2
+    valid[:2] = False
+    rows = (np.arange(h)[:, None] + np.arange(w)[None, :]) % 2
+    w_table = rng.uniform(0.05, 1.0, (2, 3, n))
+    reach_mm = np.where(rows == 0, 20.0, 35.0)
+    reach_px = rng.uniform(1.5, 6.0, (h, w))
+    return e, np.where(valid, z, 0.0), valid, rows, w_table, reach_mm, reach_px, np.linspace(-1.0, 1.0, n) ** 3
+
+
+@pytest.mark.parametrize("impl", ["xla", "pallas"])
+@pytest.mark.parametrize("axis", [2, 1])
+@pytest.mark.parametrize("linear", [True, False])
+def test_gather_pass_matches_a_pixel_by_pixel_loop(impl, axis, linear):
+    e, z, valid, rows, w_table, reach_mm, reach_px, unit = _pass_case()
+    mm_per_unit = 10.0
+    t = (lambda a: np.swapaxes(a, -1, -2)) if axis == 1 else (lambda a: a)
+    expected = t(_numpy_depth_aware_pass(t(e), t(z), t(valid), w_table, t(rows), t(reach_px), t(reach_mm), unit,
+                                         mm_per_unit, linear))
+    args = (jnp.asarray(e), jnp.asarray(z), jnp.asarray(reach_px), jnp.asarray(mm_per_unit / reach_mm),
+            jnp.asarray(~valid), jnp.asarray(rows, jnp.int32), jnp.asarray(w_table), jnp.asarray(unit))
+    kw = dict(axis=axis, follow_surface=True, interpolation="bilinear" if linear else "nearest")
+    # 7 taps in steps of 3 (the last padded with two taps of weight 0); the Pallas kernel in blocks of 32 pixels
+    got = gather_pass(*args, taps_per_step=3, **kw) if impl == "xla" else separable_pass_pallas(*args, block=32, **kw)
+    np.testing.assert_allclose(np.asarray(got), expected, rtol=1e-12, atol=1e-12)
+    assert np.abs(expected - e)[:, valid].max() > 0.1  # it filtered
+    np.testing.assert_array_equal(np.asarray(got)[:, ~valid], e[:, ~valid])
+
+
+def test_pallas_separable_pass_gradient_is_the_xla_formulations():
+    e, z, valid, rows, w_table, reach_mm, reach_px, unit = _pass_case(h=6, w=7, n=5)
+    args = [jnp.asarray(e), jnp.asarray(z), jnp.asarray(reach_px), jnp.asarray(10.0 / reach_mm),
+            jnp.asarray(~valid), jnp.asarray(rows, jnp.int32), jnp.asarray(w_table), jnp.asarray(unit)]
+    kw = dict(axis=2, follow_surface=True, interpolation="bilinear")
+    loss = lambda f: lambda a, r, wt: jnp.sum(jnp.sin(f(a, args[1], r, *args[3:6], wt, args[7], **kw)))
+    grads = [jax.grad(loss(f), argnums=(0, 1, 2))(args[0], args[2], args[6])
+             for f in (gather_pass, functools.partial(separable_pass_pallas, block=16))]
+    for a, b in zip(*grads):
+        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-12, atol=1e-14)
+    assert np.abs(np.asarray(grads[0][1])).max() > 1e-3  # the reach does reach the loss
+
+
+def _numpy_burley(e, z, valid, d, active, ppm, samples, mm_per_unit, linear):
+    """Screen-space Burley written directly, pixel by pixel in float64: each sample at the golden angle and the
+    stratified inverse CCDF radius of the widest channel's profile truncated to the image diagonal (Christensen &
+    Burley 2015's CDF ``1 - (exp(-r/d) + 3 exp(-r/3d))/4``, inverted in closed form), weighted per channel by the
+    profile at the 3D distance over the sample's pdf, a bilinear (or nearest) fetch weighting each pixel it reads
+    separately, normalised per channel. An independent check of the whole-frame formulation."""
+    h, w = z.shape
+    golden = np.pi * (3 - np.sqrt(5))
+    profile = lambda x: (np.exp(-x) + np.exp(-x / 3)) / x  # R(x d) up to 8 pi d^2 (cancels in the normalisation)
+    out = np.array(e, np.float64)
+    diag = np.hypot(h, w)
+    for y in range(h):
+        for x in range(w):
+            if not active[y, x]:
+                continue
+            dmax = d[y, x].max()
+            r_clip = diag / ppm[y, x] / dmax
+            inside = 1 - (np.exp(-r_clip) + 3 * np.exp(-r_clip / 3)) / 4
+            num, den = np.zeros(3), np.zeros(3)
+            for i in range(samples):
+                v = 1 - (i + 0.5) / samples * inside
+                rho = -3 * np.log(2 * np.sinh(np.arcsinh(2 * v) / 3))
+                off = rho * dmax * ppm[y, x]
+                py, px = y + off * np.sin(i * golden), x + off * np.cos(i * golden)
+                if linear:
+                    y0, x0 = np.floor(py), np.floor(px)
+                    fy, fx = py - y0, px - x0
+                    corners = [(y0, x0, (1 - fy) * (1 - fx)), (y0, x0 + 1, (1 - fy) * fx),
+                               (y0 + 1, x0, fy * (1 - fx)), (y0 + 1, x0 + 1, fy * fx)]
+                else:
+                    corners = [(np.round(py), np.round(px), 1.0)]
+                inv_pdf = rho / (np.exp(-rho) + np.exp(-rho / 3))
+                for yi, xi, cw in corners:
+                    yi, xi = int(yi), int(xi)
+                    if not (0 <= yi < h and 0 <= xi < w and valid[yi, xi]):
+                        continue
+                    r3 = np.hypot(rho * dmax, (z[yi, xi] - z[y, x]) * mm_per_unit)
+                    wgt = cw * inv_pdf * profile(r3 / d[y, x])
+                    num += wgt * e[yi, xi]
+                    den += wgt
+            out[y, x] = np.where(den > 0, num / np.where(den > 0, den, 1.0), e[y, x])
+    return out
+
+
+def _burley_case(h=9, w=11):
+    rng = np.random.default_rng(8)
+    e = rng.uniform(0.0, 2.0, (h, w, 3))
+    depth = 50.0 + 6.0 * (np.arange(w)[None, :] >= 5) + rng.uniform(0.0, 1.0, (h, w))
+    ids = np.ones((h, w), np.int32)
+    ids[:3] = 0  # a block of 32 pixels (and more) with no SSS: the Pallas kernel skips its sample loop there
+    ids[rng.uniform(size=(h, w)) < 0.15] = 0
+    ids[(np.arange(h)[:, None] + np.arange(w)[None, :]) % 3 == 0] *= 2
+    b = sj.Buffers(irradiance=jnp.asarray(e), depth=jnp.asarray(depth), material_id=jnp.asarray(ids))
+    mat = sj.BurleyMaterial(albedo=[[0.9, 0.8, 0.7], [0.5, 0.6, 0.7]], d_mm=[[6.0, 3.0, 1.5], [2.0, 4.0, 1.0]])
+    return b, mat
+
+
+@pytest.mark.parametrize("impl", ["xla", "pallas"])
+@pytest.mark.parametrize("linear", [True, False])
+def test_gather_burley_matches_a_pixel_by_pixel_loop(impl, linear):
+    b, mat = _burley_case()
+    h, w = b.depth.shape
+    prep = _prepare(b, mat.albedo, "post", jnp.float64)
+    pix, active = pixel_planes(b, mat, CAM, prep, 0.5, 3, jnp.float64)
+    u, theta = sample_pattern(8, jnp.float64)
+    kw = dict(height=h, width=w, mm_per_unit=jnp.asarray(10.0), interpolation="bilinear" if linear else "nearest",
+              weight_channels=3)
+    run = gather_burley if impl == "xla" else functools.partial(burley_pallas, active=active.reshape(-1), block=32)
+    got = np.stack([np.asarray(c) for c in run(pix, sample_u=u, sample_theta=theta, **kw)], -1).reshape(h, w, 3)
+    ids = np.asarray(b.material_id)
+    valid = ids > 0
+    d = np.where(valid[..., None], np.asarray(mat.d_mm)[np.maximum(ids - 1, 0)], 0.0)
+    ppm = np.where(valid, 100.0 / (np.asarray(b.depth) * 10.0), 0.0)
+    act = np.asarray(active)
+    expected = _numpy_burley(np.asarray(b.irradiance), np.asarray(b.depth), valid, d, act, ppm, 8, 10.0, linear)
+    np.testing.assert_allclose(got[act], expected[act], rtol=1e-10, atol=1e-12)
+    assert act.sum() > 40 and np.abs(expected - np.asarray(b.irradiance))[act].max() > 0.05  # it scattered
+
+
+class _HostRead(Exception):
+    pass
+
+
+@pytest.fixture
+def no_host_reads(monkeypatch):
+    """Inside ``with no_host_reads():`` every read of a jax array's value on the host raises (np.asarray, float,
+    int, bool): what a GPU would wait for (a host count of the active pixels, a host look at the parameters)."""
+    import contextlib
+
+    from jax._src.array import ArrayImpl
+
+    @contextlib.contextmanager
+    def guard():
+        def refuse(*args, **kwargs):
+            raise _HostRead("a jax array was read on the host")
+
+        with monkeypatch.context() as m:
+            for name in ("__array__", "__float__", "__int__", "__bool__", "__index__", "tolist", "item"):
+                m.setattr(ArrayImpl, name, refuse)
+            yield
+
+    return guard
+
+
+@pytest.mark.parametrize("interpolation", ["bilinear", "nearest"])
+def test_burley_formulations_agree_and_the_gpu_ones_never_read_the_device(interpolation, no_host_reads):
+    b, mat = _burley_case()
+    cpu = np.asarray(sj.burley(b, mat, CAM, samples=8, interpolation=interpolation, impl="xla-cpu", compact=False))
+    with no_host_reads():
+        outs = {impl: sj.burley(b, mat, CAM, samples=8, interpolation=interpolation, impl=impl)
+                for impl in ("xla-gpu", "pallas")}
+    for out in outs.values():
+        np.testing.assert_allclose(np.asarray(out), cpu, rtol=1e-12, atol=1e-13)
+    with pytest.raises(_HostRead), no_host_reads():
+        sj.burley(b, mat, CAM, samples=8, impl="xla-cpu")  # the CPU formulation counts on the host: the guard sees it
+    with pytest.raises(ValueError, match="impl='cuda' is not one of"):
+        sj.burley(b, mat, CAM, impl="cuda")
+
+
+def test_burley_pallas_gradient_is_the_xla_formulations():
+    b, mat = _burley_case(h=6, w=7)
+    loss = lambda impl: lambda d: jnp.sum(jnp.sin(sj.burley(b, sj.BurleyMaterial(mat.albedo, d), CAM, samples=4,
+                                                            impl=impl)))
+    g_xla, g_pallas = (np.asarray(jax.grad(loss(impl))(mat.d_mm)) for impl in ("xla-gpu", "pallas"))
+    np.testing.assert_allclose(g_pallas, g_xla, rtol=1e-12, atol=1e-14)
+    assert np.abs(g_xla).max() > 1e-4
+
+
+def test_separable_formulations_agree_where_the_reach_is_one_and_the_gather_follows_each_pixel_otherwise(
+        no_host_reads):
+    rng = np.random.default_rng(2)
+    e = jnp.asarray(rng.uniform(0, 2, (10, 12, 3)))
+    ids = np.ones((10, 12), np.int32)
+    ids[:, :2] = 0
+    flat = sj.Buffers(irradiance=e, depth=jnp.full((10, 12), 50.0), material_id=jnp.asarray(ids))
+    cpu = np.asarray(sj.separable(flat, MAT, CAM, taps=9, impl="xla-cpu"))
+    with no_host_reads():
+        outs = {impl: sj.separable(flat, MAT, CAM, taps=9, impl=impl) for impl in ("xla-gpu", "pallas")}
+    for out in outs.values():  # every pixel has one reach: the levels are exact, the formulations agree
+        np.testing.assert_allclose(np.asarray(out), cpu, rtol=1e-12, atol=1e-13)
+    # a tilted plane: the gather takes each pixel's own reach, which the levels approach as they grow in number
+    slope = 15.0 * np.linspace(0, 1, 12)[None, :] * np.ones((10, 1))
+    tilted = sj.Buffers(irradiance=e, depth=jnp.asarray(45.0 + slope))
+    gather = np.asarray(sj.separable(tilted, MAT, CAM, taps=9, impl="xla-gpu"))
+    levels = lambda n: np.asarray(sj.separable(tilted, MAT, CAM, taps=9, scale_levels=n, impl="xla-cpu"))
+    err = {n: np.abs(levels(n) - gather).max() for n in (2, 16)}
+    assert err[16] < err[2] / 4
+    with pytest.raises(ValueError, match="impl='gpu' is not one of"):
+        sj.separable(flat, MAT, CAM, impl="gpu")
 
 
 # ------------------------------------------------------------------------------------------------------------------
@@ -331,3 +549,47 @@ def test_advise_measures_for_real():
                     candidates=(("local", None), ("separable", 5), ("burley", 8)))
     assert {c.technique for c in advice.candidates} == {"local", "separable", "burley"}
     assert all(c.ms > 0 and c.delta_e >= 0 for c in advice.candidates)
+
+
+# the fastest within the budget, separable 9 (6.0 ms), and burley 16 (6.4 ms, more accurate) overlap in their
+# interquartile ranges; burley 32 is slower beyond the noise
+NOISY = [Candidate("local", None, 0.5, 3.0, 0.45, 0.55), Candidate("separable", 9, 6.0, 0.8, 5.5, 6.9),
+         Candidate("burley", 16, 6.4, 0.5, 6.2, 7.5), Candidate("burley", 32, 20.0, 0.4, 19.0, 21.0)]
+
+
+def test_choose_prefers_the_more_accurate_where_timings_are_within_the_noise():
+    assert NOISY[1].within_noise_of(NOISY[2]) and not NOISY[2].within_noise_of(NOISY[3])
+    pick, why = choose(NOISY, 1.0)
+    assert (pick.technique, pick.count) == ("burley", 16)
+    assert "separable 9 has the lowest median time" in why and "within the timing noise" in why
+    assert "misses the budget" in why and "local" in why  # the cheaper local shading misses the budget
+    # the same medians with ranges that do not overlap: the fastest wins, as before
+    apart = [Candidate(c.technique, c.count, c.ms, c.delta_e, c.ms - 0.1, c.ms + 0.1) for c in NOISY]
+    pick, why = choose(apart, 1.0)
+    assert (pick.technique, pick.count) == ("separable", 9) and "noise" not in why
+    # no spread known (one timing each): medians decide
+    assert choose(TABLE, 1.0)[0].count == 9
+    # ties only among candidates within the budget: separable 9 over a 0.6 budget leaves burley 16 the fastest, and
+    # burley 32 (more accurate still) is beyond its noise; under 0.45 only burley 32 is left
+    assert choose(NOISY, 0.6)[0].count == 16 and choose(NOISY, 0.9)[0].count == 16
+    assert choose(NOISY, 0.45)[0].count == 32
+
+
+def test_measure_candidates_keeps_the_median_and_spread_of_the_timings(monkeypatch):
+    # injected timings (ms), no clock: median and quartiles as np.percentile's linear rule gives them by hand
+    # ([1, 2, 3, 4, 100]: 25% at position 1 -> 2, 50% -> 3, 75% at position 3 -> 4)
+    fake = {"local": [1.0, 2.0, 3.0, 4.0, 100.0], "separable": [10.0, 12.0, 11.0, 13.0, 14.0]}
+    seen = []
+
+    def timer(fn, repeats):
+        seen.append(repeats)
+        return fake["local" if len(seen) == 1 else "separable"]
+
+    cands = measure_candidates(sj.BurleyMaterial([0.8] * 3, [2.0, 1.0, 0.5]), size=(24, 32), repeats=5,
+                               candidates=(("local", None), ("separable", 5)), timer=timer)
+    assert seen == [5, 5]
+    assert (cands[0].ms, cands[0].ms_low, cands[0].ms_high) == (3.0, 2.0, 4.0)
+    assert (cands[1].ms, cands[1].ms_low, cands[1].ms_high) == (12.0, 11.0, 13.0)
+    assert cands[1].delta_e > 0
+    advice = Advice("x", 10.0, cands[0], cands, "r")
+    assert "2.00-4.00" in advice.table() and advice.to_json()["candidates"][1]["ms_high"] == 13.0

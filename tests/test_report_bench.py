@@ -4,11 +4,12 @@ import json
 import pathlib
 import re
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from sss_jax._bench import GOALS, run_bench, xla_plain_separable
+from sss_jax._bench import GOALS, cost_per_pixel, run_bench, xla_plain_separable
 from sss_jax._demo import demo_montecarlo, demo_trade, run_demo
 from sss_jax._reporting import write_demo_report
 
@@ -71,10 +72,17 @@ def test_bench_reports_every_ratio_with_its_goal():
     for r in res["rows"]:
         assert set(r["errors"]) == {"demo", "shadow_edge", "thin_line", "point_light"}
         assert r["ms_per_frame"] > 0
+        assert set(r["cost_per_pixel"]) == {"fetches", "flops"} and r["cost_per_pixel"]["flops"] > 0
+    # separable DEMO_TAPS taps, bilinear (its default): 2 passes x (2 pixels per tap + the centre)
+    assert next(r for r in res["rows"] if r["technique"] == "separable")["cost_per_pixel"]["fetches"] == \
+        2 * (2 * DEMO_TAPS + 1)
+    m = res["machine"]
+    assert m["backend"] == jax.default_backend() and m["device"] and m["impl"] in ("xla-cpu", "xla-gpu")
     assert res["pareto"] and res["pareto"][0]["ms_per_frame"] == min(r["ms_per_frame"] for r in res["rows"])
     assert set(res["other_ratios"]) == {"separable_coverage10_vs_full", "burley_three_materials_vs_one",
                                         "burley_grey_vs_rgb", "xla_plain_separable_vs_sepFilter2D",
-                                        "separable_vs_xla_plain_separable"}
+                                        "separable_vs_xla_plain_separable", "burley_nearest_vs_filter2D",
+                                        "burley_nearest_vs_bilinear"}
     skips = res["footprint_skip"]
     assert [r["d_scale"] for r in skips] == [1 / 8, 1 / 32, 1 / 64]
     assert skips[0]["skipped_fraction"] < skips[-1]["skipped_fraction"]  # smaller d: more pixels under half a pixel
@@ -94,3 +102,18 @@ def test_xla_plain_separable_is_the_filter_sepfilter2d_runs():
     got = np.moveaxis(np.asarray(xla_plain_separable(planar, jnp.asarray(k[:, 0]))), 0, -1)
     np.testing.assert_allclose(got[12:-12, 12:-12], expected[12:-12, 12:-12], rtol=1e-5, atol=1e-6)
     assert np.abs(got - expected)[:12].max() > 1e-3  # (the border does differ: the comparison is not vacuous)
+
+
+def test_cost_per_pixel_counts_the_shaders_fetches():
+    # texel fetches as Jimenez's and HDRP's shaders make them: separable 2 passes x taps x (2 for a linear fetch
+    # along the pass, 1 nearest) + the centre per pass; Burley samples x (4 bilinear, 1 nearest) + the centre
+    assert cost_per_pixel("separable", 25, "linear")["fetches"] == 2 * (25 * 2 + 1)
+    assert cost_per_pixel("separable", 25, "nearest")["fetches"] == 2 * (25 + 1)
+    assert cost_per_pixel("burley", 32, "bilinear")["fetches"] == 32 * 4 + 1
+    assert cost_per_pixel("burley", 32, "nearest")["fetches"] == 33
+    # the arithmetic grows with the taps/samples and shrinks with point fetches
+    assert cost_per_pixel("burley", 32, "nearest")["flops"] < cost_per_pixel("burley", 32, "bilinear")["flops"] < \
+        cost_per_pixel("burley", 64, "bilinear")["flops"]
+    assert cost_per_pixel("separable", 9, "linear")["flops"] < cost_per_pixel("separable", 25, "linear")["flops"]
+    with pytest.raises(ValueError, match="no cost model for technique 'reference'"):
+        cost_per_pixel("reference", None)

@@ -9,6 +9,10 @@
 irradiance, so flat lighting stays flat and energy is conserved away from image and depth borders. What they share
 (which pixels take part, the albedo split, checks under ``jit``) is in ``_common``. Lengths of materials are in mm,
 depth in scene units, offsets in pixels via ``_units``.
+
+``separable`` and ``burley`` have one formulation per backend (``impl=``, ``_dispatch``): on a CPU the banded,
+level-quantised and compacted passes in ``_separable``/``_burley``; elsewhere the whole-frame per-pixel gathers of
+``_separable_gpu``/``_burley_gpu`` (no host round trip), also as Pallas kernels (``_pallas``).
 """
 
 from ._burley import (
@@ -25,6 +29,7 @@ from ._burley import (
 )
 from ._common import ALBEDO_MODES as ALBEDO_MODES
 from ._common import MIN_FOOTPRINT_PX as MIN_FOOTPRINT_PX
+from ._dispatch import IMPLS as IMPLS
 from ._reference import reference as reference
 from ._reference import reference_radius_px as reference_radius_px
 from ._registry import ENERGY_CONSERVING as ENERGY_CONSERVING

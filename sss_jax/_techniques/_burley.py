@@ -30,6 +30,7 @@ from ._common import (
     _sss_mask,
     _work_dtype,
 )
+from ._dispatch import resolve_impl
 
 
 def _burley_weight_kernel(x: Array) -> Array:
@@ -171,6 +172,7 @@ def burley(
     interpolation: str = "bilinear",
     min_footprint_px: float = MIN_FOOTPRINT_PX,
     compact: bool | None = None,
+    impl: str = "auto",
 ) -> Float[Array, "H W 3"]:
     """Screen-space Christensen–Burley normalised diffusion (one pass, ``samples`` spiral samples per pixel).
 
@@ -179,7 +181,10 @@ def burley(
     projected with the pixel's depth. Its weight per channel is ``R_c(sqrt(r^2 + dz^2)) / pdf(r)`` (the depth
     difference dz makes light fall off across depth steps), and the weights are normalised per channel so flat
     lighting stays flat: energy is redistributed, not created. ``interpolation="bilinear"`` (default) makes the
-    result continuous in d and depth (smooth for fitting); ``"nearest"`` fetches one pixel per sample.
+    result continuous in d and depth (smooth for fitting); ``"nearest"`` (what HDRP does) fetches one pixel per
+    sample, a quarter of the fetches and kernel evaluations, ~3.5x faster on a CPU, at some accuracy (demo scene,
+    32 samples, rel. L2 against the reference: 0.0127 against 0.0118; point light 0.47 against 0.29; and more
+    sampling noise where the footprint spans few pixels).
 
     Cost follows the scene: pixels without SSS, and pixels whose footprint (the radius holding 99% of the widest
     channel's energy, in px) is below ``min_footprint_px`` (they keep their local shading, the paper's Fig. 1; 0
@@ -189,6 +194,10 @@ def burley(
     never. Under ``jit``/``vmap`` every pixel is computed (one compilation per shape). Compacted and dense results
     agree to rounding. Channels that share one d (a grey material, or every material grey) share one kernel
     evaluation per sample instead of three; the result is the same.
+
+    ``impl`` (``_dispatch``): "auto" runs the formulation above on a CPU backend ("xla-cpu") and elsewhere the
+    whole-frame one with no host round trip ("xla-gpu": every pixel computed and masked, ``compact`` unused, three
+    kernel evaluations per sample); "pallas" is that as one Pallas kernel (blocks without active pixels skip it).
     """
     _check_albedo_mode(albedo_mode)
     if interpolation not in ("bilinear", "nearest"):
@@ -199,6 +208,12 @@ def burley(
         raise ValueError(f"samples must be a positive integer, got {samples!r}")
     if not (float(min_footprint_px) >= 0):
         raise ValueError(f"min_footprint_px must be >= 0, got {min_footprint_px!r}")
+    which = resolve_impl(impl)
+    if which != "xla-cpu":  # no host count, no host read of d: nothing waits for the device
+        from ._burley_gpu import burley_gpu_impl
+
+        return burley_gpu_impl(buffers, material, camera, int(samples), albedo_mode, interpolation,
+                               float(min_footprint_px), 3, which)
     capacity, truncate = None, True
     weight_channels = weight_channel_count(material.d_mm)
     if _is_concrete(buffers, material, camera):

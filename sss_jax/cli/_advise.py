@@ -27,8 +27,10 @@ def register(subparsers) -> None:
         "advise",
         help="pick the cheapest technique and sample count whose error stays within a dE2000 budget",
         description="Run local shading, separable (5..25 taps) and Burley (4..64 samples) on the scene made of the "
-        "material, time each on this machine, measure the mean CIEDE2000 against the reference, and pick the fastest "
-        "within --max-delta-e. Prints the table and the reason.",
+        "material, time each on this machine (repeated: median and interquartile range), measure the mean CIEDE2000 "
+        "against the reference, and pick the fastest within --max-delta-e; where the fastest one's timings overlap "
+        "another's within the budget (within the noise), say so and pick the more accurate. Prints the table and the "
+        "reason.",
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -38,7 +40,9 @@ def register(subparsers) -> None:
                    help="size of the scene's objects relative to the demo's (scales mm per scene unit; default 1)")
     p.add_argument("--size", type=_size, default=(72, 96), help="scene size HxW in pixels (default 72x96, cheap)")
     p.add_argument("--max-delta-e", type=float, required=True, help="budget: mean CIEDE2000 against the reference")
-    p.add_argument("--repeats", type=int, default=2, help="timed runs per candidate, median (default 2)")
+    p.add_argument("--repeats", type=int, default=5,
+                   help="timed runs per candidate: median and interquartile range; candidates whose ranges overlap "
+                   "are within the noise and the more accurate one is preferred (default 5)")
     p.add_argument("--json", type=pathlib.Path, help="write the table and the choice as JSON")
     p.set_defaults(func=run)
 
