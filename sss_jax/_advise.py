@@ -14,13 +14,13 @@ matters as much as the material: ``scene_scale`` multiplies the size of a scene 
 from __future__ import annotations
 
 import dataclasses
-import time
 from collections.abc import Callable, Sequence
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._timing import run_times
 from ._materials import BurleyMaterial
 from ._scene import Buffers, Camera, demo_scene
 from ._techniques import burley, reference, separable
@@ -124,12 +124,7 @@ def resolve_material(material: str | BurleyMaterial) -> tuple[str, BurleyMateria
 def time_ms(fn: Callable[[], jax.Array], repeats: int) -> list[float]:
     """``repeats`` timings of ``fn`` (ms, each until its result is ready), after one run that compiles it."""
     fn().block_until_ready()  # compile
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn().block_until_ready()
-        times.append(1e3 * (time.perf_counter() - t0))
-    return times
+    return [1e3 * t for t in run_times(fn, repeats)]
 
 
 def _scene(size: tuple[int, int], scene_scale: float) -> tuple[Buffers, Camera]:

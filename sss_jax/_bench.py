@@ -16,6 +16,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._metrics import rel_l2
+from ._timing import run_times, time_call
 from ._demo import demo_burley_material
 from ._materials import BurleyMaterial, STAParams
 from ._scene import Buffers, Camera, demo_scene
@@ -73,22 +75,12 @@ def machine() -> dict[str, Any]:
 
 
 def _median_time(fn: Callable[[], Any], repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = fn()
-        if hasattr(out, "block_until_ready"):
-            out.block_until_ready()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
+    return float(np.median(run_times(fn, repeats)))
 
 
 def _compile_and_time(fn: Callable[[], jax.Array], repeats: int) -> tuple[float, float]:
-    t0 = time.perf_counter()
-    fn().block_until_ready()
-    first = time.perf_counter() - t0
-    run = _median_time(fn, repeats)
-    return max(first - run, 0.0), run
+    _, seconds, compile_seconds = time_call(fn, repeats)
+    return compile_seconds, seconds
 
 
 def test_patterns(size: int = 64) -> dict[str, Buffers]:
@@ -102,13 +94,6 @@ def test_patterns(size: int = 64) -> dict[str, Buffers]:
     point[size // 2, size // 2] = 50.0
     return {name: Buffers(irradiance=jnp.asarray(e), depth=z) for name, e in
             (("shadow_edge", edge), ("thin_line", line), ("point_light", point))}
-
-
-def _rel_l2(a, b, mask=None):
-    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
-    if mask is not None:
-        a, b = a[mask], b[mask]
-    return float(np.linalg.norm(a - b) / max(np.linalg.norm(b), 1e-30))
 
 
 def _memory_bytes(fn_jit, *args) -> float | None:
@@ -149,7 +134,7 @@ def _footprint_skip_errors(buffers: Buffers, camera: Camera, material: BurleyMat
         full = np.asarray(burley(buffers, small, camera, samples=32, min_footprint_px=0.0))
         active = burley_active_count(buffers, small, camera)
         out.append(dict(d_scale=scale, skipped_fraction=round(1 - active / max(int(mask.sum()), 1), 4),
-                        rel_l2_with_skip=_rel_l2(skip, ref, mask), rel_l2_without_skip=_rel_l2(full, ref, mask)))
+                        rel_l2_with_skip=rel_l2(skip, ref, mask=mask), rel_l2_without_skip=rel_l2(full, ref, mask=mask)))
     return out
 
 
@@ -204,9 +189,9 @@ def run_bench(*, quick: bool = False, repeats: int = 3, progress: Callable[[str]
     ref_pat = {k: np.asarray(reference(b, pat_mat, pat_cam)) for k, b in patterns.items()}
 
     def errors(run_demo: Callable, run_pattern: Callable) -> dict[str, float]:
-        out = {"demo": _rel_l2(run_demo(eb, ecam), ref_demo, emask)}
+        out = {"demo": rel_l2(run_demo(eb, ecam), ref_demo, mask=emask)}
         for k, b in patterns.items():
-            out[k] = _rel_l2(run_pattern(b, pat_cam), ref_pat[k])
+            out[k] = rel_l2(run_pattern(b, pat_cam), ref_pat[k])
         return out
 
     configs: list[tuple[str, int | None, Callable, Callable, Callable]] = [
@@ -353,9 +338,6 @@ def run_bench(*, quick: bool = False, repeats: int = 3, progress: Callable[[str]
 
 def plot_pareto(result: dict, path) -> None:
     """Error against time per frame at the first resolution, the Pareto front drawn through."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     from matplotlib.figure import Figure
 
     first = (result["rows"][0]["width"], result["rows"][0]["height"])

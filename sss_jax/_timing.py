@@ -1,27 +1,38 @@
-"""Timing one jitted call: a first (compiling) run, then the median of repeated runs, each waited for."""
+"""Timing calls: the one owner of wall-clock measurement (demo, report, bench, advise). Each run is waited for
+(``block_until_ready`` where the result has it), so asynchronous dispatch does not hide the work."""
 
 from __future__ import annotations
 
 import time
-from typing import Callable
+from typing import Any, Callable
 
-import jax
 import numpy as np
 
-__all__ = ["time_call"]
+__all__ = ["run_times", "time_call"]
 
 
-def time_call(fn: Callable[[], jax.Array], repeats: int) -> tuple[np.ndarray, float, float]:
+def _wait(out: Any) -> Any:
+    return out.block_until_ready() if hasattr(out, "block_until_ready") else out
+
+
+def run_times(fn: Callable[[], Any], repeats: int) -> list[float]:
+    """Wall time in seconds of each of ``repeats`` runs of ``fn`` (no warm-up run: call ``time_call`` or run it once
+    first where compilation must not count)."""
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        _wait(fn())
+        times.append(time.perf_counter() - t0)
+    return times
+
+
+def time_call(fn: Callable[[], Any], repeats: int) -> tuple[np.ndarray, float, float]:
     """``(output, seconds, compile_seconds)``: the output as NumPy, the median wall time in seconds of ``repeats``
     runs after the first (the first's time when ``repeats`` is 0), and how much longer the first run took (compilation
     and first-touch costs; 0 when it was not longer)."""
     t0 = time.perf_counter()
-    out = fn().block_until_ready()
+    out = _wait(fn())
     first = time.perf_counter() - t0
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = fn().block_until_ready()
-        times.append(time.perf_counter() - t0)
+    times = run_times(fn, repeats)
     seconds = float(np.median(times)) if times else first
     return np.asarray(out), seconds, max(first - seconds, 0.0)
