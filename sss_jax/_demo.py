@@ -18,11 +18,12 @@ __all__ = ["DEMO_MATERIALS", "DemoResult", "run_demo", "demo_two_gaussian", "dem
            "demo_report_data"]
 
 # Artist-style materials of the demo scene (surface albedo, Burley d in mm per channel), ids 1..3. The scattering
-# distances are exaggerated for a scene of a few centimetres so the effect is visible at 256 px.
+# distances are exaggerated for a scene of a few centimetres so the effect is visible at 256 px. Their names are their
+# own ("demo_skin" is not the preset "skin"): one name, one material, in every command.
 DEMO_MATERIALS = {
-    "skin": dict(albedo=(0.80, 0.55, 0.45), d_mm=(3.0, 1.4, 0.8)),
-    "marble": dict(albedo=(0.83, 0.79, 0.75), d_mm=(2.2, 1.9, 1.6)),
-    "wax": dict(albedo=(0.85, 0.70, 0.45), d_mm=(3.5, 2.4, 1.4)),
+    "demo_skin": dict(albedo=(0.80, 0.55, 0.45), d_mm=(3.0, 1.4, 0.8)),
+    "demo_marble": dict(albedo=(0.83, 0.79, 0.75), d_mm=(2.2, 1.9, 1.6)),
+    "demo_wax": dict(albedo=(0.85, 0.70, 0.45), d_mm=(3.5, 2.4, 1.4)),
 }
 
 # STA parameters for the demo's back light (Barré-Brisebois & Bouchard's defaults are of this order)

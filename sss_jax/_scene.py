@@ -295,5 +295,5 @@ def demo_scene(height: int = 192, width: int = 256, *, dtype=np.float32) -> Demo
         camera=Camera(focal, mm_per_unit=10.0),
         light=DirectionalLight(jnp.asarray(light_dir, dtype=dtype), jnp.asarray(light_rgb, dtype=dtype)),
         back_light=DirectionalLight(jnp.asarray(back_dir, dtype=dtype), jnp.asarray(back_rgb, dtype=dtype)),
-        material_names=("skin", "marble", "wax"),
+        material_names=("demo_skin", "demo_marble", "demo_wax"),
     )

@@ -8,15 +8,17 @@ import sys
 
 EPILOG = """examples:
   sss-jax advise --material skin --max-delta-e 1.0
-  sss-jax advise --material marble --scene demo --scene-scale 4 --size 96x128 --max-delta-e 0.5 --json advice.json
+  sss-jax advise --material marble --scene demo --scene-scale 4 --size 128x96 --max-delta-e 0.5 --json advice.json
+  sss-jax advise --material demo_skin --max-delta-e 1.0        # the demo scene's own skin (not the preset skin)
 """
 
 
 def _size(text: str) -> tuple[int, int]:
+    """WIDTHxHEIGHT, as ``sss-jax demo`` takes it; returns (height, width)."""
     try:
-        h, w = (int(v) for v in text.lower().split("x"))
+        w, h = (int(v) for v in text.lower().split("x"))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"--size must be HxW (e.g. 72x96), got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"--size must be WIDTHxHEIGHT (e.g. 96x72), got {text!r}") from None
     if h < 8 or w < 8:
         raise argparse.ArgumentTypeError(f"--size must be at least 8x8, got {text!r}")
     return h, w
@@ -38,7 +40,7 @@ def register(subparsers) -> None:
     p.add_argument("--scene", default="demo", choices=["demo"], help="the scene measured on (default: demo)")
     p.add_argument("--scene-scale", type=float, default=1.0,
                    help="size of the scene's objects relative to the demo's (scales mm per scene unit; default 1)")
-    p.add_argument("--size", type=_size, default=(72, 96), help="scene size HxW in pixels (default 72x96, cheap)")
+    p.add_argument("--size", type=_size, default=(72, 96), help="scene size WIDTHxHEIGHT in pixels, as `sss-jax demo` takes it (default 96x72, cheap)")
     p.add_argument("--max-delta-e", type=float, required=True, help="budget: mean CIEDE2000 against the reference")
     p.add_argument("--repeats", type=int, default=5,
                    help="timed runs per candidate: median and interquartile range; candidates whose ranges overlap "
