@@ -29,6 +29,7 @@ import time
 import warnings
 from typing import Any, Callable
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -148,14 +149,19 @@ def _solve(residual_fn: Callable, x0: np.ndarray, lower: np.ndarray, upper: np.n
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="JAXopt is no longer maintained", category=DeprecationWarning)
         import jaxopt
-    opt = jaxopt.LBFGSB(fun=_jaxopt_loss(residual_fn), maxiter=max_steps, tol=1e-9)
-    res = opt.run(jnp.asarray(x0), (jnp.asarray(lower), jnp.asarray(upper)), args)
+    key = ("jaxopt-solver", residual_fn, max_steps)
+    if key not in _WRAPPED:  # one jitted run per residual: jaxopt's own loop is traced anew on every call otherwise
+        opt = jaxopt.LBFGSB(fun=_jaxopt_loss(residual_fn), maxiter=max_steps, tol=1e-9)
+        _WRAPPED[key] = eqx.filter_jit(opt.run)  # non-array data (tap counts) static
+    res = _WRAPPED[key](jnp.asarray(x0), (jnp.asarray(lower), jnp.asarray(upper)), args)
     it = int(res.state.iter_num)
     outcome = "successful" if it < max_steps else "max_steps_reached"
     return np.asarray(res.params), outcome, it
 
 
-_WRAPPED: dict[tuple, Callable] = {}
+# Wrapped residuals and solver objects, one per residual function (module-level, so the cache stays small): a second
+# fit of the same shape reuses the compiled solver.
+_WRAPPED: dict[tuple, Any] = {}
 
 
 def _optx_residual(fn):
