@@ -17,6 +17,8 @@ from ._burley import (
 from ._burley import (
     burley_active_count as burley_active_count,
 )
+from ._burley import PATTERNS as BURLEY_PATTERNS
+from ._burley import spiral_rotation as spiral_rotation
 from ._burley import (
     compaction_capacity as compaction_capacity,
 )
@@ -25,7 +27,10 @@ from ._burley import (
 )
 from ._common import ALBEDO_MODES as ALBEDO_MODES
 from ._common import MIN_FOOTPRINT_PX as MIN_FOOTPRINT_PX
+from ._common import frame_energy_fraction as frame_energy_fraction
 from ._reference import reference as reference
+from ._reference import ReferenceWindowWarning as ReferenceWindowWarning
+from ._reference import reference_energy_held as reference_energy_held
 from ._reference import reference_radius_px as reference_radius_px
 from ._registry import ENERGY_CONSERVING as ENERGY_CONSERVING
 from ._registry import TECHNIQUES as TECHNIQUES

@@ -39,15 +39,16 @@ def _separable_level(fetch: Callable[[Array], tuple[Array, Array, Array]], e: Ar
                      unit_offsets: Array, taps_per_chunk: int, mm_per_unit: Array, limit: float, follow_surface: bool,
                      interpolation: str) -> Array:
     """One 1D pass at one constant reach ``reach_px`` (a scalar) over a band of rows: ``fetch(start)`` returns the
-    padded planes (irradiance times validity, depth times validity, validity) shifted by ``start`` pixels along the
-    pass, so every tap is a constant shift. The taps are unrolled ``taps_per_chunk`` at a time into one expression,
+    padded planes (irradiance times validity, depth times validity, validity, and 1 off the image / 0 on it) shifted
+    by ``start`` pixels along the pass, so every tap is a constant shift. The taps are unrolled ``taps_per_chunk`` at a time into one expression,
     which XLA fuses into one loop over the band (each pixel reads a chunk's taps and adds them to its result at once);
     a loop runs the chunks, so the compile time and the fusions' size stay bounded as the taps grow.
     ``unit_offsets`` has a whole number of chunks (padding taps have weight 0).
 
     Each pixel q a tap reads (one for "nearest"; two for "linear", with weights 1 - f and f) adds
     ``w f keep_q (e_q - e)`` to ``e sum(w)``, which is ``sum(w (sum_q f keep_q e_q + (1 - sum_q f keep_q) e))``: the
-    tap counts as far as it landed on valid pixels at a similar depth, and as the centre for the rest. No division
+    tap counts as far as it landed on valid pixels at a similar depth, and as the centre for the rest; a pixel q off
+    the image adds ``-w f e`` (dark: that light leaves the frame). No division
     and no transcendental per tap, so nothing stops XLA from fusing a chunk whole."""
     scale = mm_per_unit * inv_reach_mm  # depth difference (scene units) at which a fetch stops counting
 
@@ -65,13 +66,15 @@ def _separable_level(fetch: Callable[[Array], tuple[Array, Array, Array]], e: Ar
                 corners = [(start, 1 - f), (start + 1, f)]
             term = 0.0
             for start, frac in corners:
-                ev, zv, vv = fetch(start)
+                ev, zv, vv, outside = fetch(start)
                 # Jimenez's "follow the surface", per fetched pixel: it counts less as its depth differs from the
-                # centre's (none at the kernel's reach); invalid or off-image pixels count as the centre. v is 0 or
-                # 1, so keep = v (1 - clip(|z_q - z| scale)) = max(v - |v z_q - v z| scale, 0): no division
+                # centre's (none at the kernel's reach); invalid pixels count as the centre. v is 0 or 1, so
+                # keep = v (1 - clip(|z_q - z| scale)) = max(v - |v z_q - v z| scale, 0): no division.
+                # Off-image pixels are dark: the light scattered there leaves the frame (adds -e, not 0)
                 keep = jnp.maximum(vv - jnp.abs(zv - vv * z) * scale, 0.0) if follow_surface else vv
-                keep = keep if frac is None else frac * keep
-                term = term + keep[None] * (ev - e)
+                if frac is not None:
+                    keep, outside = frac * keep, frac * outside
+                term = term + keep[None] * (ev - e) - outside[None] * e
             acc = acc + tap_weight(i) * term
         return acc
 
@@ -79,6 +82,46 @@ def _separable_level(fetch: Callable[[Array], tuple[Array, Array, Array]], e: Ar
     if chunks == 1:
         return chunk(0, e * weight_sum)
     return jax.lax.fori_loop(0, chunks, chunk, e * weight_sum)
+
+
+def frame_truncation(unit_offsets: Array, w_table: Array, level_reach_px: Array, extent_px: float
+                     ) -> tuple[Array, Array]:
+    """Per reach level, the scale of the tap pattern and the tap weights ``(L, M, 3, n)`` of a kernel cut at the
+    frame's extent along the pass (``extent_px``: no offset beyond it lands in the frame from any pixel).
+
+    A kernel whose outermost tap cell reaches past the extent is replaced by its part inside ``[-extent, extent]``,
+    taps spread over that range in the same pattern: tap i gets the kernel's mass over its shrunk cell, read from the
+    kernel's cumulative weights at the original cells' boundaries (linear within a cell: the taps know the kernel
+    no finer than that), and the mass beyond the extent is dropped (it leaves the frame from every pixel). Without
+    this a kernel far wider than the frame puts every tap but the centre outside it, and the pass returns the input
+    scaled by the centre weight instead of spreading the light. Kernels within the extent are unchanged.
+    ``unit_offsets`` and ``w_table (M, 3, n)`` are in the pass's tap order (centre first)."""
+    n = unit_offsets.shape[0]
+    order = np.asarray(centre_first(n)) if n > 1 else np.zeros(1, int)
+    sorted_unit = np.sort(np.asarray(unit_tap_offsets(n)))
+    if n > 1:
+        mids = 0.5 * (sorted_unit[1:] + sorted_unit[:-1])
+        outer = 2 * sorted_unit[-1] - mids[-1]  # the outer cells as wide beyond the last tap as inside it
+        bounds = np.concatenate([[-outer], mids, [outer]])
+    else:
+        bounds = np.array([-0.5, 0.5])
+    dtype = w_table.dtype
+    sorted_w = w_table[..., np.argsort(order)]  # (M, 3, n), offsets ascending
+    cum = jnp.concatenate([jnp.zeros(sorted_w.shape[:-1] + (1,), dtype), jnp.cumsum(sorted_w, axis=-1)], axis=-1)
+    reach_edge = level_reach_px * float(bounds[-1])  # px, where the outer cells end
+    fits = reach_edge <= extent_px
+    scale = jnp.where(fits, 1.0, extent_px / jnp.where(fits, 1.0, reach_edge))  # (L,)
+    bounds = jnp.asarray(bounds, dtype)
+
+    def level_weights(s):
+        at = jnp.clip(s * bounds, bounds[0], bounds[-1])
+        c = jax.vmap(jax.vmap(lambda fp: jnp.interp(at, bounds, fp)))(cum)  # (M, 3, n + 1)
+        return jnp.diff(c, axis=-1)[..., order]
+
+    w_levels = jax.vmap(level_weights)(scale)
+    # untouched levels keep their exact weights (no interpolation rounding)
+    w_levels = jnp.where(fits[:, None, None, None], w_table[None], w_levels)
+    return scale.astype(dtype), w_levels
 
 
 def tap_chunks(taps: int) -> tuple[int, int]:
@@ -128,14 +171,18 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
     pad_width = [(0, 0), (pad, pad)] if axis == 2 else [(pad, pad), (0, 0)]
     pad_fetched = lambda a: jnp.pad(a, [(0, 0)] * (a.ndim - 2) + pad_width)
     ev_pad, z_pad, v_pad = pad_fetched(e * v[None]), pad_fetched(z * v), pad_fetched(v)
+    along = w if axis == 2 else h
+    outside_pad = jnp.pad(jnp.zeros((along,), e.dtype), (pad, pad), constant_values=1.0)  # 1D: off the image
     planes = {"e": e, "z": z, "lw": level_weights, "inv": inv_reach_mm, "skip": skip}
     if onehot is not None:
         planes["onehot"] = onehot
-    weight_sums = jnp.sum(w_table, axis=-1)  # (M, 3)
+    # kernels reaching past the frame are cut at its extent (the rest leaves), their taps spread over it
+    level_scale, w_levels = frame_truncation(unit_offsets, w_table, level_reach_px, float(along))
     chunks, per_chunk = tap_chunks(unit_offsets.shape[0])
     extra_taps = chunks * per_chunk - unit_offsets.shape[0]  # padding taps: weight 0 at offset 0 (the centre: adds 0)
     unit_offsets = jnp.pad(unit_offsets, (0, extra_taps))
-    w_table = jnp.pad(w_table, [(0, 0), (0, 0), (0, extra_taps)])
+    w_levels = jnp.pad(w_levels, [(0, 0), (0, 0), (0, 0), (0, extra_taps)])
+    weight_sums = jnp.sum(w_levels, axis=-1)  # (L, M, 3)
 
     def band(k, out):
         row0 = jnp.minimum(k * rows_per_band, h - rows_per_band).astype(jnp.int32)
@@ -144,23 +191,27 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
         def fetch(start):
             o = jnp.zeros((), jnp.int32)  # index arguments of one type (int64 under x64 otherwise)
             row, col = (row0, pad + start) if axis == 2 else (pad + row0 + start, o)
+            outside = (jax.lax.dynamic_slice(outside_pad, (col,), (w,))[None, :] if axis == 2
+                       else jax.lax.dynamic_slice(outside_pad, (row,), (rows_per_band,))[:, None])
             return (jax.lax.dynamic_slice(ev_pad, (o, row, col), (3, rows_per_band, w)),
                     jax.lax.dynamic_slice(z_pad, (row, col), (rows_per_band, w)),
-                    jax.lax.dynamic_slice(v_pad, (row, col), (rows_per_band, w)))
-
-        if onehot is None:
-            tap_weight = lambda i: w_table[0, :, i][:, None, None]
-            weight_sum = weight_sums[0][:, None, None]
-        else:
-            per_pixel = lambda table: sum(b["onehot"][m][None] * table[m][:, None, None] for m in range(len(w_table)))
-            tap_weight = lambda i: per_pixel(w_table[:, :, i])
-            weight_sum = per_pixel(weight_sums)
+                    jax.lax.dynamic_slice(v_pad, (row, col), (rows_per_band, w)),
+                    outside)
 
         def level(j, acc):
             lw = b["lw"][j]
-            run = lambda: _separable_level(fetch, b["e"], b["z"], level_reach_px[j], b["inv"], tap_weight, weight_sum,
-                                           unit_offsets, per_chunk, mm_per_unit, pad - 1.0, follow_surface,
-                                           interpolation)
+            w_j, ws_j = w_levels[j], weight_sums[j]
+            if onehot is None:
+                tap_weight = lambda i: w_j[0, :, i][:, None, None]
+                weight_sum = ws_j[0][:, None, None]
+            else:
+                per_pixel = lambda table: sum(b["onehot"][m][None] * table[m][:, None, None]
+                                              for m in range(w_j.shape[0]))
+                tap_weight = lambda i: per_pixel(w_j[:, :, i])
+                weight_sum = per_pixel(ws_j)
+            run = lambda: _separable_level(fetch, b["e"], b["z"], level_reach_px[j] * level_scale[j], b["inv"],
+                                           tap_weight, weight_sum, unit_offsets, per_chunk, mm_per_unit, pad - 1.0,
+                                           follow_surface, interpolation)
             return acc + lw[None] * jax.lax.cond(jnp.any(lw > 0), run, lambda: jnp.zeros_like(b["e"]))
 
         # a loop, not unrolled: the compile time does not grow with the number of levels
