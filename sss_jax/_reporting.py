@@ -248,6 +248,11 @@ def write_demo_report(result, out_dir: pathlib.Path, *, pareto: bool = True) -> 
         fig.tight_layout()
         rep.figure(sec, fig, "Pareto plot on the demo scene")
 
+    # Burley's sampling error: samples x frames, bias and noise over seeds (issue #18)
+    from ._bench import sampling_section
+
+    sampling_section(rep, result)
+
     # 7. presets and what every engine renders for them
     from ._fit_presets import engine_rows, load_presets, preset_rows
 

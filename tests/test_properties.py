@@ -60,19 +60,26 @@ def test_linear_and_no_energy_created(seed, d, a, slope):
     out1, out2, out12 = _passes(e1, depth, d), _passes(e2, depth, d), _passes(2 * e1 + c * e2, depth, d)
     for o1, o2, o12 in zip(out1, out2, out12):
         np.testing.assert_allclose(np.asarray(o12), 2 * np.asarray(o1) + c * np.asarray(o2), rtol=1e-9, atol=1e-9)
-        # each output is a convex combination of inputs (albedo 1): no pixel exceeds the brightest input
+        # each output is a weighted mean of the inputs and of the dark beyond the frame (light that scatters out of
+        # it leaves; albedo 1): no pixel exceeds the brightest input, none goes negative
         assert np.asarray(o1).max() <= e1.max() * (1 + 1e-12)
-        assert np.asarray(o1).min() >= e1.min() * (1 - 1e-12)
+        assert np.asarray(o1).min() >= 0
+
+
+narrow = st.floats(min_value=1e-3, max_value=1.0, allow_nan=False)  # mm: at most 0.4 px at depth 20, so all but
+# ~1e-9 of every profile lies within 3 px
 
 
 @SETTINGS
-@given(st.floats(0.01, 100.0), triples, st.floats(0.0, 5.0), st.floats(20.0, 80.0))
+@given(st.floats(0.01, 100.0), st.tuples(narrow, narrow, narrow), st.floats(0.0, 5.0), st.floats(20.0, 80.0))
 def test_flat_stays_flat_on_a_smooth_surface(level, d, slope, base):
+    # away from the frame's border (where light leaves through it) flat light stays flat on a tilted plane
     e = np.full((H, W, 3), level)
     ys, xs = np.mgrid[0:H, 0:W]
     depth = base + slope * (xs / W + 0.5 * ys / H)  # a tilted plane: no depth edges
     for out in _passes(e, depth, jnp.asarray(d)):
-        np.testing.assert_allclose(np.asarray(out), level, rtol=1e-9)
+        np.testing.assert_allclose(np.asarray(out)[3:-3, 3:-3], level, rtol=1e-7)
+        assert np.asarray(out).max() <= level * (1 + 1e-9)
 
 
 @SETTINGS

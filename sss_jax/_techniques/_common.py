@@ -160,17 +160,20 @@ def frame_energy_fraction(cdf, rows: Array, cols: Array, height: int, width: int
     left, right = x + 0.5, width - 0.5 - x
     triangles = [(top, left), (top, right), (bottom, left), (bottom, right),
                  (left, top), (left, bottom), (right, top), (right, bottom)]
-    total = 0.0
+    parts = []
     for a, b in triangles:  # a: perpendicular distance to a side (>= 0.5 px), b: along that side to a corner
-        alpha = jnp.arctan2(b, a)
-        near = jnp.minimum(alpha, math.pi / 4)
-        for k in range(nodes.shape[0]):
-            f = (nodes[k] + 1) * 0.5
-            ang = f * near
-            total = total + (weights[k] * 0.5 * near)[..., None] * cdf(a * pixel_mm / jnp.cos(ang))
-        t_max = jnp.maximum(_safe_log(b / a), 0.0)
-        for k in range(nodes.shape[0]):
-            t = (nodes[k] + 1) * 0.5 * t_max
+        near = jnp.minimum(jnp.arctan2(b, a), math.pi / 4)
+        parts.append((a, near, jnp.maximum(_safe_log(b / a), 0.0)))
+
+    def node(k, total):  # one node of every rule per step: a loop, not unrolled, so the compile stays small
+        f = (nodes[k] + 1) * 0.5
+        for a, near, t_max in parts:
+            total = total + (weights[k] * 0.5 * near)[..., None] * cdf(a * pixel_mm / jnp.cos(f * near))
+            t = f * t_max
             dist = a * jnp.sqrt(1 + jnp.exp(2 * t))
             total = total + (weights[k] * 0.5 * t_max / (2 * jnp.cosh(t)))[..., None] * cdf(dist * pixel_mm)
+        return total
+
+    zero = jnp.zeros_like(cdf(pixel_mm))
+    total = jax.lax.fori_loop(0, nodes.shape[0], node, zero)
     return total / (2 * math.pi)
