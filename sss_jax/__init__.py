@@ -50,6 +50,7 @@ from ._techniques import (
     BURLEY_PATTERNS as BURLEY_PATTERNS,
     TECHNIQUES as TECHNIQUES,
     ReferenceWindowWarning as ReferenceWindowWarning,
+    SamplingWarning as SamplingWarning,
     burley as burley,
     get_technique as get_technique,
     reference as reference,

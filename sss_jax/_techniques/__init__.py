@@ -18,6 +18,7 @@ from ._burley import (
     burley_active_count as burley_active_count,
 )
 from ._burley import PATTERNS as BURLEY_PATTERNS
+from ._burley import burley_channel_samples as burley_channel_samples
 from ._burley import spiral_rotation as spiral_rotation
 from ._burley import (
     compaction_capacity as compaction_capacity,
@@ -27,6 +28,7 @@ from ._burley import (
 )
 from ._common import ALBEDO_MODES as ALBEDO_MODES
 from ._common import MIN_FOOTPRINT_PX as MIN_FOOTPRINT_PX
+from ._common import SamplingWarning as SamplingWarning
 from ._common import frame_energy_fraction as frame_energy_fraction
 from ._reference import reference as reference
 from ._reference import ReferenceWindowWarning as ReferenceWindowWarning
@@ -37,6 +39,7 @@ from ._registry import TECHNIQUES as TECHNIQUES
 from ._registry import get_technique as get_technique
 from ._separable import SCALE_LEVELS as SCALE_LEVELS
 from ._separable import kernel_groups as kernel_groups
+from ._separable import separable_edge_error as separable_edge_error
 from ._separable import separable as separable
 from ._separable import tap_chunks as tap_chunks
 from ._translucency import (

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import math
+import warnings
 
 import equinox as eqx
 import jax
@@ -19,6 +20,7 @@ from .._scene import Buffers, Camera
 from .._units import px_per_mm
 from ._common import (
     MIN_FOOTPRINT_PX,
+    SamplingWarning,
     _check_albedo_mode,
     _corners,
     _finish,
@@ -320,8 +322,40 @@ def burley(
             capacity = compaction_capacity(count, h * w)
             if compact and capacity is None:
                 capacity = 1 << max(0, count - 1).bit_length()
+        if count:
+            worst = burley_channel_samples(material.d_mm, int(samples) * int(frames))
+            if worst is not None and worst[0] < 4:
+                n_eff, m, c = worst
+                d = np.asarray(material.d_mm, np.float64)
+                implied = min(1.0, 0.5 / math.sqrt(max(n_eff, 1e-9)))
+                warnings.warn(f"burley: channel {'RGB'[c]} of material {m + 1} (d {d[m, c]:.3g} mm, the widest "
+                              f"{d[m].max():.3g} mm) gets {n_eff:.2g} of {samples * frames} samples within the radius "
+                              f"holding 95% of its energy: its kernel is not represented (per-pixel error up to "
+                              f"{implied:.2f} of an edge's contrast); more samples or frames", SamplingWarning,
+                              stacklevel=2)
     return _burley_impl(buffers, material, camera, int(samples), albedo_mode, interpolation, capacity,
                         float(min_footprint_px), weight_channels, bool(truncate), pattern, int(frames), seed)
+
+
+def burley_channel_samples(d_mm, samples: int):
+    """Host side: the fewest samples any channel of any material gets within the radius holding 95% of its own
+    energy (samples follow the widest channel's profile, so a channel much narrower than it sees only the innermost
+    few): ``(expected samples, material row, channel)``, or ``None`` when no channel has d > 0. ``samples`` counts
+    every frame's. Below a few, that channel's kernel is not represented: its result rests on one or two fetches."""
+    d = np.asarray(d_mm, np.float64).reshape(-1, 3)
+    d_max = d.max(axis=1, keepdims=True)
+    ok = d > 0
+    if not ok.any():
+        return None
+    r95 = _BURLEY_R95 * d
+    x = np.where(ok, r95 / np.where(d_max > 0, d_max, 1.0), 0.0)
+    share = 1 - np.exp(-x) / 4 - 3 * np.exp(-x / 3) / 4  # Burley's CDF (Christensen & Burley 2015)
+    n_eff = np.where(ok, samples * share, np.inf)
+    m, c = np.unravel_index(np.argmin(n_eff), n_eff.shape)
+    return float(n_eff[m, c]), int(m), int(c)
+
+
+_BURLEY_R95 = float(np.asarray(burley_inverse_ccdf(np.float64(0.05), np.float64(1.0))))
 
 
 @functools.lru_cache(maxsize=None)

@@ -177,3 +177,12 @@ def frame_energy_fraction(cdf, rows: Array, cols: Array, height: int, width: int
     zero = jnp.zeros_like(cdf(pixel_mm))
     total = jax.lax.fori_loop(0, nodes.shape[0], node, zero)
     return total / (2 * math.pi)
+
+
+class SamplingWarning(UserWarning):
+    """A pass's taps or samples can no longer represent the kernel: the message states the error it implies."""
+
+
+# an implied error (fraction of a hard edge's contrast) above which a configuration is called undersampled: the
+# asymmetry goal of issue #18 for Burley's edge
+SAMPLING_ERROR_LIMIT = 0.02

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from typing import Callable
 
 import equinox as eqx
@@ -21,6 +22,9 @@ from .._scene import Buffers, Camera
 from .._units import px_per_mm
 from ._common import (
     MIN_FOOTPRINT_PX,
+    SAMPLING_ERROR_LIMIT,
+    SamplingWarning,
+    _sss_mask,
     _check_albedo_mode,
     _finish,
     _is_concrete,
@@ -321,8 +325,54 @@ def separable(
     if not (float(min_footprint_px) >= 0):
         raise ValueError(f"min_footprint_px must be >= 0, got {min_footprint_px!r}")
     mode = "bilinear" if interpolation == "linear" else "nearest"
+    if _is_concrete(buffers, material, camera):
+        implied = separable_edge_error(buffers, material, camera, int(taps), float(min_footprint_px))
+        if implied[0] > SAMPLING_ERROR_LIMIT:
+            warnings.warn(f"separable: {taps} taps at a reach of {implied[1]:.0f} px leave tap cells up to "
+                          f"{implied[2]:.1f} px wide: a hard edge may be off by up to {implied[0]:.3f} of its "
+                          f"contrast (more taps lower it)", SamplingWarning, stacklevel=2)
     return _separable_impl(buffers, material, camera, int(taps), albedo_mode, bool(follow_surface), mode,
                            int(scale_levels), float(min_footprint_px), kernel_groups(material))
+
+
+def separable_edge_error(buffers: Buffers, material, camera: Camera, taps: int,
+                         min_footprint_px: float = MIN_FOOTPRINT_PX) -> tuple[float, float, float]:
+    """Host side: what the taps' resolution implies for the widest kernel in the frame (the active pixel nearest the
+    camera): ``(error, reach_px, widest_cell_px)``, where ``error`` bounds how far a hard edge's profile can be from
+    the kernel's, as a fraction of the edge's contrast. A tap stands for the kernel's mass over its cell; with linear
+    fetches a cell up to a pixel wide is resolved, a wider one moves its whole mass at once as the edge crosses it, by
+    up to ``w_i (1 - 1 / cell_i) / 2`` (half way across, on average); the largest over the taps of either pass (after
+    ``frame_truncation``), is the bound."""
+    valid = np.asarray(_sss_mask(buffers))
+    if not valid.any():
+        return 0.0, 0.0, 0.0
+    kernels = material.separable_kernels(taps, jnp.float64 if jax.config.read("jax_enable_x64") else jnp.float32)
+    offsets, weights = np.asarray(kernels.offsets_mm, np.float64), np.asarray(kernels.weights, np.float64)
+    depth = np.asarray(buffers.depth, np.float64)[valid]
+    ppm = float(camera.focal_px) / (float(np.min(depth)) * float(camera.mm_per_unit))
+    reach_mm = np.max(np.abs(offsets), axis=-1)  # (M,)
+    worst = (0.0, 0.0, 0.0)
+    unit = jnp.asarray(unit_tap_offsets(taps)[centre_first(taps)])
+    sorted_unit = np.sort(unit_tap_offsets(taps))
+    if taps > 1:
+        mids = 0.5 * (sorted_unit[1:] + sorted_unit[:-1])
+        bounds = np.concatenate([[2 * sorted_unit[0] - mids[0]], mids, [2 * sorted_unit[-1] - mids[-1]]])
+    else:
+        bounds = np.array([-0.5, 0.5])
+    order = np.argsort(np.asarray(centre_first(taps)))
+    for m in range(offsets.shape[0]):
+        reach_px = float(reach_mm[m]) * ppm
+        if reach_px < min_footprint_px or reach_px <= 0:
+            continue
+        for extent in set(buffers.depth.shape[-2:]):
+            scale, w_levels = frame_truncation(unit, jnp.asarray(np.moveaxis(weights[m:m + 1], -1, 1)),
+                                               jnp.asarray([reach_px]), float(extent))
+            w_sorted = np.asarray(w_levels)[0, 0][:, order]  # (3, n) ascending offsets
+            cells = np.diff(bounds) * float(scale[0]) * reach_px
+            error = float(np.max(w_sorted * np.maximum(0.0, 1 - 1 / np.maximum(cells, 1e-12)) / 2))
+            if error > worst[0]:
+                worst = (error, reach_px, float(np.max(cells)))
+    return worst
 
 
 def kernel_groups(material) -> tuple[int, ...] | None:
