@@ -181,10 +181,13 @@ def _burley_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, sam
                     den[c] = den[c] + wgt[c]
             # the part of the fetch that fell outside the frame: dark surface at the pixel's own depth (light that
             # scatters out of the frame leaves; it is not pushed back onto the pixels inside)
-            out_w = (1 - in_frame) * inv_pdf
-            for c in range(weight_channels):
-                den[c] = den[c] + out_w * _burley_weight_kernel(jnp.where(ok_d_planes[c], r_mm * inv_d_planes[c],
-                                                                          jnp.inf))
+            if weight_channels == 1:  # grey: the weight at dz = 0 is R/pdf of the sampled profile itself, 1
+                den[0] = den[0] + (1 - in_frame) * ok_d_planes[0]
+            else:
+                out_w = (1 - in_frame) * inv_pdf
+                for c in range(weight_channels):
+                    den[c] = den[c] + out_w * _burley_weight_kernel(
+                        jnp.where(ok_d_planes[c], r_mm * inv_d_planes[c], jnp.inf))
             return tuple(num), tuple(den)
 
         zeros = jnp.zeros(e_c.shape[:1], dtype)

@@ -311,6 +311,14 @@ def separable(
     holding 99% of the widest channel's energy, in px) is below ``min_footprint_px`` keep their local shading
     (``albedo * irradiance``, the paper's Fig. 1); 0 disables that. Several materials in one frame cost one pass;
     materials that share a kernel (differing only in albedo) share its table row and per-pixel weight term.
+
+    Light that scatters out of the frame leaves: a tap (or the part of a linear fetch) landing off the image counts as
+    dark, so each pass keeps, of a pixel's light, the share of the 1D kernel inside the frame (the 2D pass: the
+    product of the two shares). A kernel whose reach exceeds the frame's extent along a pass is cut there (the rest
+    leaves from every pixel) and its taps spread over the frame (``frame_truncation``): as d grows past the frame the
+    light spreads over it and out, never back onto its own pixel. With concrete inputs, where the taps' cells at the
+    widest reach are too coarse for a hard edge, a ``SamplingWarning`` states the error they imply
+    (``separable_edge_error``).
     """
     _check_albedo_mode(albedo_mode)
     if not isinstance(material, AbstractMaterial):
