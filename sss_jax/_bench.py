@@ -350,7 +350,7 @@ def burley_sampling_error(buffers: Buffers, material: BurleyMaterial, camera: Ca
                 rows.append(dict(technique="burley", pattern=pattern, samples=n, frames=k, samples_x_frames=n * k,
                                  seeds=seeds, error=round(float(np.mean(errs)), 5),
                                  bias=round(_rel_l2(outs.mean(0), ref, m), 5),
-                                 noise=round(float(np.sqrt(np.mean(outs.std(0)[:, m] ** 2))) / ref_rms, 5)))
+                                 noise=round(float(np.sqrt(np.mean(outs.std(0)[m] ** 2))) / ref_rms, 5)))
     return rows
 
 

@@ -268,3 +268,25 @@ def test_the_jump_across_a_step_edge_falls_monotonically_with_d(technique):
     for a, b in zip(jumps, jumps[1:]):
         assert b <= a + 1e-4, jumps  # falls (or stays) as d grows
     assert jumps[-1] < 1e-3, jumps  # d = 1e9 mm: spread over metres, nothing of the edge is left
+
+
+def test_bench_splits_burley_error_into_bias_and_noise():
+    from sss_jax._bench import burley_sampling_error, sampling_error_figure
+
+    cam = sj.Camera(focal_px=1.0, mm_per_unit=1.0)
+    e = np.zeros((24, 32, 3))
+    e[:, 16:] = 1.0
+    b = sj.Buffers(irradiance=jnp.asarray(e), depth=jnp.ones((24, 32)))
+    mat = sj.BurleyMaterial(albedo=[1.0] * 3, d_mm=[2.0, 1.0, 0.5])
+    ref = sj.reference(b, mat, cam)
+    rows = burley_sampling_error(b, mat, cam, ref, samples=(8,), frames=(1, 4), seeds=3)
+    by = {(r["pattern"], r["frames"]): r for r in rows}
+    assert len(rows) == 4 and all(r["samples_x_frames"] == 8 * r["frames"] for r in rows)
+    # the fixed spiral with one frame does not depend on the seed: all of its error is bias (structure)
+    assert by[("fixed", 1)]["noise"] == 0 and by[("fixed", 1)]["bias"] == pytest.approx(by[("fixed", 1)]["error"])
+    # the rotated one trades that structure for noise, and four frames average the noise down (~1/2)
+    assert by[("rotated", 1)]["noise"] > 0.01
+    assert by[("rotated", 4)]["noise"] < 0.7 * by[("rotated", 1)]["noise"]
+    assert by[("rotated", 1)]["bias"] < by[("fixed", 1)]["bias"]
+    fig = sampling_error_figure(rows)
+    assert len(fig.axes) == 3
