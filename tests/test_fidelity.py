@@ -1,6 +1,7 @@
 """Fidelity of the passes against independent references (issue #18 parts 3-5): Burley's sampling pattern on a
 shadow edge, energy at the frame border and for kernels wider than the frame, and the large-d limit."""
 
+import itertools
 import math
 import warnings
 
@@ -265,7 +266,7 @@ def test_the_jump_across_a_step_edge_falls_monotonically_with_d(technique):
         fn = lambda b, m: sj.burley(b, m, cam, samples=32, frames=4)
     jumps = [step_jump(fn, d) for d in D_SWEEP]
     assert jumps[0] > 0.5  # d = 0.25 px: the edge stays sharp
-    for a, b in zip(jumps, jumps[1:]):
+    for a, b in itertools.pairwise(jumps):
         assert b <= a + 1e-4, jumps  # falls (or stays) as d grows
     assert jumps[-1] < 1e-3, jumps  # d = 1e9 mm: spread over metres, nothing of the edge is left
 

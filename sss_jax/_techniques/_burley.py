@@ -45,7 +45,7 @@ def _burley_weight_kernel(x: Array) -> Array:
 
 
 
-PATTERNS = ("rotated", "fixed")
+BURLEY_PATTERNS = ("rotated", "fixed")
 
 
 def _hash_u32(x: Array) -> Array:
@@ -308,8 +308,8 @@ def burley(
         raise ValueError(f"samples must be a positive integer, got {samples!r}")
     if not (float(min_footprint_px) >= 0):
         raise ValueError(f"min_footprint_px must be >= 0, got {min_footprint_px!r}")
-    if pattern not in PATTERNS:
-        raise ValueError(f"pattern={pattern!r} is not one of {PATTERNS}")
+    if pattern not in BURLEY_PATTERNS:
+        raise ValueError(f"pattern={pattern!r} is not one of {BURLEY_PATTERNS}")
     if not isinstance(frames, (int, np.integer)) or isinstance(frames, bool) or frames < 1:
         raise ValueError(f"frames must be a positive integer, got {frames!r}")
     if _is_concrete(seed) and not (np.ndim(seed) == 0 and float(seed) == int(seed) and 0 <= int(seed) < 2**32):

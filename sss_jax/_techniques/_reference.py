@@ -19,10 +19,10 @@ from ._common import (
     _finish,
     _is_concrete,
     _prepare,
-    frame_energy_fraction,
     _safe_sqrt,
     _sss_mask,
     _work_dtype,
+    frame_energy_fraction,
 )
 
 _THETA_NODES, _THETA_WEIGHTS = np.polynomial.legendre.leggauss(16)

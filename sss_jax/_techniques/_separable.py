@@ -24,12 +24,12 @@ from ._common import (
     MIN_FOOTPRINT_PX,
     SAMPLING_ERROR_LIMIT,
     SamplingWarning,
-    _sss_mask,
     _check_albedo_mode,
     _finish,
     _is_concrete,
     _prepare,
     _safe_log,
+    _sss_mask,
     _work_dtype,
 )
 
