@@ -291,3 +291,17 @@ def test_bench_splits_burley_error_into_bias_and_noise():
     assert by[("rotated", 1)]["bias"] < by[("fixed", 1)]["bias"]
     fig = sampling_error_figure(rows)
     assert len(fig.axes) == 3
+
+
+def test_border_renormalise_keeps_flat_light_flat_at_the_border():
+    # the model for a lit surface cut by the frame (its outside sends light in as the inside sends it out): flat
+    # light stays flat up to the border, where border="leaves" loses the profile's share beyond it
+    b = sj.Buffers(irradiance=jnp.ones((SPOT_H, SPOT_W, 3)), depth=jnp.ones((SPOT_H, SPOT_W)))
+    runs = {"burley": lambda **kw: sj.burley(b, SPOT_MAT, SPOT_CAM, samples=8, **kw),
+            "separable": lambda **kw: sj.separable(b, SPOT_MAT, SPOT_CAM, taps=9, **kw),
+            "reference": lambda **kw: sj.reference(b, SPOT_MAT, SPOT_CAM, radius_px=4, near_subsamples=2, **kw)}
+    for name, run in runs.items():
+        np.testing.assert_allclose(np.asarray(run(border="renormalise")), 1.0, rtol=1e-9, err_msg=name)
+        assert np.asarray(run())[0, 0, 0] < 0.9, name
+    with pytest.raises(ValueError, match="border"):
+        sj.burley(b, SPOT_MAT, SPOT_CAM, border="clamp")

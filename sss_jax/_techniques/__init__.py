@@ -27,6 +27,7 @@ from ._burley import (
     weight_channel_count as weight_channel_count,
 )
 from ._common import ALBEDO_MODES as ALBEDO_MODES
+from ._common import BORDERS as BORDERS
 from ._common import MIN_FOOTPRINT_PX as MIN_FOOTPRINT_PX
 from ._common import SamplingWarning as SamplingWarning
 from ._common import frame_energy_fraction as frame_energy_fraction

@@ -22,6 +22,7 @@ from ._common import (
     MIN_FOOTPRINT_PX,
     SamplingWarning,
     _check_albedo_mode,
+    _check_border,
     _corners,
     _finish,
     _is_concrete,
@@ -101,7 +102,8 @@ _BURLEY_R99 = float(np.asarray(burley_inverse_ccdf(np.float64(0.01), np.float64(
 @eqx.filter_jit
 def _burley_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, samples: int, albedo_mode: str,
                  interpolation: str, capacity: int | None, min_footprint_px: float, weight_channels: int = 3,
-                 truncate: bool = True, pattern: str = "rotated", frames: int = 1, seed: Array | int = 0) -> Array:
+                 truncate: bool = True, pattern: str = "rotated", frames: int = 1, seed: Array | int = 0,
+                 border: str = "leaves") -> Array:
     dtype = _work_dtype(buffers.irradiance.dtype)
     d_table = checked(material.d_mm.astype(dtype), "d_mm")
     prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
@@ -137,7 +139,8 @@ def _burley_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, sam
     inv_d = jnp.where(ok_d, 1.0 / jnp.where(ok_d, d_w, 1.0), 0.0)
     ok_dmax = dmax_c > 0
     inv_dmax = jnp.where(ok_dmax, 1.0 / jnp.where(ok_dmax, dmax_c, 1.0), 0.0)
-    beyond = out_of_frame_mass(d_w, dmax_c, inv_dmax, r_clip, inside_fraction, samples) if truncate else None
+    leaves = border == "leaves"
+    beyond = out_of_frame_mass(d_w, dmax_c, inv_dmax, r_clip, inside_fraction, samples) if truncate and leaves else None
 
     # channel planes: every per-pixel quantity below is a 1D array over the pixels, which XLA vectorises along
     # (an (N, 3) layout leaves 3 lanes in the minor dimension)
@@ -181,9 +184,9 @@ def _burley_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, sam
                     den[c] = den[c] + wgt[c]
             # the part of the fetch that fell outside the frame: dark surface at the pixel's own depth (light that
             # scatters out of the frame leaves; it is not pushed back onto the pixels inside)
-            if weight_channels == 1:  # grey: the weight at dz = 0 is R/pdf of the sampled profile itself, 1
+            if leaves and weight_channels == 1:  # grey: the weight at dz = 0 is R/pdf of the sampled profile itself, 1
                 den[0] = den[0] + (1 - in_frame) * ok_d_planes[0]
-            else:
+            elif leaves:
                 out_w = (1 - in_frame) * inv_pdf
                 for c in range(weight_channels):
                     den[c] = den[c] + out_w * _burley_weight_kernel(
@@ -267,6 +270,7 @@ def burley(
     pattern: str = "rotated",
     frames: int = 1,
     seed: int | Array = 0,
+    border: str = "leaves",
 ) -> Float[Array, "H W 3"]:
     """Screen-space Christensen–Burley normalised diffusion (one pass, ``samples`` spiral samples per pixel).
 
@@ -298,6 +302,8 @@ def burley(
     from the normalisation (the light there is taken as if it came from the pixels with a surface). So a lit spot
     keeps, over the frame, the fraction of its energy whose profile lies inside it, and as d grows past the frame
     every pixel tends to the same small share of the frame's light (more blur, never a return to the input).
+    ``border="renormalise"`` drops the samples outside instead (the kernel renormalised over the frame, as if the
+    surface beyond looked like the inside: the behaviour before, right where a lit surface is cut by the frame).
     """
     _check_albedo_mode(albedo_mode)
     if interpolation not in ("bilinear", "nearest"):
@@ -308,6 +314,7 @@ def burley(
         raise ValueError(f"samples must be a positive integer, got {samples!r}")
     if not (float(min_footprint_px) >= 0):
         raise ValueError(f"min_footprint_px must be >= 0, got {min_footprint_px!r}")
+    _check_border(border)
     if pattern not in BURLEY_PATTERNS:
         raise ValueError(f"pattern={pattern!r} is not one of {BURLEY_PATTERNS}")
     if not isinstance(frames, (int, np.integer)) or isinstance(frames, bool) or frames < 1:
@@ -337,7 +344,8 @@ def burley(
                               f"{implied:.2f} of an edge's contrast); more samples or frames", SamplingWarning,
                               stacklevel=2)
     return _burley_impl(buffers, material, camera, int(samples), albedo_mode, interpolation, capacity,
-                        float(min_footprint_px), weight_channels, bool(truncate), pattern, int(frames), seed)
+                        float(min_footprint_px), weight_channels, bool(truncate), pattern, int(frames), seed,
+                        border)
 
 
 def burley_channel_samples(d_mm, samples: int):

@@ -141,6 +141,17 @@ MIN_FOOTPRINT_PX = 0.5
 # outside (and the energy past the image diagonal), separable counts its taps that land outside as dark.
 _GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(16)
 
+# What the passes assume beyond the frame: "leaves" (default; the rule above: nothing there, light scattered out is
+# lost) or "renormalise" (the kernel renormalised over what landed inside, as if the surface beyond looked like the
+# inside: what the passes did before issue #18, and the better model where a lit surface is cut by the frame edge,
+# e.g. a close-up, whose outside sends light in as much as the inside sends out)
+BORDERS = ("leaves", "renormalise")
+
+
+def _check_border(border: str) -> None:
+    if border not in BORDERS:
+        raise ValueError(f"border={border!r} is not one of {BORDERS}")
+
 
 def frame_energy_fraction(cdf, rows: Array, cols: Array, height: int, width: int, pixel_mm: Array) -> Array:
     """Fraction of a radial profile's energy, centred on pixel (``rows``, ``cols``) of a ``height`` x ``width``

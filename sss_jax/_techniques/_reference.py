@@ -16,6 +16,7 @@ from .._scene import Buffers, Camera
 from .._units import px_per_mm
 from ._common import (
     _check_albedo_mode,
+    _check_border,
     _finish,
     _is_concrete,
     _prepare,
@@ -69,7 +70,7 @@ class ReferenceWindowWarning(UserWarning):
 
 @eqx.filter_jit
 def _reference_impl(buffers: Buffers, material, camera: Camera, radius_px: int, albedo_mode: str,
-                    near_subsamples: int) -> Array:
+                    near_subsamples: int, border: str = "leaves") -> Array:
     dtype = _work_dtype(buffers.irradiance.dtype)
     prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
     h, w = buffers.depth.shape
@@ -88,11 +89,11 @@ def _reference_impl(buffers: Buffers, material, camera: Camera, radius_px: int, 
     centre_mass = sum(tw[k] * cdf(a / jnp.cos(t[k])) for k in range(t.shape[0])) * (4 / math.pi)
     e = prep.irradiance
     centre_w = jnp.where(prep.valid[..., None], centre_mass, 0.0)
-    # the profile's energy beyond the frame leaves: it counts in the normalisation as dark surface (_common)
-    rows, cols = jnp.meshgrid(jnp.arange(h), jnp.arange(w), indexing="ij")
-    leaves = 1 - frame_energy_fraction(cdf, rows, cols, h, w, pixel_mm)
-    leaves = jnp.where(prep.valid[..., None], jnp.maximum(leaves, 0.0), 0.0)
-    num, den = centre_w * e, centre_w + leaves
+    num, den = centre_w * e, centre_w
+    if border == "leaves":  # the profile's energy beyond the frame leaves: it counts as dark surface (_common)
+        rows, cols = jnp.meshgrid(jnp.arange(h), jnp.arange(w), indexing="ij")
+        leaves = 1 - frame_energy_fraction(cdf, rows, cols, h, w, pixel_mm)
+        den = den + jnp.where(prep.valid[..., None], jnp.maximum(leaves, 0.0), 0.0)
 
     k = radius_px
     pad = lambda x: jnp.pad(x, [(k, k), (k, k)] + [(0, 0)] * (x.ndim - 2))
@@ -152,6 +153,7 @@ def reference(
     radius_px: int | None = None,
     albedo_mode: str = "post",
     near_subsamples: int = 6,
+    border: str = "leaves",
 ) -> Float[Array, "H W 3"]:
     """Ground truth: every pixel within ``radius_px`` contributes the exact mass of the profile over its footprint.
 
@@ -163,7 +165,9 @@ def reference(
     widest channel's energy at the nearest SSS pixel, at most the frame's extent (host side; pass it explicitly under
     ``jit``) and at most 96 px; where the window holds less than 99.9% of the energy (``reference_energy_held``),
     a ``ReferenceWindowWarning`` says how much. Slow by design: the cost grows with the window's area.
+    ``border="renormalise"``: no energy leaves at the frame (the window's weights renormalised, as before).
     """
+    _check_border(border)
     _check_albedo_mode(albedo_mode)
     if not isinstance(material, (BurleyMaterial, ProfileMaterial)):
         raise TypeError(f"reference needs a BurleyMaterial or ProfileMaterial, got {type(material).__name__}")
@@ -178,5 +182,5 @@ def reference(
                           f"nearest SSS pixel (the frame needs {max(buffers.depth.shape[-2:]) - 1} px to hold all of "
                           f"it): the result misses the rest; pass a larger radius_px", ReferenceWindowWarning,
                           stacklevel=2)
-    return _reference_impl(buffers, material, camera, int(radius_px), albedo_mode, int(near_subsamples))
+    return _reference_impl(buffers, material, camera, int(radius_px), albedo_mode, int(near_subsamples), border)
 

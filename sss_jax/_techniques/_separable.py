@@ -25,6 +25,7 @@ from ._common import (
     SAMPLING_ERROR_LIMIT,
     SamplingWarning,
     _check_albedo_mode,
+    _check_border,
     _finish,
     _is_concrete,
     _prepare,
@@ -154,7 +155,7 @@ _BAND_PIXELS = 1 << 15
 def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, level_reach_px: Array, skip: Array,
                     onehot: Array | None, w_table: Array, inv_reach_mm: Array, unit_offsets: Array,
                     mm_per_unit: Array, follow_surface: bool, interpolation: str,
-                    rows_per_band: int | None = None, axis: int = 2) -> Array:
+                    rows_per_band: int | None = None, axis: int = 2, border: str = "leaves") -> Array:
     """One 1D pass of planar ``e (3, H, W)`` along ``axis``: 2 horizontal, 1 vertical (no transposes: both read
     whole rows). The levels' shifted-slice passes are blended per pixel by ``level_weights (L, H, W)``; ``skip``
     pixels keep their own value.
@@ -176,12 +177,17 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
     pad_fetched = lambda a: jnp.pad(a, [(0, 0)] * (a.ndim - 2) + pad_width)
     ev_pad, z_pad, v_pad = pad_fetched(e * v[None]), pad_fetched(z * v), pad_fetched(v)
     along = w if axis == 2 else h
-    outside_pad = jnp.pad(jnp.zeros((along,), e.dtype), (pad, pad), constant_values=1.0)  # 1D: off the image
+    # 1D: 1 off the image (dark there, border="leaves"), or 0 everywhere (off-image taps count as the centre)
+    outside_pad = jnp.pad(jnp.zeros((along,), e.dtype), (pad, pad), constant_values=float(border == "leaves"))
     planes = {"e": e, "z": z, "lw": level_weights, "inv": inv_reach_mm, "skip": skip}
     if onehot is not None:
         planes["onehot"] = onehot
     # kernels reaching past the frame are cut at its extent (the rest leaves), their taps spread over it
     level_scale, w_levels = frame_truncation(unit_offsets, w_table, level_reach_px, float(along))
+    if border != "leaves":  # the cut kernel renormalised: its part beyond the frame counts as the part inside
+        total = jnp.sum(w_levels, axis=-1, keepdims=True)
+        w_levels = w_levels * jnp.where(total > 0, jnp.sum(w_table, axis=-1, keepdims=True)[None] / jnp.where(
+            total > 0, total, 1.0), 1.0)
     chunks, per_chunk = tap_chunks(unit_offsets.shape[0])
     extra_taps = chunks * per_chunk - unit_offsets.shape[0]  # padding taps: weight 0 at offset 0 (the centre: adds 0)
     unit_offsets = jnp.pad(unit_offsets, (0, extra_taps))
@@ -229,7 +235,7 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
 @eqx.filter_jit
 def _separable_impl(buffers: Buffers, material, camera: Camera, taps: int, albedo_mode: str, follow_surface: bool,
                     interpolation: str, scale_levels: int, min_footprint_px: float,
-                    kernel_groups: tuple[int, ...] | None = None) -> Array:
+                    kernel_groups: tuple[int, ...] | None = None, border: str = "leaves") -> Array:
     dtype = _work_dtype(buffers.irradiance.dtype)
     prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
     rows, kernel_material = prep.rows, material
@@ -274,7 +280,7 @@ def _separable_impl(buffers: Buffers, material, camera: Camera, taps: int, albed
     w_table = jnp.moveaxis(weights, -1, 1)  # (M, 3, n)
     onehot_planes = None if count == 1 else jnp.stack(onehot)  # (M, H, W)
     common = dict(unit_offsets=unit_offsets, mm_per_unit=mm_per_unit, follow_surface=follow_surface,
-                  interpolation=interpolation)
+                  interpolation=interpolation, border=border)
     e = jnp.moveaxis(prep.irradiance, -1, 0)  # planar (3, H, W): the fused loops run along rows
     for axis in (2, 1):  # horizontal, then vertical
         e = _separable_pass(e, prep.depth, prep.valid, level_weights, level_reach_px, skip, onehot_planes, w_table,
@@ -293,6 +299,7 @@ def separable(
     interpolation: str = "linear",
     min_footprint_px: float = MIN_FOOTPRINT_PX,
     scale_levels: int = SCALE_LEVELS,
+    border: str = "leaves",
 ) -> Float[Array, "H W 3"]:
     """Separable subsurface scattering (Jimenez et al. 2015): a horizontal then a vertical 1D pass.
 
@@ -318,8 +325,10 @@ def separable(
     leaves from every pixel) and its taps spread over the frame (``frame_truncation``): as d grows past the frame the
     light spreads over it and out, never back onto its own pixel. With concrete inputs, where the taps' cells at the
     widest reach are too coarse for a hard edge, a ``SamplingWarning`` states the error they imply
-    (``separable_edge_error``).
+    (``separable_edge_error``). ``border="renormalise"`` counts off-image taps as the centre instead (Jimenez's
+    shader; the kernel cut at the frame renormalised), as if the surface beyond looked like the inside.
     """
+    _check_border(border)
     _check_albedo_mode(albedo_mode)
     if not isinstance(material, AbstractMaterial):
         raise TypeError("separable needs a TwoGaussianMaterial, BurleyMaterial or ProfileMaterial, got "
@@ -340,7 +349,7 @@ def separable(
                           f"{implied[2]:.1f} px wide: a hard edge may be off by up to {implied[0]:.3f} of its "
                           f"contrast (more taps lower it)", SamplingWarning, stacklevel=2)
     return _separable_impl(buffers, material, camera, int(taps), albedo_mode, bool(follow_surface), mode,
-                           int(scale_levels), float(min_footprint_px), kernel_groups(material))
+                           int(scale_levels), float(min_footprint_px), kernel_groups(material), border)
 
 
 def separable_edge_error(buffers: Buffers, material, camera: Camera, taps: int,
