@@ -275,17 +275,20 @@ def burley(
     """Screen-space Christensen–Burley normalised diffusion (one pass, ``samples`` spiral samples per pixel).
 
     Each sample's radius comes from stratified inverse-CDF sampling of the widest channel's profile (so one fetch
-    serves R, G and B), its angle from the golden-angle spiral, turned per pixel by a hash of the pixel, the frame
-    and ``seed`` (``pattern="rotated"``, the default, as HDRP and EEVEE Next do: the sampling error is noise, not a
-    pattern shared by every pixel that blurs edges asymmetrically) or not at all (``pattern="fixed"``, every pixel
-    the same spiral). ``frames=K`` averages K frames, each with its own rotations: the converged temporal
-    accumulation (TAA) the engines rely on, at K times the cost; the result is then the mean over K independent
-    patterns. ``seed`` (an integer, traced: a new seed does not recompile) picks the rotations, e.g. the frame
-    number of a sequence. It is placed in millimetres on the surface and
+    serves R, G and B), its angle from the golden-angle spiral; it is placed in millimetres on the surface and
     projected with the pixel's depth. Its weight per channel is ``R_c(sqrt(r^2 + dz^2)) / pdf(r)`` (the depth
     difference dz makes light fall off across depth steps), and the weights are normalised per channel so flat
     lighting stays flat: energy is redistributed, not created. ``interpolation="bilinear"`` (default) makes the
     result continuous in d and depth (smooth for fitting); ``"nearest"`` fetches one pixel per sample.
+
+    The spiral turns per pixel by a hash of the pixel, the frame and ``seed`` (``pattern="rotated"``, the default,
+    as HDRP and EEVEE Next do: the sampling error is noise, not a pattern shared by every pixel that blurs edges
+    asymmetrically and draws ghost stripes), or not at all (``pattern="fixed"``: every pixel the same spiral, the
+    behaviour before; it conserves energy exactly on a plane, the rotated one in expectation). ``frames=K`` averages
+    K frames, each with its own rotations: the converged temporal accumulation (TAA) the engines rely on, at K
+    times the cost. ``seed`` (an integer, traced: a new seed does not recompile) picks the rotations, e.g. the frame
+    number of a sequence. With concrete inputs, a channel much narrower than the widest one, which the samples
+    (drawn from the widest profile) barely reach, raises a ``SamplingWarning`` with the error it implies.
 
     Cost follows the scene: pixels without SSS, and pixels whose footprint (the radius holding 99% of the widest
     channel's energy, in px) is below ``min_footprint_px`` (they keep their local shading, the paper's Fig. 1; 0
