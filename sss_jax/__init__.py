@@ -46,10 +46,14 @@ from ._scene import (
 )
 from ._techniques import (
     ENERGY_CONSERVING as ENERGY_CONSERVING,
+    BURLEY_PATTERNS as BURLEY_PATTERNS,
     TECHNIQUES as TECHNIQUES,
+    ReferenceWindowWarning as ReferenceWindowWarning,
+    SamplingWarning as SamplingWarning,
     burley as burley,
     get_technique as get_technique,
     reference as reference,
+    reference_energy_held as reference_energy_held,
     reference_radius_px as reference_radius_px,
     separable as separable,
     slab_transmittance as slab_transmittance,

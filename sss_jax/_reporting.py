@@ -97,6 +97,11 @@ def demo_sections(result, montecarlo=None) -> list[tuple[str, str, dict]]:
                          conserves="no (adds light)" if n == "sta" else "yes")
                     for n, e in result.energy.items() if n != "local"], "energy ratio", key="energy")
 
+    # Burley's sampling error: samples x frames, bias and noise over seeds (issue #18)
+    from ._bench import sampling_section
+
+    sampling_section(rep, result)
+
     # presets and what every engine renders for them
     from ._fit_presets import engine_rows, load_presets, preset_rows
     from ._presets import preset_home

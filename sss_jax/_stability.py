@@ -118,6 +118,14 @@ def sweep_cases(quick: bool = False) -> Iterator[Case]:
     for bad in (dict(albedo=-0.1), dict(albedo=np.nan), dict(albedo=0.5, g=1.0), dict(albedo=0.5, eta=0.5),
                 dict(albedo=0.5, slab_mfp=0.0)):
         yield Case("montecarlo", bad)
+    # limits of value, not only finiteness: d -> 0 is the identity, d -> large spreads the light (no return to the
+    # input), edges blur monotonically with d, STA's output stays within its bound
+    for tech in ("burley", "separable_burley", "reference"):
+        yield Case("limit_identity", dict(technique=tech))
+        yield Case("limit_large_d", dict(technique=tech))
+        yield Case("limit_monotone_edge", dict(technique=tech))
+    for p, thick in itertools.product(STA_POWER, (1e-6, 1.0, 1e6)):
+        yield Case("limit_sta_bounded", dict(power=p, thickness_mm=thick))
     for d in ((1e-3,) if quick else D_MM):
         yield Case("fit_two_gaussian", dict(d_mm=d))
     for d in ((1e3,) if quick else D_MM):
@@ -316,6 +324,74 @@ def _run_small_case(case: Case) -> None:
         case.outcome = "ok"
 
 
+# the limit cases: a step edge on a 12 x 16 plane at 1 px per mm, float64
+_LIMIT_CAMERA = Camera(focal_px=1.0, mm_per_unit=1.0)
+_LIMIT_D = (1.0, 4.0, 16.0, 64.0, 1e3, 1e6, 1e9)  # mm = px
+
+
+def _limit_step() -> Buffers:
+    e = np.zeros((12, 16, 3))
+    e[:, 8:] = 1.0
+    e[:, 8:, 2] = 0.5
+    return Buffers(irradiance=jnp.asarray(e), depth=jnp.ones((12, 16)))
+
+
+def _limit_run(technique: str, b: Buffers, d_mm: float):
+    mat = BurleyMaterial(albedo=(1.0, 1.0, 1.0), d_mm=(d_mm,) * 3)
+    if technique == "burley":  # four frames of rotations: the sampling noise well below the tolerances
+        return np.asarray(burley(b, mat, _LIMIT_CAMERA, samples=16, frames=4), np.float64)
+    if technique == "separable_burley":
+        return np.asarray(separable(b, mat, _LIMIT_CAMERA, taps=25), np.float64)
+    return np.asarray(reference(b, mat, _LIMIT_CAMERA, radius_px=15, near_subsamples=2), np.float64)
+
+
+def _jump(out) -> float:
+    return float(np.mean(out[:, 8, 0] - out[:, 7, 0]))
+
+
+def _run_limit_case(case: Case) -> None:
+    """Limits of value: the output a configuration tends to, not only that it is finite."""
+    p, b = case.params, _limit_step()
+    e = np.asarray(b.irradiance, np.float64)
+    problem = ""
+    if case.component == "limit_identity":
+        for d in (0.0, 1e-6):
+            err = np.abs(_limit_run(p["technique"], b, d) - e).max()
+            if err > 1e-4:
+                problem = f"d = {d} mm: max |out - in| {err:.3g} (identity expected)"
+    elif case.component == "limit_large_d":
+        # light spreads over the frame and beyond (it leaves through the border): the output tends to 0 like the
+        # share of a profile of width d that stays in the frame (~ frame / d), never back to the input
+        prev = None
+        for d in (1e3, 1e6, 1e9):
+            out = _limit_run(p["technique"], b, d)
+            if out.sum() > e.sum() * (1 + 1e-6):
+                problem = f"d = {d:g} mm: energy out/in {out.sum() / e.sum():.4g} > 1"
+            if prev is not None and out.max() > prev * 1.05 + 1e-12:
+                problem = f"d = {d:g} mm: the output grows again ({out.max():.3g} after {prev:.3g})"
+            prev = out.max()
+        if prev > 1e-3:
+            problem = problem or f"d = 1e9 mm: max output {prev:.3g}, expected ~ frame / d (light spread over metres)"
+    elif case.component == "limit_monotone_edge":
+        jumps = [_jump(_limit_run(p["technique"], b, d)) for d in _LIMIT_D]
+        bad = [i for i in range(1, len(jumps)) if jumps[i] > jumps[i - 1] + 1e-4]
+        if bad:
+            problem = "the jump across the edge grows with d: " + ", ".join(f"{j:.4g}" for j in jumps)
+    elif case.component == "limit_sta_bounded":
+        # out = albedo (E + light A_L t (T_dir + a_T)) with T_dir <= scale, A_L, t <= 1, albedo <= 1
+        scale, ambient = np.array([1.0, 0.8, 0.6]), np.array([0.05, 0.05, 0.05])
+        sta = STAParams(distortion=0.2, power=p["power"], scale=tuple(scale), ambient=tuple(ambient),
+                        thickness_mm=(p["thickness_mm"],) * 3)
+        colour = (2.0, 2.0, 2.0)
+        for theta in (0.0, 1.0, 2.5):
+            lit = DirectionalLight((math.sin(theta), 0.0, math.cos(theta)), colour)
+            out = np.asarray(translucency(b, sta, _LIMIT_CAMERA, lit, thickness=1.0), np.float64)
+            bound = e + 2.0 * (scale + ambient)
+            if np.any(out > bound * (1 + 1e-6)) or np.any(out < e * (1 - 1e-6)):
+                problem = f"light at {theta} rad: output outside [E, E + light (scale + ambient)]"
+    case.outcome, case.message = ("limit_violated", problem) if problem else ("ok", "")
+
+
 def run_sweep(*, quick: bool = False, progress: bool = True) -> dict[str, Any]:
     """Run the sweep and return the summary with every case (the JSON ``sss-jax stability`` writes).
 
@@ -335,8 +411,15 @@ def _run_sweep(quick: bool, progress: bool) -> dict[str, Any]:
     t0 = time.perf_counter()
     groups: dict[tuple, list[Case]] = {}
     for case in cases:
-        if case.component in ("profile", "kernel_preintegrated", "kernel_two_gaussian", "spiral_samples",
-                              "invalid_parameter", "montecarlo", "fit_two_gaussian", "fit_sta"):
+        if case.component.startswith("limit_"):
+            try:
+                _run_limit_case(case)
+            except Exception as exc:  # noqa: BLE001 - an unexpected error is a finding, recorded, not a crash
+                case.outcome, case.message = "unexpected_error", f"{type(exc).__name__}: {exc}"
+            if bar is not None:
+                bar.update(1)
+        elif case.component in ("profile", "kernel_preintegrated", "kernel_two_gaussian", "spiral_samples",
+                                "invalid_parameter", "montecarlo", "fit_two_gaussian", "fit_sta"):
             try:
                 _run_small_case(case)
             except Exception as exc:  # noqa: BLE001 - an unexpected error is a finding, recorded, not a crash
@@ -364,6 +447,7 @@ def _run_sweep(quick: bool, progress: bool) -> dict[str, Any]:
         "nonfinite_outputs": count("nonfinite_output"),
         "nonfinite_gradients": count("nonfinite_gradient"),
         "energy_unbounded": count("energy_unbounded"),
+        "limit_violations": count("limit_violated"),
         "unexpected_errors": count("unexpected_error"),
         "seconds": round(time.perf_counter() - t0, 1),
         "quick": quick,

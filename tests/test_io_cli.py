@@ -169,12 +169,14 @@ def test_burley_on_blender_render_is_closer_to_cycles_than_local_shading(shared_
         "depth": "ViewLayer.Depth.Z"}).irradiance
     mat = blender_material(scene)
     b = f.to_buffers(use_albedo=False)  # the white render's DiffCol is 1: the material's colour is the albedo
-    out = np.asarray(sj.burley(b, mat, sj.Camera(f.focal_px, f.mm_per_unit), samples=64))
+    # the objects are cut by the frame's left and right edges and Cycles renders them whole: what lies beyond sends
+    # light in as the inside sends it out, the model of border="renormalise" (the default lets it leave: 0.208)
+    out = np.asarray(sj.burley(b, mat, sj.Camera(f.focal_px, f.mm_per_unit), samples=64, border="renormalise"))
     mask = f.material_id > 0
     albedo = np.asarray(mat.albedo)[0]
     local = albedo * f.irradiance
     err = lambda x: np.linalg.norm((x - target)[mask]) / np.linalg.norm(target[mask])
-    # metric: relative L2 over the SSS objects' pixels (IndexOB > 0). Measured: Burley 0.1942, local shading 0.2045.
+    # metric: relative L2 over the SSS objects' pixels (IndexOB > 0). Measured: Burley 0.1937, local shading 0.2045.
     # Most of both errors is what screen space cannot know (light entering the unseen back-lit ears and silhouettes,
     # ~8% less red energy in Cycles) plus a few percent of path-tracing noise per pixel; the part SSS can fix is the
     # blur, worth one percentage point here. The bound asks for at least half of that margin.

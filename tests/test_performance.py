@@ -119,12 +119,14 @@ def test_grey_channels_share_one_kernel_evaluation():
     assert weight_channel_count(grey.d_mm) == 1 and weight_channel_count(MAT.d_mm) == 3
     assert weight_channel_count(jnp.asarray([[3.0] * 3, [2.0, 2.0, 2.1]])) == 3  # every material must be grey
     # the per-sample kernel (one exponential per pixel, corner and channel plane) is evaluated on one channel for the
-    # grey material, on three otherwise: two fewer per corner, four corners (bilinear)
+    # grey material, on three otherwise: two fewer per corner, four corners (bilinear); and the weight of the part of
+    # a fetch outside the frame (light that leaves) needs the kernel on each of the three planes, none for grey
+    # (there it is the sampled profile's own R/pdf, 1)
     n = 24 * 32
     bilinear = dict(samples=8, compact=False, interpolation="bilinear")
     grey_exps = _exp_shapes(lambda bb: sj.burley(bb, grey, CAM, **bilinear), b)
     rgb_exps = _exp_shapes(lambda bb: sj.burley(bb, MAT, CAM, **bilinear), b)
-    assert grey_exps.count((n,)) >= 4 and rgb_exps.count((n,)) - grey_exps.count((n,)) == 2 * 4
+    assert grey_exps.count((n,)) >= 4 and rgb_exps.count((n,)) - grey_exps.count((n,)) == 2 * 4 + 3
     # and the image is the one the three-channel evaluation gives
     shared = np.asarray(sj.burley(b, grey, CAM, **bilinear))
     per_channel = np.asarray(_burley_impl(b, grey, CAM, 8, "post", "bilinear", None, 0.5, 3, True))
@@ -178,7 +180,8 @@ def _numpy_depth_aware_pass(e, z, valid, w_table, rows, reach_px, reach_mm, unit
     """Jimenez's depth-aware horizontal 1D pass written directly, pixel by pixel in float64 (the shape of the
     SeparableSSS shader's loop): each tap is a linear (or nearest) fetch whose pixels count as far as they are valid
     and at the centre's depth ("follow the surface", full at equal depth, none at the kernel's reach), the rest of
-    the tap counting as the centre colour. An independent check of the fused shifted-slice pass."""
+    the tap counting as the centre colour, except the part off the frame, which is dark (light scattered out of the
+    frame leaves). An independent check of the fused shifted-slice pass."""
     h, w = z.shape
     reach_px = np.broadcast_to(reach_px, (h, w))  # one reach, or each pixel's own (the shader's)
     out = np.array(e, np.float64)
@@ -193,7 +196,9 @@ def _numpy_depth_aware_pass(e, z, valid, w_table, rows, reach_px, reach_mm, unit
                 corners = [(int(x0), 1 - f), (int(x0) + 1, f)] if linear else [(int(np.round(pos)), 1.0)]
                 sample = e[:, y, x].copy()
                 for xi, frac in corners:
-                    if 0 <= xi < w and valid[y, xi]:
+                    if not 0 <= xi < w:
+                        sample -= frac * e[:, y, x]
+                    elif valid[y, xi]:
                         follow = 1 - min(abs(z[y, xi] - z[y, x]) * mm_per_unit / reach_mm[y, x], 1.0)
                         sample += frac * follow * (e[:, y, xi] - e[:, y, x])
                 acc += w_table[rows[y, x], :, i] * sample

@@ -60,19 +60,27 @@ def test_linear_and_no_energy_created(seed, d, a, slope):
     out1, out2, out12 = _passes(e1, depth, d), _passes(e2, depth, d), _passes(2 * e1 + c * e2, depth, d)
     for o1, o2, o12 in zip(out1, out2, out12):
         np.testing.assert_allclose(np.asarray(o12), 2 * np.asarray(o1) + c * np.asarray(o2), rtol=1e-9, atol=1e-9)
-        # each output is a convex combination of inputs (albedo 1): no pixel exceeds the brightest input
+        # each output is a weighted mean of the inputs and of the dark beyond the frame (light that scatters out of
+        # it leaves; albedo 1): no pixel exceeds the brightest input, none goes negative
         assert np.asarray(o1).max() <= e1.max() * (1 + 1e-12)
-        assert np.asarray(o1).min() >= e1.min() * (1 - 1e-12)
+        assert np.asarray(o1).min() >= 0
+
+
+# mm: at most 0.06 px at depth 20 (0.4 px per mm), so all but ~e^-16.7 (the exp(-r/3d) tail) of every profile
+# lies within 3 px
+narrow = st.floats(min_value=1e-3, max_value=0.15, allow_nan=False)
 
 
 @SETTINGS
-@given(st.floats(0.01, 100.0), triples, st.floats(0.0, 5.0), st.floats(20.0, 80.0))
+@given(st.floats(0.01, 100.0), st.tuples(narrow, narrow, narrow), st.floats(0.0, 5.0), st.floats(20.0, 80.0))
 def test_flat_stays_flat_on_a_smooth_surface(level, d, slope, base):
+    # away from the frame's border (where light leaves through it) flat light stays flat on a tilted plane
     e = np.full((H, W, 3), level)
     ys, xs = np.mgrid[0:H, 0:W]
     depth = base + slope * (xs / W + 0.5 * ys / H)  # a tilted plane: no depth edges
     for out in _passes(e, depth, jnp.asarray(d)):
-        np.testing.assert_allclose(np.asarray(out), level, rtol=1e-9)
+        np.testing.assert_allclose(np.asarray(out)[3:-3, 3:-3], level, rtol=1e-7)
+        assert np.asarray(out).max() <= level * (1 + 1e-9)
 
 
 @SETTINGS
@@ -93,8 +101,8 @@ def _energy_passes(e, d, w, s_near, s_far):
     b = _buffers(e, jnp.full((HE, WE), 40.0))
     burley_mat = sj.BurleyMaterial(jnp.ones(3), d)
     tg = sj.TwoGaussianMaterial(jnp.ones(3), w, s_near, s_far)
-    return (sj.burley(b, burley_mat, CAM_E, samples=16), sj.separable(b, burley_mat, CAM_E, taps=9),
-            sj.separable(b, tg, CAM_E, taps=9))
+    return (sj.burley(b, burley_mat, CAM_E, samples=16, pattern="fixed"), sj.separable(b, burley_mat, CAM_E, taps=9),
+            sj.separable(b, tg, CAM_E, taps=9), sj.burley(b, burley_mat, CAM_E, samples=16))
 
 
 def _vec(x: float) -> jnp.ndarray:
@@ -114,7 +122,12 @@ def test_no_energy_created_on_a_flat_plane(seed, d, w, s_near, s_far):
     inner = (slice(MARGIN, HE - MARGIN), slice(MARGIN, WE - MARGIN))
     e[inner] = np.random.default_rng(seed).uniform(0, 10, (HE - 2 * MARGIN, WE - 2 * MARGIN, 3))
     outs = _energy_passes(e, jnp.asarray(d), _vec(w), _vec(s_near), _vec(s_far))
-    for out in outs:
+    # Burley with the spiral turned per pixel gathers with other weights at every pixel: it keeps the energy in
+    # expectation only (the sampling noise; 16 samples on this small frame: well under 3%)
+    rotated = np.asarray(outs[3])
+    np.testing.assert_allclose(rotated.sum(axis=(0, 1)), e.sum(axis=(0, 1)), rtol=0.03)
+    assert rotated.min() >= 0
+    for out in outs[:3]:
         out = np.asarray(out)
         # a normalised gather with the same weights at every pixel of a plane moves light, it never adds any
         # (albedo 1): sum over the image out = sum in, up to rounding

@@ -53,6 +53,11 @@ def test_demo_report_has_every_section_and_embeds_its_images(tmp_path):
     assert len(trans) == len(list(PRESETS.glob("*.json"))) - 1  # all but the schema
     matched = [r for r in trans if r["eta"] == 1.0]
     assert matched and all(r["slab vs MC"] < 0.02 < r["thin vs MC"] for r in matched)
+    # Burley's error over samples x frames, split into bias and noise over seeds (issue #18)
+    sampling = data["sections"]["Burley sampling: bias and noise"]["burley_sampling"]
+    assert {(r["pattern"], r["frames"]) for r in sampling} == {("rotated", 1), ("rotated", 4), ("fixed", 1),
+                                                               ("fixed", 4)}
+    assert all(r["noise"] == 0 for r in sampling if (r["pattern"], r["frames"]) == ("fixed", 1))
     assert not list(tmp_path.glob(".*tmp*"))
 
 
@@ -83,6 +88,8 @@ def test_bench_reports_every_ratio_with_its_goal():
                                         "burley_grey_vs_rgb", "xla_plain_separable_vs_sepFilter2D",
                                         "separable_vs_xla_plain_separable", "burley_nearest_vs_filter2D",
                                         "burley_nearest_vs_bilinear"}
+    assert {(r["pattern"], r["samples"], r["frames"]) for r in res["burley_sampling"]} == {
+        (p, n, k) for p in ("rotated", "fixed") for n in (8, 32) for k in (1, 4)}
     skips = res["footprint_skip"]
     assert [r["d_scale"] for r in skips] == [1 / 8, 1 / 32, 1 / 64]
     assert skips[0]["skipped_fraction"] < skips[-1]["skipped_fraction"]  # smaller d: more pixels under half a pixel

@@ -18,6 +18,14 @@ def test_quick_sweep_has_no_nonfinite_outputs_or_gradients(quick_sweep):
     assert s["cases"] >= 500
     assert s["nonfinite_outputs"] == 0 and s["nonfinite_gradients"] == 0
     assert s["energy_unbounded"] == 0 and s["unexpected_errors"] == 0
+    # limits of value: d -> 0 the identity, d -> large spreads the light (no return to the input), edges blur
+    # monotonically with d, STA within its bound; each kind ran for every technique it applies to
+    assert s["limit_violations"] == 0, [c for c in s["case_list"] if c["outcome"] == "limit_violated"]
+    limits = [c for c in s["case_list"] if c["component"].startswith("limit_")]
+    assert {(c["component"], c["params"].get("technique")) for c in limits} >= {
+        (k, t) for k in ("limit_identity", "limit_large_d", "limit_monotone_edge")
+        for t in ("burley", "separable_burley", "reference")}
+    assert sum(c["component"] == "limit_sta_bounded" for c in limits) == 6
     assert s["ok"] + s["handled_errors"] == s["cases"]
     # every component took part, and both kinds of invalid input were caught with a message naming the input
     components = {c["component"] for c in s["case_list"]}

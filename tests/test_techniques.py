@@ -44,11 +44,15 @@ def random_irradiance(seed=0, shape=(H, W, 3)):
 
 
 @pytest.mark.parametrize("name", list(SCATTERING))
-def test_flat_stays_flat_and_keeps_energy(name):
-    b = plane(np.full((H, W, 3), 0.7))
+def test_flat_stays_flat_and_light_leaves_at_the_border(name):
+    # depth 500: 0.02 px per mm, red d = 0.12 px; 6 px from the border all but ~e^-16 of every profile is in the frame
+    b = plane(np.full((H, W, 3), 0.7), depth=500.0)
     out = np.asarray(SCATTERING[name](b))
-    np.testing.assert_allclose(out, 0.7, rtol=1e-9)  # normalised weights: exactly flat, borders included
-    assert abs(out.sum() / (0.7 * H * W * 3) - 1) < 0.005
+    np.testing.assert_allclose(out[6:-6, 6:-6], 0.7, rtol=1e-6)  # normalised weights: flat away from the border
+    assert out.max() <= 0.7 * (1 + 1e-9)
+    # at the corner pixel, whose centre is 0.5 px = 4 d from two edges, a few percent of the red profile lies past
+    # them and leaves the frame (it is not pushed back onto the pixels inside)
+    assert out[0, 0, 0] < 0.7 * 0.99
 
 
 @pytest.mark.parametrize("name", list(SCATTERING))
@@ -99,7 +103,7 @@ def test_mirror_symmetry(name):
 def test_burley_mirror_symmetry_approximate():
     # golden-angle spirals are not mirror symmetric: the mirrored result agrees to the sampling noise only
     e = random_irradiance(6)
-    f = SCATTERING["burley"]
+    f = lambda b: SCATTERING["burley"](b, pattern="fixed")  # the rotated pattern differs per pixel: noise
     out = np.asarray(f(plane(e)))
     flipped = np.asarray(f(plane(e[:, ::-1])))[:, ::-1]
     assert np.linalg.norm(flipped - out) / np.linalg.norm(out) < 0.05

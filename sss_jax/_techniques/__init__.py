@@ -15,22 +15,30 @@ level-quantised and compacted passes in ``_separable``/``_burley``; elsewhere th
 ``_separable_gpu``/``_burley_gpu`` (no host round trip), also as Pallas kernels (``_pallas``).
 """
 
+from ._burley import BURLEY_PATTERNS as BURLEY_PATTERNS
 from ._burley import (
     burley as burley,
 )
 from ._burley import (
     burley_active_count as burley_active_count,
 )
+from ._burley import burley_channel_samples as burley_channel_samples
 from ._burley import (
     compaction_capacity as compaction_capacity,
 )
+from ._burley import spiral_rotation as spiral_rotation
 from ._burley import (
     weight_channel_count as weight_channel_count,
 )
 from ._common import ALBEDO_MODES as ALBEDO_MODES
+from ._common import BORDERS as BORDERS
 from ._common import MIN_FOOTPRINT_PX as MIN_FOOTPRINT_PX
 from ._dispatch import IMPLS as IMPLS
+from ._common import SamplingWarning as SamplingWarning
+from ._common import frame_energy_fraction as frame_energy_fraction
+from ._reference import ReferenceWindowWarning as ReferenceWindowWarning
 from ._reference import reference as reference
+from ._reference import reference_energy_held as reference_energy_held
 from ._reference import reference_radius_px as reference_radius_px
 from ._registry import ENERGY_CONSERVING as ENERGY_CONSERVING
 from ._registry import TECHNIQUES as TECHNIQUES
@@ -38,6 +46,7 @@ from ._registry import get_technique as get_technique
 from ._separable import SCALE_LEVELS as SCALE_LEVELS
 from ._separable import kernel_groups as kernel_groups
 from ._separable import separable as separable
+from ._separable import separable_edge_error as separable_edge_error
 from ._separable import tap_chunks as tap_chunks
 from ._translucency import (
     TRANSLUCENCY_MODELS as TRANSLUCENCY_MODELS,

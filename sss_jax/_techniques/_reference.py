@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import warnings
 
 import equinox as eqx
 import jax
@@ -15,11 +16,14 @@ from .._scene import Buffers, Camera
 from .._units import px_per_mm
 from ._common import (
     _check_albedo_mode,
+    _check_border,
     _finish,
+    _is_concrete,
     _prepare,
     _safe_sqrt,
     _sss_mask,
     _work_dtype,
+    frame_energy_fraction,
 )
 
 _THETA_NODES, _THETA_WEIGHTS = np.polynomial.legendre.leggauss(16)
@@ -28,19 +32,45 @@ _THETA_NODES, _THETA_WEIGHTS = np.polynomial.legendre.leggauss(16)
 
 
 def reference_radius_px(buffers: Buffers, material, camera: Camera, *, energy: float = 0.999, cap: int = 96) -> int:
-    """Window radius (px, host side) holding ``energy`` of the widest profile at the nearest SSS pixel, capped."""
+    """Window radius (px, host side) holding ``energy`` of the widest profile at the nearest SSS pixel, no wider than
+    the frame (an offset past it never lands inside: the energy out there is accounted for analytically), capped at
+    ``cap``. ``reference_energy_held`` says how much of the profile a capped window represents."""
     valid = np.asarray(_sss_mask(buffers))
     if not valid.any():
         return 1
     depth = np.asarray(buffers.depth, dtype=np.float64)[valid]
     ppm_max = float(camera.focal_px) / (float(np.min(depth)) * float(camera.mm_per_unit))
     radius_mm = material.radius_mm(energy)
-    return int(max(1, min(cap, math.ceil(radius_mm * ppm_max))))
+    extent = max(buffers.depth.shape[-2:]) - 1
+    return int(max(1, min(cap, extent, math.ceil(radius_mm * ppm_max))))
+
+
+def reference_energy_held(buffers: Buffers, material, camera: Camera, radius_px: int) -> float:
+    """Host side: the smallest fraction of the widest profile's energy that ``reference`` with window ``radius_px``
+    accounts for at any SSS pixel: 1 where the window spans the frame (every offset that lands inside is in the
+    window, the rest leaves the frame and is accounted for analytically), else the energy within the disc the window
+    holds at the nearest SSS pixel (the light farther away, inside the frame, is missing from the result: the pixel
+    is normalised by what the window saw, as if that light had come from inside it)."""
+    valid = np.asarray(_sss_mask(buffers))
+    if not valid.any() or radius_px >= max(buffers.depth.shape[-2:]) - 1:
+        return 1.0
+    depth = np.asarray(buffers.depth, dtype=np.float64)[valid]
+    ppm_max = float(camera.focal_px) / (float(np.min(depth)) * float(camera.mm_per_unit))
+    reach_mm = (radius_px + 0.5) / ppm_max
+    lo, hi = 0.0, 1.0  # bisection on the energy whose radius is the window's (radius_mm is monotone in it)
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if material.radius_mm(mid) <= reach_mm else (lo, mid)
+    return lo
+
+
+class ReferenceWindowWarning(UserWarning):
+    """``reference``'s window holds less than 99.9% of the profile's energy: the result is not ground truth there."""
 
 
 @eqx.filter_jit
 def _reference_impl(buffers: Buffers, material, camera: Camera, radius_px: int, albedo_mode: str,
-                    near_subsamples: int) -> Array:
+                    near_subsamples: int, border: str = "leaves") -> Array:
     dtype = _work_dtype(buffers.irradiance.dtype)
     prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
     h, w = buffers.depth.shape
@@ -60,6 +90,10 @@ def _reference_impl(buffers: Buffers, material, camera: Camera, radius_px: int, 
     e = prep.irradiance
     centre_w = jnp.where(prep.valid[..., None], centre_mass, 0.0)
     num, den = centre_w * e, centre_w
+    if border == "leaves":  # the profile's energy beyond the frame leaves: it counts as dark surface (_common)
+        rows, cols = jnp.meshgrid(jnp.arange(h), jnp.arange(w), indexing="ij")
+        leaves = 1 - frame_energy_fraction(cdf, rows, cols, h, w, pixel_mm)
+        den = den + jnp.where(prep.valid[..., None], jnp.maximum(leaves, 0.0), 0.0)
 
     k = radius_px
     pad = lambda x: jnp.pad(x, [(k, k), (k, k)] + [(0, 0)] * (x.ndim - 2))
@@ -119,14 +153,21 @@ def reference(
     radius_px: int | None = None,
     albedo_mode: str = "post",
     near_subsamples: int = 6,
+    border: str = "leaves",
 ) -> Float[Array, "H W 3"]:
     """Ground truth: every pixel within ``radius_px`` contributes the exact mass of the profile over its footprint.
 
     The centre pixel's mass is integrated through the profile's CDF (so r -> 0 is finite); neighbours use a midpoint
     rule (``near_subsamples``^2 points within two pixels, 2x2 within six, one beyond) at the 3D distance (depth difference
-    included); weights are normalised over valid pixels. ``radius_px`` defaults to the radius holding 99.9% of the
-    widest channel's energy at the nearest SSS pixel (host side; pass it explicitly under ``jit``). Slow by design.
+    included); weights are normalised by the profile's energy over the valid pixels in the window plus its energy
+    beyond the frame, which leaves (it counts as dark surface; light reaching pixels without a surface inside the
+    frame is taken from the pixels with one, as before). ``radius_px`` defaults to the radius holding 99.9% of the
+    widest channel's energy at the nearest SSS pixel, at most the frame's extent (host side; pass it explicitly under
+    ``jit``) and at most 96 px; where the window holds less than 99.9% of the energy (``reference_energy_held``),
+    a ``ReferenceWindowWarning`` says how much. Slow by design: the cost grows with the window's area.
+    ``border="renormalise"``: no energy leaves at the frame (the window's weights renormalised, as before).
     """
+    _check_border(border)
     _check_albedo_mode(albedo_mode)
     if not isinstance(material, (BurleyMaterial, ProfileMaterial)):
         raise TypeError(f"reference needs a BurleyMaterial or ProfileMaterial, got {type(material).__name__}")
@@ -134,5 +175,12 @@ def reference(
         radius_px = reference_radius_px(buffers, material, camera)
     if not isinstance(radius_px, (int, np.integer)) or radius_px < 0:
         raise ValueError(f"radius_px must be a non-negative integer, got {radius_px!r}")
-    return _reference_impl(buffers, material, camera, int(radius_px), albedo_mode, int(near_subsamples))
+    if _is_concrete(buffers, material, camera):
+        held = reference_energy_held(buffers, material, camera, int(radius_px))
+        if held < 0.999:
+            warnings.warn(f"reference: the {radius_px}-px window holds {held:.1%} of the profile's energy at the "
+                          f"nearest SSS pixel (the frame needs {max(buffers.depth.shape[-2:]) - 1} px to hold all of "
+                          f"it): the result misses the rest; pass a larger radius_px", ReferenceWindowWarning,
+                          stacklevel=2)
+    return _reference_impl(buffers, material, camera, int(radius_px), albedo_mode, int(near_subsamples), border)
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from typing import Callable
 
 import equinox as eqx
@@ -21,11 +22,15 @@ from .._scene import Buffers, Camera
 from .._units import px_per_mm
 from ._common import (
     MIN_FOOTPRINT_PX,
+    SAMPLING_ERROR_LIMIT,
+    SamplingWarning,
     _check_albedo_mode,
+    _check_border,
     _finish,
     _is_concrete,
     _prepare,
     _safe_log,
+    _sss_mask,
     _work_dtype,
 )
 from ._dispatch import resolve_impl
@@ -43,15 +48,16 @@ def _separable_level(fetch: Callable[[Array], tuple[Array, Array, Array]], e: Ar
                      unit_offsets: Array, taps_per_chunk: int, mm_per_unit: Array, limit: float, follow_surface: bool,
                      interpolation: str) -> Array:
     """One 1D pass at one constant reach ``reach_px`` (a scalar) over a band of rows: ``fetch(start)`` returns the
-    padded planes (irradiance times validity, depth times validity, validity) shifted by ``start`` pixels along the
-    pass, so every tap is a constant shift. The taps are unrolled ``taps_per_chunk`` at a time into one expression,
+    padded planes (irradiance times validity, depth times validity, validity, and 1 off the image / 0 on it) shifted
+    by ``start`` pixels along the pass, so every tap is a constant shift. The taps are unrolled ``taps_per_chunk`` at a time into one expression,
     which XLA fuses into one loop over the band (each pixel reads a chunk's taps and adds them to its result at once);
     a loop runs the chunks, so the compile time and the fusions' size stay bounded as the taps grow.
     ``unit_offsets`` has a whole number of chunks (padding taps have weight 0).
 
     Each pixel q a tap reads (one for "nearest"; two for "linear", with weights 1 - f and f) adds
     ``w f keep_q (e_q - e)`` to ``e sum(w)``, which is ``sum(w (sum_q f keep_q e_q + (1 - sum_q f keep_q) e))``: the
-    tap counts as far as it landed on valid pixels at a similar depth, and as the centre for the rest. No division
+    tap counts as far as it landed on valid pixels at a similar depth, and as the centre for the rest; a pixel q off
+    the image adds ``-w f e`` (dark: that light leaves the frame). No division
     and no transcendental per tap, so nothing stops XLA from fusing a chunk whole."""
     scale = mm_per_unit * inv_reach_mm  # depth difference (scene units) at which a fetch stops counting
 
@@ -69,13 +75,15 @@ def _separable_level(fetch: Callable[[Array], tuple[Array, Array, Array]], e: Ar
                 corners = [(start, 1 - f), (start + 1, f)]
             term = 0.0
             for start, frac in corners:
-                ev, zv, vv = fetch(start)
+                ev, zv, vv, outside = fetch(start)
                 # Jimenez's "follow the surface", per fetched pixel: it counts less as its depth differs from the
-                # centre's (none at the kernel's reach); invalid or off-image pixels count as the centre. v is 0 or
-                # 1, so keep = v (1 - clip(|z_q - z| scale)) = max(v - |v z_q - v z| scale, 0): no division
+                # centre's (none at the kernel's reach); invalid pixels count as the centre. v is 0 or 1, so
+                # keep = v (1 - clip(|z_q - z| scale)) = max(v - |v z_q - v z| scale, 0): no division.
+                # Off-image pixels are dark: the light scattered there leaves the frame (adds -e, not 0)
                 keep = jnp.maximum(vv - jnp.abs(zv - vv * z) * scale, 0.0) if follow_surface else vv
-                keep = keep if frac is None else frac * keep
-                term = term + keep[None] * (ev - e)
+                if frac is not None:
+                    keep, outside = frac * keep, frac * outside
+                term = term + keep[None] * (ev - e) - outside[None] * e
             acc = acc + tap_weight(i) * term
         return acc
 
@@ -83,6 +91,46 @@ def _separable_level(fetch: Callable[[Array], tuple[Array, Array, Array]], e: Ar
     if chunks == 1:
         return chunk(0, e * weight_sum)
     return jax.lax.fori_loop(0, chunks, chunk, e * weight_sum)
+
+
+def frame_truncation(unit_offsets: Array, w_table: Array, level_reach_px: Array, extent_px: float
+                     ) -> tuple[Array, Array]:
+    """Per reach level, the scale of the tap pattern and the tap weights ``(L, M, 3, n)`` of a kernel cut at the
+    frame's extent along the pass (``extent_px``: no offset beyond it lands in the frame from any pixel).
+
+    A kernel whose outermost tap cell reaches past the extent is replaced by its part inside ``[-extent, extent]``,
+    taps spread over that range in the same pattern: tap i gets the kernel's mass over its shrunk cell, read from the
+    kernel's cumulative weights at the original cells' boundaries (linear within a cell: the taps know the kernel
+    no finer than that), and the mass beyond the extent is dropped (it leaves the frame from every pixel). Without
+    this a kernel far wider than the frame puts every tap but the centre outside it, and the pass returns the input
+    scaled by the centre weight instead of spreading the light. Kernels within the extent are unchanged.
+    ``unit_offsets`` and ``w_table (M, 3, n)`` are in the pass's tap order (centre first)."""
+    n = unit_offsets.shape[0]
+    order = np.asarray(centre_first(n)) if n > 1 else np.zeros(1, int)
+    sorted_unit = np.sort(np.asarray(unit_tap_offsets(n)))
+    if n > 1:
+        mids = 0.5 * (sorted_unit[1:] + sorted_unit[:-1])
+        outer = 2 * sorted_unit[-1] - mids[-1]  # the outer cells as wide beyond the last tap as inside it
+        bounds = np.concatenate([[-outer], mids, [outer]])
+    else:
+        bounds = np.array([-0.5, 0.5])
+    dtype = w_table.dtype
+    sorted_w = w_table[..., np.argsort(order)]  # (M, 3, n), offsets ascending
+    cum = jnp.concatenate([jnp.zeros(sorted_w.shape[:-1] + (1,), dtype), jnp.cumsum(sorted_w, axis=-1)], axis=-1)
+    reach_edge = level_reach_px * float(bounds[-1])  # px, where the outer cells end
+    fits = reach_edge <= extent_px
+    scale = jnp.where(fits, 1.0, extent_px / jnp.where(fits, 1.0, reach_edge))  # (L,)
+    bounds = jnp.asarray(bounds, dtype)
+
+    def level_weights(s):
+        at = jnp.clip(s * bounds, bounds[0], bounds[-1])
+        c = jax.vmap(jax.vmap(lambda fp: jnp.interp(at, bounds, fp)))(cum)  # (M, 3, n + 1)
+        return jnp.diff(c, axis=-1)[..., order]
+
+    w_levels = jax.vmap(level_weights)(scale)
+    # untouched levels keep their exact weights (no interpolation rounding)
+    w_levels = jnp.where(fits[:, None, None, None], w_table[None], w_levels)
+    return scale.astype(dtype), w_levels
 
 
 def tap_chunks(taps: int) -> tuple[int, int]:
@@ -111,7 +159,7 @@ _BAND_PIXELS = 1 << 15
 def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, level_reach_px: Array, skip: Array,
                     onehot: Array | None, w_table: Array, inv_reach_mm: Array, unit_offsets: Array,
                     mm_per_unit: Array, follow_surface: bool, interpolation: str,
-                    rows_per_band: int | None = None, axis: int = 2) -> Array:
+                    rows_per_band: int | None = None, axis: int = 2, border: str = "leaves") -> Array:
     """One 1D pass of planar ``e (3, H, W)`` along ``axis``: 2 horizontal, 1 vertical (no transposes: both read
     whole rows). The levels' shifted-slice passes are blended per pixel by ``level_weights (L, H, W)``; ``skip``
     pixels keep their own value.
@@ -132,14 +180,23 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
     pad_width = [(0, 0), (pad, pad)] if axis == 2 else [(pad, pad), (0, 0)]
     pad_fetched = lambda a: jnp.pad(a, [(0, 0)] * (a.ndim - 2) + pad_width)
     ev_pad, z_pad, v_pad = pad_fetched(e * v[None]), pad_fetched(z * v), pad_fetched(v)
+    along = w if axis == 2 else h
+    # 1D: 1 off the image (dark there, border="leaves"), or 0 everywhere (off-image taps count as the centre)
+    outside_pad = jnp.pad(jnp.zeros((along,), e.dtype), (pad, pad), constant_values=float(border == "leaves"))
     planes = {"e": e, "z": z, "lw": level_weights, "inv": inv_reach_mm, "skip": skip}
     if onehot is not None:
         planes["onehot"] = onehot
-    weight_sums = jnp.sum(w_table, axis=-1)  # (M, 3)
+    # kernels reaching past the frame are cut at its extent (the rest leaves), their taps spread over it
+    level_scale, w_levels = frame_truncation(unit_offsets, w_table, level_reach_px, float(along))
+    if border != "leaves":  # the cut kernel renormalised: its part beyond the frame counts as the part inside
+        total = jnp.sum(w_levels, axis=-1, keepdims=True)
+        w_levels = w_levels * jnp.where(total > 0, jnp.sum(w_table, axis=-1, keepdims=True)[None] / jnp.where(
+            total > 0, total, 1.0), 1.0)
     chunks, per_chunk = tap_chunks(unit_offsets.shape[0])
     extra_taps = chunks * per_chunk - unit_offsets.shape[0]  # padding taps: weight 0 at offset 0 (the centre: adds 0)
     unit_offsets = jnp.pad(unit_offsets, (0, extra_taps))
-    w_table = jnp.pad(w_table, [(0, 0), (0, 0), (0, extra_taps)])
+    w_levels = jnp.pad(w_levels, [(0, 0), (0, 0), (0, 0), (0, extra_taps)])
+    weight_sums = jnp.sum(w_levels, axis=-1)  # (L, M, 3)
 
     def band(k, out):
         row0 = jnp.minimum(k * rows_per_band, h - rows_per_band).astype(jnp.int32)
@@ -148,23 +205,27 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
         def fetch(start):
             o = jnp.zeros((), jnp.int32)  # index arguments of one type (int64 under x64 otherwise)
             row, col = (row0, pad + start) if axis == 2 else (pad + row0 + start, o)
+            outside = (jax.lax.dynamic_slice(outside_pad, (col,), (w,))[None, :] if axis == 2
+                       else jax.lax.dynamic_slice(outside_pad, (row,), (rows_per_band,))[:, None])
             return (jax.lax.dynamic_slice(ev_pad, (o, row, col), (3, rows_per_band, w)),
                     jax.lax.dynamic_slice(z_pad, (row, col), (rows_per_band, w)),
-                    jax.lax.dynamic_slice(v_pad, (row, col), (rows_per_band, w)))
-
-        if onehot is None:
-            tap_weight = lambda i: w_table[0, :, i][:, None, None]
-            weight_sum = weight_sums[0][:, None, None]
-        else:
-            per_pixel = lambda table: sum(b["onehot"][m][None] * table[m][:, None, None] for m in range(len(w_table)))
-            tap_weight = lambda i: per_pixel(w_table[:, :, i])
-            weight_sum = per_pixel(weight_sums)
+                    jax.lax.dynamic_slice(v_pad, (row, col), (rows_per_band, w)),
+                    outside)
 
         def level(j, acc):
             lw = b["lw"][j]
-            run = lambda: _separable_level(fetch, b["e"], b["z"], level_reach_px[j], b["inv"], tap_weight, weight_sum,
-                                           unit_offsets, per_chunk, mm_per_unit, pad - 1.0, follow_surface,
-                                           interpolation)
+            w_j, ws_j = w_levels[j], weight_sums[j]
+            if onehot is None:
+                tap_weight = lambda i: w_j[0, :, i][:, None, None]
+                weight_sum = ws_j[0][:, None, None]
+            else:
+                per_pixel = lambda table: sum(b["onehot"][m][None] * table[m][:, None, None]
+                                              for m in range(w_j.shape[0]))
+                tap_weight = lambda i: per_pixel(w_j[:, :, i])
+                weight_sum = per_pixel(ws_j)
+            run = lambda: _separable_level(fetch, b["e"], b["z"], level_reach_px[j] * level_scale[j], b["inv"],
+                                           tap_weight, weight_sum, unit_offsets, per_chunk, mm_per_unit, pad - 1.0,
+                                           follow_surface, interpolation)
             return acc + lw[None] * jax.lax.cond(jnp.any(lw > 0), run, lambda: jnp.zeros_like(b["e"]))
 
         # a loop, not unrolled: the compile time does not grow with the number of levels
@@ -178,7 +239,7 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
 @eqx.filter_jit
 def _separable_impl(buffers: Buffers, material, camera: Camera, taps: int, albedo_mode: str, follow_surface: bool,
                     interpolation: str, scale_levels: int, min_footprint_px: float,
-                    kernel_groups: tuple[int, ...] | None = None) -> Array:
+                    kernel_groups: tuple[int, ...] | None = None, border: str = "leaves") -> Array:
     dtype = _work_dtype(buffers.irradiance.dtype)
     prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
     rows, kernel_material = prep.rows, material
@@ -223,7 +284,7 @@ def _separable_impl(buffers: Buffers, material, camera: Camera, taps: int, albed
     w_table = jnp.moveaxis(weights, -1, 1)  # (M, 3, n)
     onehot_planes = None if count == 1 else jnp.stack(onehot)  # (M, H, W)
     common = dict(unit_offsets=unit_offsets, mm_per_unit=mm_per_unit, follow_surface=follow_surface,
-                  interpolation=interpolation)
+                  interpolation=interpolation, border=border)
     e = jnp.moveaxis(prep.irradiance, -1, 0)  # planar (3, H, W): the fused loops run along rows
     for axis in (2, 1):  # horizontal, then vertical
         e = _separable_pass(e, prep.depth, prep.valid, level_weights, level_reach_px, skip, onehot_planes, w_table,
@@ -243,6 +304,7 @@ def separable(
     min_footprint_px: float = MIN_FOOTPRINT_PX,
     scale_levels: int = SCALE_LEVELS,
     impl: str = "auto",
+    border: str = "leaves",
 ) -> Float[Array, "H W 3"]:
     """Separable subsurface scattering (Jimenez et al. 2015): a horizontal then a vertical 1D pass.
 
@@ -262,10 +324,22 @@ def separable(
     (``albedo * irradiance``, the paper's Fig. 1); 0 disables that. Several materials in one frame cost one pass;
     materials that share a kernel (differing only in albedo) share its table row and per-pixel weight term.
 
+    Light that scatters out of the frame leaves: a tap (or the part of a linear fetch) landing off the image counts as
+    dark, so each pass keeps, of a pixel's light, the share of the 1D kernel inside the frame (the 2D pass: the
+    product of the two shares). A kernel whose reach exceeds the frame's extent along a pass is cut there (the rest
+    leaves from every pixel) and its taps spread over the frame (``frame_truncation``): as d grows past the frame the
+    light spreads over it and out, never back onto its own pixel. With concrete inputs, where the taps' cells at the
+    widest reach are too coarse for a hard edge, a ``SamplingWarning`` states the error they imply
+    (``separable_edge_error``). ``border="renormalise"`` counts off-image taps as the centre instead (Jimenez's
+    shader; the kernel cut at the frame renormalised), as if the surface beyond looked like the inside.
+
     ``impl`` (``_dispatch``): "auto" runs the formulation above on a CPU backend ("xla-cpu") and the whole-frame one
     elsewhere ("xla-gpu": per tap a gather at each pixel's own offset, Jimenez's shader, so no reach levels and no
-    level error; ``scale_levels`` is unused); "pallas" is that as a Pallas kernel per pass.
+    level error; ``scale_levels`` is unused); "pallas" is that as a Pallas kernel per pass. The whole-frame
+    formulations count off-image taps as the centre so far (``border="renormalise"``): with ``border="leaves"``
+    "auto" keeps the formulation above on any backend, and naming "xla-gpu" or "pallas" is an error.
     """
+    _check_border(border)
     _check_albedo_mode(albedo_mode)
     if not isinstance(material, AbstractMaterial):
         raise TypeError("separable needs a TwoGaussianMaterial, BurleyMaterial or ProfileMaterial, got "
@@ -279,12 +353,63 @@ def separable(
     if not (float(min_footprint_px) >= 0):
         raise ValueError(f"min_footprint_px must be >= 0, got {min_footprint_px!r}")
     mode = "bilinear" if interpolation == "linear" else "nearest"
+    if _is_concrete(buffers, material, camera):
+        implied = separable_edge_error(buffers, material, camera, int(taps), float(min_footprint_px))
+        if implied[0] > SAMPLING_ERROR_LIMIT:
+            warnings.warn(f"separable: {taps} taps at a reach of {implied[1]:.0f} px leave tap cells up to "
+                          f"{implied[2]:.1f} px wide: a hard edge may be off by up to {implied[0]:.3f} of its "
+                          f"contrast (more taps lower it)", SamplingWarning, stacklevel=2)
     which = resolve_impl(impl)
+    if which != "xla-cpu" and border != "renormalise":
+        if impl != "auto":
+            raise ValueError(f"impl={impl!r} has the renormalised border only so far: pass border='renormalise', "
+                             "or impl='auto'/'xla-cpu'")
+        which = "xla-cpu"  # the formulation above runs on every backend
     if which != "xla-cpu":  # no host read of the parameters (kernel_groups) off the CPU
         return separable_gpu_impl(buffers, material, camera, int(taps), albedo_mode, bool(follow_surface), mode,
                                   float(min_footprint_px), None, which)
     return _separable_impl(buffers, material, camera, int(taps), albedo_mode, bool(follow_surface), mode,
-                           int(scale_levels), float(min_footprint_px), kernel_groups(material))
+                           int(scale_levels), float(min_footprint_px), kernel_groups(material), border)
+
+
+def separable_edge_error(buffers: Buffers, material, camera: Camera, taps: int,
+                         min_footprint_px: float = MIN_FOOTPRINT_PX) -> tuple[float, float, float]:
+    """Host side: what the taps' resolution implies for the widest kernel in the frame (the active pixel nearest the
+    camera): ``(error, reach_px, widest_cell_px)``, where ``error`` bounds how far a hard edge's profile can be from
+    the kernel's, as a fraction of the edge's contrast. A tap stands for the kernel's mass over its cell; with linear
+    fetches a cell up to a pixel wide is resolved, a wider one moves its whole mass at once as the edge crosses it, by
+    up to ``w_i (1 - 1 / cell_i) / 2`` (half way across, on average); the largest over the taps of either pass (after
+    ``frame_truncation``), is the bound."""
+    valid = np.asarray(_sss_mask(buffers))
+    if not valid.any():
+        return 0.0, 0.0, 0.0
+    kernels = material.separable_kernels(taps, jnp.float64 if jax.config.read("jax_enable_x64") else jnp.float32)
+    offsets, weights = np.asarray(kernels.offsets_mm, np.float64), np.asarray(kernels.weights, np.float64)
+    depth = np.asarray(buffers.depth, np.float64)[valid]
+    ppm = float(camera.focal_px) / (float(np.min(depth)) * float(camera.mm_per_unit))
+    reach_mm = np.max(np.abs(offsets), axis=-1)  # (M,)
+    worst = (0.0, 0.0, 0.0)
+    unit = jnp.asarray(unit_tap_offsets(taps)[centre_first(taps)])
+    sorted_unit = np.sort(unit_tap_offsets(taps))
+    if taps > 1:
+        mids = 0.5 * (sorted_unit[1:] + sorted_unit[:-1])
+        bounds = np.concatenate([[2 * sorted_unit[0] - mids[0]], mids, [2 * sorted_unit[-1] - mids[-1]]])
+    else:
+        bounds = np.array([-0.5, 0.5])
+    order = np.argsort(np.asarray(centre_first(taps)))
+    for m in range(offsets.shape[0]):
+        reach_px = float(reach_mm[m]) * ppm
+        if reach_px < min_footprint_px or reach_px <= 0:
+            continue
+        for extent in set(buffers.depth.shape[-2:]):
+            scale, w_levels = frame_truncation(unit, jnp.asarray(np.moveaxis(weights[m:m + 1], -1, 1)),
+                                               jnp.asarray([reach_px]), float(extent))
+            w_sorted = np.asarray(w_levels)[0, 0][:, order]  # (3, n) ascending offsets
+            cells = np.diff(bounds) * float(scale[0]) * reach_px
+            error = float(np.max(w_sorted * np.maximum(0.0, 1 - 1 / np.maximum(cells, 1e-12)) / 2))
+            if error > worst[0]:
+                worst = (error, reach_px, float(np.max(cells)))
+    return worst
 
 
 def kernel_groups(material) -> tuple[int, ...] | None:
