@@ -66,7 +66,7 @@ def _sha256_file(path: pathlib.Path) -> str:
     return h.hexdigest()
 
 
-def _leaves(material) -> dict[str, list]:
+def _leaves(material) -> dict[str, Any]:
     import dataclasses
 
     return {f.name: np.asarray(getattr(material, f.name)).tolist() for f in dataclasses.fields(material)

@@ -10,11 +10,12 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from jaxtyping import ArrayLike
 
 __all__ = ["rel_l2", "rmse", "max_error", "delta_e_2000", "energy_ratio", "metrics_by_material", "sss_mask"]
 
 
-def _check(output: np.ndarray, reference: np.ndarray, mask: np.ndarray | None, names=("output", "reference")):
+def _check(output: ArrayLike, reference: ArrayLike, mask: ArrayLike | None, names=("output", "reference")):
     out = np.asarray(output, np.float64)
     ref = np.asarray(reference, np.float64)
     if out.shape != ref.shape:

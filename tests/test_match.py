@@ -133,7 +133,8 @@ def test_fit_burley_from_2x_off_beats_the_exact_conversion_and_apply_reproduces_
         d_fit = np.asarray(res["fitted"][f"id{k}"]["d_mm"])
         blocks = res["engines"][f"id{k}"]
         assert {"blender", "eevee", "hdrp", "unreal", "jimenez"} <= set(blocks)
-        np.testing.assert_allclose(blocks["blender"]["Subsurface Radius"], d_fit * 4 * math.pi / 1000, rtol=1e-6)
+        burley_radius = blocks["blender"]["Subsurface Radius by method"]["Christensen-Burley"]
+        np.testing.assert_allclose(burley_radius, d_fit * 4 * math.pi / 1000, rtol=1e-6)
         assert blocks["blender"]["Subsurface Color"] == pytest.approx(ALBEDO, rel=1e-6)
 
     page = out_html.read_text()

@@ -14,6 +14,8 @@ one function and can be checked against each other and against a pixel-by-pixel 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -30,7 +32,7 @@ from ._common import _finish, _prepare, _work_dtype
 TAPS_PER_STEP = 4
 
 
-def tap_term(off: Array, along: Array, length: int, fetch, e: tuple[Array, ...], z: Array, scale: Array, *,
+def tap_term(off: Array, along: Array, length: int, fetch, e: Sequence[Array], z: Array, scale: Array, *,
              follow_surface: bool, interpolation: str) -> list[Array]:
     """What one tap adds per channel, before its weight: ``sum_q frac_q keep_q (e_q - e)`` over the pixels q it reads.
 
