@@ -157,30 +157,35 @@ def two_gaussian_kernel(
 
 
 class SpiralSamples(eqx.Module):
-    """Golden-angle spiral samples of the normalised Burley profile for ``d = 1``.
+    """The golden-angle spiral of ``burley`` (both formulations take their samples from here), for ``d = 1``.
 
-    ``ccdf (n,)`` are stratified complementary-CDF values ``(i + 1/2) / n``; ``angles (n,)`` the golden-angle spiral.
-    The pass turns them into radii per pixel (``burley_inverse_ccdf(c * ccdf, d_pixel)``, with ``c`` the fraction of
-    the profile inside the image so huge radii clamp to it) and projects them with the pixel's depth.
+    ``cdf (n,)`` are the stratified CDF positions ``(i + 1/2) / n`` of the widest channel's profile (sample i = 0 the
+    smallest radius, hugging the centre); ``angles (n,)`` are ``i * golden angle`` (radians, not reduced). The pass
+    scales the positions by the fraction of the profile inside the image (so huge radii clamp to it), turns them
+    into radii per pixel (``burley_inverse_cdf``), turns the spiral by the pixel's rotation (``pattern="rotated"``)
+    and projects the samples with the pixel's depth.
     """
 
-    ccdf: Float[Array, " n"]
+    cdf: Float[Array, " n"]
     angles: Float[Array, " n"]
 
     @property
     def count(self) -> int:
-        return int(self.ccdf.shape[0])
+        return int(self.cdf.shape[0])
+
+    @property
+    def ccdf(self) -> Array:
+        """The complementary CDF at each sample's radius, ``1 - cdf``."""
+        return 1 - self.cdf
 
     def unit_radii(self) -> Array:
         """Radii for ``d = 1`` (in units of d)."""
-        return burley_inverse_ccdf(self.ccdf, jnp.ones_like(self.ccdf))
+        return burley_inverse_ccdf(self.ccdf, jnp.ones_like(self.cdf))
 
 
 def spiral_samples(n: int, *, dtype=jnp.float32) -> SpiralSamples:
     """``n`` samples: radius by stratified inverse-CDF sampling of the Burley profile, angle ``i * golden angle``."""
-    if not isinstance(n, int) or n < 1:
+    if not isinstance(n, (int, np.integer)) or isinstance(n, bool) or n < 1:
         raise ValueError(f"samples must be a positive integer, got {n!r}")
-    i = jnp.arange(n, dtype=dtype)
-    # i = 0 takes the largest CCDF (the smallest radius) so the first samples hug the centre
-    ccdf = 1 - (i + 0.5) / n
-    return SpiralSamples(ccdf=ccdf, angles=jnp.mod(i * GOLDEN_ANGLE, 2 * math.pi))
+    i = jnp.arange(int(n), dtype=dtype)
+    return SpiralSamples(cdf=(i + 0.5) / n, angles=i * GOLDEN_ANGLE)

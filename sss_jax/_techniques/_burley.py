@@ -13,7 +13,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._checks import checked
-from .._kernels import GOLDEN_ANGLE
+from .._kernels import spiral_samples
 from .._materials import BurleyMaterial
 from .._profiles import burley_cdf, burley_inverse_ccdf
 from .._scene import Buffers, Camera
@@ -148,19 +148,20 @@ def _burley_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, sam
     inv_d_planes = [inv_d[:, c] for c in range(weight_channels)]
     ok_d_planes = [ok_d[:, c] for c in range(weight_channels)]
 
+    spiral = spiral_samples(samples, dtype=dtype)  # the one owner of the sample pattern
+
     def one_frame(cos_phi, sin_phi):
         def body(i, acc):
             num, den = acc
-            fi = jnp.asarray(i, dtype)
             if truncate:
-                u = (fi + 0.5) / samples * inside_fraction  # stratified CDF, truncated to the image
+                u = spiral.cdf[i] * inside_fraction  # stratified CDF, truncated to the image
                 rho = _unit_radius_for_cdf(u)  # radius in units of d_max
             else:  # no profile reaches past the image diagonal by more than rounding (decided on the host): every
                 # pixel shares the sample radius, one scalar inverse CDF per sample, not one per pixel and sample
-                rho = burley_inverse_ccdf(1 - (fi + 0.5) / samples, jnp.ones((), dtype))
+                rho = burley_inverse_ccdf(1 - spiral.cdf[i], jnp.ones((), dtype))
             r_mm = rho * dmax_c
             off = r_mm * ppm_c
-            theta = fi * GOLDEN_ANGLE
+            theta = spiral.angles[i]
             # the spiral turned by the pixel's angle: cos/sin of the sum, one scalar pair per sample
             cos_t = jnp.cos(theta) * cos_phi - jnp.sin(theta) * sin_phi
             sin_t = jnp.sin(theta) * cos_phi + jnp.cos(theta) * sin_phi

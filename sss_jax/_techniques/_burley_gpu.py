@@ -19,7 +19,7 @@ import jax.numpy as jnp
 from jaxtyping import Array
 
 from .._checks import checked
-from .._kernels import GOLDEN_ANGLE
+from .._kernels import spiral_samples
 from .._materials import BurleyMaterial
 from .._profiles import burley_cdf, burley_inverse_ccdf
 from .._scene import Buffers, Camera
@@ -29,9 +29,10 @@ from ._common import _finish, _prepare, _safe_sqrt, _work_dtype
 
 
 def sample_pattern(samples: int, dtype) -> tuple[Array, Array]:
-    """The golden-angle spiral: stratified CDF positions ``(i + 1/2) / S`` and angles ``i * GOLDEN_ANGLE``."""
-    i = jnp.arange(samples, dtype=dtype)
-    return (i + 0.5) / samples, i * GOLDEN_ANGLE
+    """The golden-angle spiral (``spiral_samples``): stratified CDF positions ``(i + 1/2) / S`` and angles
+    ``i * GOLDEN_ANGLE``."""
+    spiral = spiral_samples(samples, dtype=dtype)
+    return spiral.cdf, spiral.angles
 
 
 def sample_term(u: Array, theta: Array, pix: dict, fetch, *, height: int, width: int, mm_per_unit: Array,
