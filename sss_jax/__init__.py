@@ -73,6 +73,15 @@ from .engines import (
     to_engine as to_engine,
 )
 from ._advise import advise as advise
+from ._montecarlo import MCResult as MCResult, simulate as simulate, to_tabulated_profile as to_tabulated_profile
+from ._slab import MediumMaterial as MediumMaterial
+from ._fitting import (
+    fit_burley_from_image as fit_burley_from_image,
+    fit_sta as fit_sta,
+    fit_two_gaussian_image as fit_two_gaussian_image,
+    fit_two_gaussian_profile as fit_two_gaussian_profile,
+    fit_two_gaussian_to_burley as fit_two_gaussian_to_burley,
+)
 from ._presets import (
     Preset as Preset,
     list_presets as list_presets,

@@ -36,8 +36,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["MCResult", "simulate", "simulate_material", "fresnel_unpolarised", "to_tabulated_profile",
-           "albedo_from_coefficients"]
+__all__ = ["MCResult", "simulate", "fresnel_unpolarised", "to_tabulated_profile"]
 
 _ROULETTE_WEIGHT = 1e-3
 _ROULETTE_SURVIVAL = 0.1
@@ -567,24 +566,6 @@ def simulate(
         capped_photons=int(totals["capped"]), capped_weight=float(totals["capped_w"]) / N,
         scattering_events=int(totals["events"]), seconds=seconds,
     )
-
-
-def albedo_from_coefficients(sigma_s: float, sigma_a: float) -> tuple[float, float]:
-    """(single-scattering albedo, mean free path in mm) from scattering and absorption coefficients in 1/mm."""
-    if not (sigma_s >= 0 and sigma_a >= 0 and sigma_s + sigma_a > 0):
-        raise ValueError(f"coefficients must be >= 0 with a positive sum, got sigma_s={sigma_s}, sigma_a={sigma_a}")
-    sigma_t = sigma_s + sigma_a
-    return sigma_s / sigma_t, 1.0 / sigma_t
-
-
-def simulate_material(sigma_s_prime, sigma_a, *, eta: float = 1.0, **kwargs) -> list[MCResult]:
-    """One run per channel from reduced scattering and absorption coefficients (1/mm, shape (3,)), with an
-    isotropic phase function (similarity theory: ``sigma_s' = sigma_s (1 - g)``)."""
-    results = []
-    for s, a in zip(np.atleast_1d(sigma_s_prime), np.atleast_1d(sigma_a)):
-        alb, _ = albedo_from_coefficients(float(s), float(a))
-        results.append(simulate(alb, eta=eta, **kwargs))
-    return results
 
 
 def to_tabulated_profile(results: MCResult | list[MCResult], mfp_mm: float | list[float]):
