@@ -4,7 +4,10 @@
 
 Each row: compile seconds (first call minus a timed call) and the median of ``--repeats`` timed calls after it
 (``block_until_ready``), demo scene, float32. ``--impl`` picks the formulation (auto, xla-gpu, pallas, xla-cpu); run
-it once per formulation to compare them on the same warm machine. Needs neither OpenCV nor colour-science.
+it once per formulation to compare them on the same warm machine. The whole-frame formulations have Burley's fixed
+spiral and the renormalised frame border so far: every row runs with those options (``--semantics defaults`` runs
+the library's defaults instead, which "auto" keeps on the XLA-CPU formulation). Needs neither OpenCV nor
+colour-science.
 """
 
 import argparse
@@ -14,34 +17,23 @@ import time
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 GOALS_MS = {"separable 25": 0.5, "burley 32": 1.0, "burley 32 jit": 1.0, "translucency": 0.1,
             "grad burley 32 (d)": 5.0, "separable 25 x8 vmap": 4.0, "reference": 50.0}  # reference at 640x360
 
 
-def _time(fn, repeats):
-    t0 = time.perf_counter()
-    jax.block_until_ready(fn())
-    first = time.perf_counter() - t0
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn())
-        times.append(time.perf_counter() - t0)
-    run = float(np.median(times))
-    return max(first - run, 0.0), 1e3 * run
-
-
 def main() -> int:
     import sss_jax as sj
     from sss_jax._demo import demo_burley_material
+    from sss_jax._timing import time_call
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--size", default="1920x1080")
     ap.add_argument("--repeats", type=int, default=30)
     ap.add_argument("--impl", default="auto", choices=["auto", "xla-cpu", "xla-gpu", "pallas"])
     ap.add_argument("--reference-size", default="640x360")
+    ap.add_argument("--semantics", default="gpu", choices=["gpu", "defaults"],
+                    help="gpu: pattern='fixed', border='renormalise' (what the whole-frame formulations implement)")
     ap.add_argument("--json")
     args = ap.parse_args()
     w, h = (int(v) for v in args.size.lower().split("x"))
@@ -53,23 +45,28 @@ def main() -> int:
     small = sj.demo_scene(rh, rw)
     batch = jax.tree.map(lambda a: jnp.stack([a] * 8), b)
     impl = args.impl
+    sep_opts = dict(border="renormalise") if args.semantics == "gpu" else {}
+    bur_opts = dict(pattern="fixed", border="renormalise") if args.semantics == "gpu" else {}
     rows = {
-        "separable 25": lambda: sj.separable(b, mat, cam, taps=25, impl=impl),
-        "burley 32": lambda: sj.burley(b, mat, cam, samples=32, impl=impl),
-        "burley 32 jit": (lambda f: lambda: f(b))(jax.jit(lambda bb: sj.burley(bb, mat, cam, samples=32, impl=impl))),
+        "separable 25": lambda: sj.separable(b, mat, cam, taps=25, impl=impl, **sep_opts),
+        "burley 32": lambda: sj.burley(b, mat, cam, samples=32, impl=impl, **bur_opts),
+        "burley 32 jit": (lambda f: lambda: f(b))(jax.jit(lambda bb: sj.burley(bb, mat, cam, samples=32, impl=impl,
+                                                                                **bur_opts))),
         "translucency": lambda: sj.translucency(b, sta, cam, scene.back_light),
         "grad burley 32 (d)": (lambda g: lambda: g(mat.d_mm))(jax.jit(jax.grad(
-            lambda d: jnp.sum(sj.burley(b, sj.BurleyMaterial(mat.albedo, d), cam, samples=32, impl=impl))))),
+            lambda d: jnp.sum(sj.burley(b, sj.BurleyMaterial(mat.albedo, d), cam, samples=32, impl=impl,
+                                        **bur_opts))))),
         "separable 25 x8 vmap": (lambda f: lambda: f(batch))(jax.jit(jax.vmap(
-            lambda bb: sj.separable(bb, mat, cam, taps=25, impl=impl)))),
+            lambda bb: sj.separable(bb, mat, cam, taps=25, impl=impl, **sep_opts)))),
         "reference": lambda: sj.reference(small.buffers, mat, small.camera),
     }
     device = jax.devices()[0]
     out = {"backend": jax.default_backend(), "device": getattr(device, "device_kind", str(device)),
-           "jax": jax.__version__, "impl": impl, "size": [w, h], "date": time.strftime("%Y-%m-%d"), "rows": {}}
+           "jax": jax.__version__, "impl": impl, "semantics": args.semantics, "size": [w, h], "date": time.strftime("%Y-%m-%d"), "rows": {}}
     print(f"{out['device']} ({out['backend']}), jax {out['jax']}, impl {impl}, {w}x{h}, medians of {args.repeats}")
     for name, fn in rows.items():
-        compile_s, ms = _time(fn, args.repeats)
+        _, seconds, compile_s = time_call(fn, args.repeats)
+        ms = 1e3 * seconds
         goal = GOALS_MS[name]
         out["rows"][name] = {"ms": round(ms, 3), "compile_s": round(compile_s, 2), "goal_ms": goal}
         print(f"  {name:24s} {ms:10.3f} ms   compile {compile_s:6.2f} s   goal <= {goal} ms "
