@@ -1,5 +1,6 @@
 """Batch processing: sharding over devices, resuming after an interruption, per-frame failures, process shares."""
 
+import json
 import re
 
 import jax
@@ -8,7 +9,7 @@ import pytest
 
 import sss_jax as sj
 from sss_jax import _io
-from sss_jax._batch import frames_for_process, process_frames
+from sss_jax._batch import MANIFEST_NAME, frames_for_process, process_frames
 
 MAT = sj.BurleyMaterial([[0.8, 0.6, 0.5]] * 3, [[3.0, 1.4, 0.8], [2.2, 1.9, 1.6], [3.5, 2.4, 1.4]])
 
@@ -70,13 +71,16 @@ def test_interrupted_batch_resumes_with_identical_output(frames, one_device_run,
         process_frames(str(frames / "*.exr"), "burley", MAT, out_dir=tmp_path / "run", samples=8, progress=False,
                        devices=jax.devices()[:1], on_frame_done=stop_after_two)
     names = sorted(p.name for p in (tmp_path / "run").iterdir())
-    assert names == ["f0.exr", "f1.exr"]  # complete frames only: no temp or partial files
+    assert names == ["f0.exr", "f1.exr", MANIFEST_NAME]  # complete frames only: no temp or partial files
+    book = json.loads((tmp_path / "run" / MANIFEST_NAME).read_text())
+    assert book["state"] == "interrupted"
+    assert [f["status"] for f in book["frames"]] == ["done", "done", "pending", "pending", "pending"]
     again = process_frames(str(frames / "*.exr"), "burley", MAT, out_dir=tmp_path / "run", samples=8, progress=False,
                            devices=jax.devices()[:1])
-    assert [f.status for f in again.frames] == ["skipped", "skipped", "ok", "ok", "ok"]
+    assert [f.status for f in again.frames] == ["skipped", "skipped", "done", "done", "done"]
     for i in range(5):
         np.testing.assert_array_equal(read_rgb(tmp_path / "run" / f"f{i}.exr"), read_rgb(ref / f"f{i}.exr"))
-    assert sorted(p.name for p in (tmp_path / "run").iterdir()) == [f"f{i}.exr" for i in range(5)]
+    assert sorted(p.name for p in (tmp_path / "run").iterdir()) == [f"f{i}.exr" for i in range(5)] + [MANIFEST_NAME]
 
 
 def test_a_bad_frame_is_reported_and_the_others_complete(frames, tmp_path):
@@ -86,10 +90,10 @@ def test_a_bad_frame_is_reported_and_the_others_complete(frames, tmp_path):
         (src / f"f{i}.exr").write_bytes((frames / f"f{i}.exr").read_bytes())
     (src / "f1.exr").write_bytes(b"\x76\x2f\x31\x01 truncated")
     r = process_frames(str(src / "*.exr"), "burley", MAT, out_dir=tmp_path / "o", samples=4, progress=False)
-    assert sorted(f.status for f in r.frames) == ["failed", "ok", "ok"]
+    assert sorted(f.status for f in r.frames) == ["done", "done", "failed"]
     bad = r.failed[0]
     assert bad.input.endswith("f1.exr") and "f1.exr" in bad.message
-    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["f0.exr", "f2.exr"]
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["f0.exr", "f2.exr", MANIFEST_NAME]
 
 
 def test_process_shares_are_disjoint_complete_and_balanced():
