@@ -168,7 +168,7 @@ def _check_plan(jobs: list[tuple[pathlib.Path, pathlib.Path]], png: bool, manife
             src, out = users[0]
             problems.append(f"output {out} is the input {inputs[key][0]}: an input is never overwritten")
     if problems:
-        raise SSSInputError("outputs collide, nothing was written: " + "; ".join(problems[:10])
+        raise SSSInputError("batch refused before any frame ran: " + "; ".join(problems[:10])
                             + (f"; and {len(problems) - 10} more" if len(problems) > 10 else ""))
 
 
