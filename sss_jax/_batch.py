@@ -618,8 +618,8 @@ def process_frames(
     for path in [dst for _, dst in jobs] + ([manifest] if manifest is not None else []):
         if path.is_dir():
             raise SSSInputError(f"{path}: output path is a directory")
-        if path.parent not in probed:
-            check_writable(path)
+        if path.parent not in probed:  # --out-dir's folders are made; a typo in -o's folder is not
+            check_writable(path, create_dirs=out_dir is not None)
             probed.add(path.parent)
 
     devices = list(jax.devices() if devices is None else devices)

@@ -128,10 +128,12 @@ def run(args) -> int:
         inputs = expand_inputs(args.inputs)
         if args.output is not None and len(inputs) != 1:
             raise ValueError(f"-o takes one input, got {len(inputs)}: use --out-dir for many")
+        sta = args.technique == "sta"
         if args.output is not None and args.output.suffix.lower() != ".exr":
             raise ValueError(f"-o {args.output}: the output is a linear float EXR and needs the .exr extension "
                              "(--png adds an sRGB PNG preview beside it)")
-        if args.albedo is not None and not all(0.0 <= a <= 1.0 for a in args.albedo):  # NaN fails too
+        # STA takes --albedo as it is (the materials of the other techniques check their own)
+        if sta and args.albedo is not None and not all(0.0 <= a <= 1.0 for a in args.albedo):  # NaN fails too
             raise ValueError(f"--albedo must be 3 values in [0, 1], got {','.join(map(str, args.albedo))}")
         if args.thickness is not None and not (args.thickness >= 0):
             raise ValueError(f"--thickness must be >= 0 scene units, got {args.thickness}")
