@@ -190,6 +190,8 @@ def _material_attributes(material) -> dict[str, str]:
     attrs = {}
     for part in parts:
         for field in dataclasses.fields(part):
+            if not isinstance(getattr(part, field.name), (jax.Array, np.ndarray)):
+                continue  # a profile object: its arrays are in sss_jax:parameters
             value = np.asarray(getattr(part, field.name))
             rows = value.reshape(-1, value.shape[-1]) if value.ndim else value.reshape(1, 1)
             attrs[f"sss_jax:{field.name}"] = ";".join(",".join(f"{v:.6g}" for v in row) for row in rows)
@@ -199,9 +201,10 @@ def _material_attributes(material) -> dict[str, str]:
 def _material_record(material) -> dict[str, Any]:
     """Every field of the material at full precision (the resume record compares it)."""
     parts = material if isinstance(material, tuple) else (material,)
-    return {f"{type(part).__name__}.{field.name}": np.asarray(getattr(part, field.name), np.float64).tolist()
-            for part in parts for field in dataclasses.fields(part)
-            if isinstance(getattr(part, field.name), (jax.Array, np.ndarray))}
+    return {f"{type(part).__name__}.{field.name}": [np.asarray(leaf, np.float64).tolist()
+                                                     for leaf in jax.tree.leaves(getattr(part, field.name))
+                                                     if isinstance(leaf, (jax.Array, np.ndarray))]
+            for part in parts for field in dataclasses.fields(part)}
 
 
 def _file_stamp(path: pathlib.Path) -> dict[str, Any] | None:
@@ -423,7 +426,9 @@ def _tile_layout(h: int, w: int, plan: _Plan, tile_pixels: int) -> tuple[int, in
     budget = min(tile_pixels, int(CALL_SECONDS / plan.seconds_per_px) if plan.seconds_per_px else tile_pixels)
     if h * w <= budget or not plan.exact_tiles:
         return None
-    side = max(math.isqrt(max(budget, 1)), 2 * plan.overlap + 8, plan.min_side)
+    # the inner part at least as wide as the overlap: a tile never computes more than ~9x its own pixels (a wide
+    # window on a small frame then runs whole, past the work bound, rather than in tiles made of overlap)
+    side = max(math.isqrt(max(budget, 1)), 3 * plan.overlap + 8, plan.min_side)
     inner = side - 2 * plan.overlap
     ty, tx = min(inner, h), min(inner, w)
     if (ty, tx) == (h, w):

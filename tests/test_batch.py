@@ -422,7 +422,7 @@ def test_tiles_give_the_whole_frame(frames, tmp_path, monkeypatch, technique, ma
     r = process_frames(str(frames / "f1.exr"), technique, material, out_dir=tmp_path, progress=False,
                        tile_pixels=24 * 24, **options)
     assert r.ok
-    assert len(calls) > 4 and all(h * w < 40 * 48 for h, w in calls)  # it did run in tiles, each smaller
+    assert len(calls) >= 4 and all(h < 40 + 30 and w < 48 for h, w in calls)  # it did run in tiles
     f = _io.read_frame(frames / "f1.exr")
     # independent check: the public technique on the whole frame
     whole = np.asarray(direct(f.to_buffers(), sj.Camera(f.focal_px, 10.0)))
