@@ -84,7 +84,8 @@ def make_frames(src: str, frames: int, size: int, corrupt: float) -> list[int]:
 
 
 def make_large(path: str, n: int) -> None:
-    """An NxN frame: a lit sphere (SSS, id 1) in front of a wall (id 0), planar depth in scene units (cm)."""
+    """An NxN frame: a lit sphere (SSS, id 1: the demo's skin, d up to 3 mm) in front of a wall (id 0), planar depth
+    in scene units (cm, 60-100 cm away), focal length N/2 px (a 53 degree field of view): d is 20 px at the front."""
     import numpy as np
 
     from sss_jax import _io
@@ -99,7 +100,7 @@ def make_large(path: str, n: int) -> None:
     shade = np.where(inside, 0.2 + 0.8 * np.clip(cap / 0.4 + u, 0.0, 1.0), 0.5).astype(np.float32)
     del cap, rr
     ch = {"R": shade, "G": shade * 0.8, "B": shade * 0.6, "Z": depth, "id": inside.astype(np.float32)}
-    _io.write_exr(path, ch, attributes={"sss_jax:focal_px": float(n), "sss_jax:mm_per_unit": 10.0})
+    _io.write_exr(path, ch, attributes={"sss_jax:focal_px": float(n) / 2, "sss_jax:mm_per_unit": 10.0})
 
 
 def digests(folder: str) -> dict[str, str]:
