@@ -83,9 +83,9 @@ def make_frames(src: str, frames: int, size: int, corrupt: float) -> list[int]:
     return bad
 
 
-def make_large(path: str, n: int) -> None:
+def make_large(path: str, n: int, focal_px: float) -> None:
     """An NxN frame: a lit sphere (SSS, id 1: the demo's skin, d up to 3 mm) in front of a wall (id 0), planar depth
-    in scene units (cm, 60-100 cm away), focal length N/2 px (a 53 degree field of view): d is 20 px at the front."""
+    in scene units (cm, 60-100 cm away); d at the front is ``3 focal_px / 600`` px."""
     import numpy as np
 
     from sss_jax import _io
@@ -100,7 +100,7 @@ def make_large(path: str, n: int) -> None:
     shade = np.where(inside, 0.2 + 0.8 * np.clip(cap / 0.4 + u, 0.0, 1.0), 0.5).astype(np.float32)
     del cap, rr
     ch = {"R": shade, "G": shade * 0.8, "B": shade * 0.6, "Z": depth, "id": inside.astype(np.float32)}
-    _io.write_exr(path, ch, attributes={"sss_jax:focal_px": float(n) / 2, "sss_jax:mm_per_unit": 10.0})
+    _io.write_exr(path, ch, attributes={"sss_jax:focal_px": float(focal_px), "sss_jax:mm_per_unit": 10.0})
 
 
 def digests(folder: str) -> dict[str, str]:
@@ -173,19 +173,22 @@ def large_run(args) -> int:
     n = args.large
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, f"large{n}.exr")
-        code = f"import sys; sys.path.insert(0, {HERE!r}); import bench_batch as b; b.make_large({path!r}, {n})"
+        focal = args.focal_px or n / 8
+        code = (f"import sys; sys.path.insert(0, {HERE!r}); import bench_batch as b; "
+                f"b.make_large({path!r}, {n}, {focal})")
         subprocess.run([sys.executable, "-c", code], check=True, env=dict(os.environ, PYTHONPATH=ROOT))
         size_mib = os.path.getsize(path) / 2**20
         base = rss_mib()
         t0 = time.perf_counter()
         r = process_frames(path, args.technique, demo_burley_material(), out_dir=os.path.join(tmp, "out"),
-                           progress=True)
+                           progress=True, samples=args.samples, taps=args.taps)
         wall = time.perf_counter() - t0
         out = os.path.join(tmp, "out", f"large{n}.exr")
         complete = r.ok and exr_is_complete(out)
     buffers_mib = n * n * 5 * 4 / 2**20  # R, G, B, Z, id as float32
-    print(f"large frame: {n}x{n}, {args.technique}, EXR {size_mib:.0f} MiB on disk, {buffers_mib:.0f} MiB of float32 "
-          f"buffers")
+    print(f"large frame: {n}x{n}, {args.technique} ({args.samples} samples / {args.taps} taps), focal {focal:g} px "
+          f"(d = {3 * focal / 600:.1f} px at the front), EXR {size_mib:.0f} MiB on disk, {buffers_mib:.0f} MiB of "
+          f"float32 buffers")
     print(f"  processed: {r.frames[0].status} {r.frames[0].message} complete: {complete}, {wall:.1f} s")
     print(f"  peak resident memory {peak_mib():.0f} MiB ({peak_mib() / buffers_mib:.1f}x the input buffers; "
           f"{base:.0f} MiB before the frame: the JAX runtime)")
@@ -201,6 +204,9 @@ def main() -> int:
     ap.add_argument("--long", action="store_true", help="the long run: 1,000 frames of 256x256, 10%% corrupt")
     ap.add_argument("--corrupt", type=float, default=0.1, help="fraction of corrupt frames in --long")
     ap.add_argument("--large", type=int, help="one NxN frame in tiles: peak memory")
+    ap.add_argument("--focal-px", type=float, help="--large: focal length in px (default N/8)")
+    ap.add_argument("--samples", type=int, default=32, help="burley samples (default 32)")
+    ap.add_argument("--taps", type=int, default=25, help="separable taps (default 25)")
     args = ap.parse_args()
     if args.devices > 1:
         os.environ["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={args.devices}"
