@@ -666,8 +666,9 @@ def process_frames(
     signals = _Signals()
 
     def finish(r: FrameResult):
-        results.append(r)
-        book.record(r)
+        with signals.critical():  # a skipped or failed frame's entry too: the manifest never lags the results
+            results.append(r)
+            book.record(r)
         if len(results) % 64 == 0:
             _release_free_memory()
         if bar is not None:
