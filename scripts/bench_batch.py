@@ -1,28 +1,223 @@
-"""Batch throughput: frames/s for a 64-frame 512x512 sequence on this machine, and peak memory.
+"""Batch benchmarks: throughput, a long run with corrupt frames (memory flat, nothing lost), resume, a huge frame.
 
     python scripts/bench_batch.py [--frames 64] [--size 512] [--technique burley] [--devices N]
+    python scripts/bench_batch.py --long [--frames 1000] [--size 256] [--corrupt 0.1]
+    python scripts/bench_batch.py --large 8000
 
-Frames are generated from the demo scene with a varying key light and written to a temporary directory first (not
-timed); then process_frames runs over them, compile included in the wall time and reported separately.
+Default: frames are generated from the demo scene with a varying key light and written to a temporary directory
+first (not timed); then process_frames runs over them, compile included in the wall time and reported separately.
+
+``--long``: 1,000 frames of 256x256, 10% of them corrupt (empty, truncated, garbage, no depth channel: cycled), on
+the CPU. Checks that every good frame is written and complete and every bad one is named as failed in the manifest,
+reports frames/s and the resident memory (RSS) after frame 100 and after the last frame (the growth between them is
+what a leak would show), then runs the batch again with resume and checks every frame is skipped with the outputs
+byte-identical. Exit status 0 only when all of that holds.
+
+``--large N``: one NxN frame (written by a child process, so its generation does not count), processed in tiles;
+reports the wall time and the peak resident memory of the processing process, and checks the result is complete.
 """
 
 import argparse
+import hashlib
+import json
 import os
 import resource
+import subprocess
 import sys
 import tempfile
 import time
 
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+sys.path.insert(0, ROOT)  # the checkout this script is in, not another installed copy
+
+
+def rss_mib() -> float:
+    """Current resident set size (not the peak), from /proc/self/statm."""
+    with open("/proc/self/statm") as f:
+        pages = int(f.read().split()[1])
+    return pages * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+
+def peak_mib() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def make_frames(src: str, frames: int, size: int, corrupt: float) -> list[int]:
+    """Write the frames; return the indices of the corrupt ones (every round(1/corrupt)-th frame)."""
+    import numpy as np
+
+    import sss_jax as sj
+    from sss_jax import _io
+
+    scene = sj.demo_scene(size, size)
+    b = scene.buffers
+    irr = np.asarray(b.irradiance)
+    attrs = {"sss_jax:focal_px": float(scene.camera.focal_px), "sss_jax:mm_per_unit": 10.0}
+    step = round(1 / corrupt) if corrupt > 0 else 0
+    bad = [i for i in range(frames) if step and i % step == step // 2]
+    kinds = ["empty", "truncated", "garbage", "no_depth"]
+    for i in range(frames):
+        path = os.path.join(src, f"frame{i:04d}.exr")
+        gain = 0.6 + 0.8 * (i / max(frames - 1, 1))
+        ch = {"R": irr[..., 0] * gain, "G": irr[..., 1] * gain, "B": irr[..., 2], "Z": np.asarray(b.depth),
+              "id": np.asarray(b.material_id).astype(np.float32)}
+        if i in bad:
+            kind = kinds[bad.index(i) % len(kinds)]
+            if kind == "empty":
+                open(path, "wb").close()
+                continue
+            if kind == "garbage":
+                with open(path, "wb") as f:
+                    f.write(b"\x76\x2f\x31\x01" + os.urandom(4096))
+                continue
+            if kind == "no_depth":
+                ch.pop("Z")
+            _io.write_exr(path, ch, attributes=attrs)
+            if kind == "truncated":
+                data = open(path, "rb").read()
+                with open(path, "wb") as f:
+                    f.write(data[: len(data) // 2])
+            continue
+        _io.write_exr(path, ch, attributes=attrs)
+    return bad
+
+
+def make_large(path: str, n: int, focal_px: float) -> None:
+    """An NxN frame: a lit sphere (SSS, id 1: the demo's skin, d up to 3 mm) in front of a wall (id 0), planar depth
+    in scene units (cm, 60-100 cm away); d at the front is ``3 focal_px / 600`` px."""
+    import numpy as np
+
+    from sss_jax import _io
+
+    y, x = np.ogrid[:n, :n]
+    u = ((x + 0.5) / n - 0.5).astype(np.float32)
+    v = ((y + 0.5) / n - 0.5).astype(np.float32)
+    rr = u * u + v * v
+    inside = rr < 0.16
+    cap = np.sqrt(np.maximum(0.16 - rr, 0.0)).astype(np.float32)
+    depth = np.where(inside, 100.0 - 100.0 * cap, 150.0).astype(np.float32)
+    shade = np.where(inside, 0.2 + 0.8 * np.clip(cap / 0.4 + u, 0.0, 1.0), 0.5).astype(np.float32)
+    del cap, rr
+    ch = {"R": shade, "G": shade * 0.8, "B": shade * 0.6, "Z": depth, "id": inside.astype(np.float32)}
+    _io.write_exr(path, ch, attributes={"sss_jax:focal_px": float(focal_px), "sss_jax:mm_per_unit": 10.0})
+
+
+def digests(folder: str) -> dict[str, str]:
+    return {n: hashlib.sha256(open(os.path.join(folder, n), "rb").read()).hexdigest()
+            for n in sorted(os.listdir(folder)) if n.endswith(".exr")}
+
+
+def long_run(args) -> int:
+    from sss_jax._batch import MANIFEST_NAME, process_frames
+    from sss_jax._demo import demo_burley_material
+    from sss_jax._io import exr_is_complete
+
+    mat = demo_burley_material()
+    with tempfile.TemporaryDirectory() as tmp:
+        src, out = os.path.join(tmp, "src"), os.path.join(tmp, "out")
+        os.mkdir(src)
+        # the frames are written by a child process: their generation does not count in this process's memory
+        code = (f"import sys; sys.path.insert(0, {HERE!r}); import bench_batch as b; "
+                f"print(b.make_frames({src!r}, {args.frames}, {args.size}, {args.corrupt}))")
+        bad = json.loads(subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True,
+                                        env=dict(os.environ, PYTHONPATH=ROOT)).stdout.strip().splitlines()[-1])
+        marks = {}
+        count = [0]
+
+        def on_done(r):
+            count[0] += 1
+            if count[0] in (1, 100, args.frames):
+                marks[count[0]] = rss_mib()
+
+        t0 = time.perf_counter()
+        r = process_frames(os.path.join(src, "*.exr"), args.technique, mat, out_dir=out, progress=False,
+                           on_frame_done=on_done)
+        wall = time.perf_counter() - t0
+        book = json.load(open(os.path.join(out, MANIFEST_NAME)))
+        failed = {os.path.basename(f["input"]) for f in book["frames"] if f["status"] == "failed"}
+        done = {os.path.basename(f["output"]) for f in book["frames"] if f["status"] == "done"}
+        expect_bad = {f"frame{i:04d}.exr" for i in bad}
+        expect_good = {f"frame{i:04d}.exr" for i in range(args.frames)} - expect_bad
+        on_disk = {n for n in os.listdir(out) if n != MANIFEST_NAME}
+        complete = all(exr_is_complete(os.path.join(out, n)) for n in on_disk)
+        before = digests(out)
+        t1 = time.perf_counter()
+        again = process_frames(os.path.join(src, "*.exr"), args.technique, mat, out_dir=out, progress=False)
+        wall_resume = time.perf_counter() - t1
+        skipped = sum(f.status == "skipped" for f in again.frames)
+        identical = digests(out) == before
+    ok = len(r.frames) - len(r.failed)
+    good = (failed == expect_bad and done == expect_good == on_disk and complete and book["state"] == "complete"
+            and skipped == len(expect_good) and identical)
+    print(f"long run: {args.frames} frames of {args.size}x{args.size}, {len(bad)} corrupt, {args.technique}, CPU")
+    print(f"  frames written {ok} (expected {len(expect_good)}), failed {len(r.failed)} (all named in the manifest: "
+          f"{failed == expect_bad}), every written frame complete: {complete}, manifest equals the disk: "
+          f"{done == on_disk}")
+    print(f"  throughput: {args.frames / wall:.2f} frames/s ({wall:.1f} s, read + compute + write + manifest; "
+          f"{ok / wall:.2f} good frames/s)")
+    print(f"  resident memory: {marks.get(1, 0):.0f} MiB after frame 1, {marks.get(100, 0):.0f} MiB after frame 100, "
+          f"{marks.get(args.frames, 0):.0f} MiB after frame {args.frames}: growth 100 -> {args.frames} "
+          f"{marks.get(args.frames, 0) - marks.get(100, 0):+.0f} MiB; peak {peak_mib():.0f} MiB")
+    print(f"  resume: {skipped} of {len(again.frames) - len(again.failed)} good frames skipped, outputs "
+          f"byte-identical: {identical}, {wall_resume:.1f} s ({wall / max(wall_resume, 1e-9):.0f}x faster)")
+    print("  all checks hold" if good else "  CHECK FAILED")
+    return 0 if good else 1
+
+
+def large_run(args) -> int:
+    from sss_jax._batch import process_frames
+    from sss_jax._demo import demo_burley_material
+    from sss_jax._io import exr_is_complete
+
+    n = args.large
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, f"large{n}.exr")
+        focal = args.focal_px or n / 8
+        code = (f"import sys; sys.path.insert(0, {HERE!r}); import bench_batch as b; "
+                f"b.make_large({path!r}, {n}, {focal})")
+        subprocess.run([sys.executable, "-c", code], check=True, env=dict(os.environ, PYTHONPATH=ROOT))
+        size_mib = os.path.getsize(path) / 2**20
+        base = rss_mib()
+        t0 = time.perf_counter()
+        r = process_frames(path, args.technique, demo_burley_material(), out_dir=os.path.join(tmp, "out"),
+                           progress=True, samples=args.samples, taps=args.taps)
+        wall = time.perf_counter() - t0
+        out = os.path.join(tmp, "out", f"large{n}.exr")
+        complete = r.ok and exr_is_complete(out)
+    buffers_mib = n * n * 5 * 4 / 2**20  # R, G, B, Z, id as float32
+    print(f"large frame: {n}x{n}, {args.technique} ({args.samples} samples / {args.taps} taps), focal {focal:g} px "
+          f"(d = {3 * focal / 600:.1f} px at the front), EXR {size_mib:.0f} MiB on disk, {buffers_mib:.0f} MiB of "
+          f"float32 buffers")
+    print(f"  processed: {r.frames[0].status} {r.frames[0].message} complete: {complete}, {wall:.1f} s")
+    print(f"  peak resident memory {peak_mib():.0f} MiB ({peak_mib() / buffers_mib:.1f}x the input buffers; "
+          f"{base:.0f} MiB before the frame: the JAX runtime)")
+    return 0 if complete else 1
+
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--frames", type=int, default=64)
-    ap.add_argument("--size", type=int, default=512)
+    ap.add_argument("--frames", type=int, default=None)
+    ap.add_argument("--size", type=int, default=None)
     ap.add_argument("--technique", default="burley", choices=("burley", "separable"))
     ap.add_argument("--devices", type=int, default=1, help="split the host CPU into N jax devices")
+    ap.add_argument("--long", action="store_true", help="the long run: 1,000 frames of 256x256, 10%% corrupt")
+    ap.add_argument("--corrupt", type=float, default=0.1, help="fraction of corrupt frames in --long")
+    ap.add_argument("--large", type=int, help="one NxN frame in tiles: peak memory")
+    ap.add_argument("--focal-px", type=float, help="--large: focal length in px (default N/8)")
+    ap.add_argument("--samples", type=int, default=32, help="burley samples (default 32)")
+    ap.add_argument("--taps", type=int, default=25, help="separable taps (default 25)")
     args = ap.parse_args()
     if args.devices > 1:
         os.environ["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={args.devices}"
+    if args.long:
+        args.frames = args.frames or 1000
+        args.size = args.size or 256
+        return long_run(args)
+    if args.large:
+        return large_run(args)
+    args.frames = args.frames or 64
+    args.size = args.size or 512
     import numpy as np
 
     import sss_jax as sj
@@ -54,12 +249,11 @@ def main() -> int:
         r = process_frames(os.path.join(src, "*.exr"), args.technique, mat, out_dir=os.path.join(tmp, "out"),
                            progress=False)
         wall = time.perf_counter() - t0
-    peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    ok = sum(f.status == "ok" for f in r.frames)
+    ok = sum(f.status == "done" for f in r.frames)
     print(f"technique {args.technique}, {args.frames} frames of {args.size}x{args.size}, {args.devices} device(s)")
     print(f"first frame (compile + run): {first:.2f} s")
     print(f"throughput: {ok / wall:.2f} frames/s ({wall:.1f} s for {ok} frames, read + compute + write)")
-    print(f"peak resident memory: {peak_mib:.0f} MiB (one input frame: {input_bytes / 2**20:.1f} MiB)")
+    print(f"peak resident memory: {peak_mib():.0f} MiB (one input frame: {input_bytes / 2**20:.1f} MiB)")
     return 0 if ok == args.frames else 1
 
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
 import json
 import os
 import pathlib
@@ -28,8 +29,9 @@ from typing import Any, Iterator, Mapping
 
 import numpy as np
 
-__all__ = ["Frame", "SSSInputError", "read_frame", "read_channels", "write_exr", "write_png_preview",
-           "write_json_atomic", "write_bytes_atomic", "atomic_path", "display_transform", "load_channel_map"]
+__all__ = ["Frame", "SSSInputError", "read_frame", "read_channels", "read_header", "exr_is_complete", "write_exr",
+           "write_png_preview", "write_json_atomic", "write_bytes_atomic", "atomic_path", "check_writable",
+           "display_transform", "load_channel_map"]
 
 BUFFER_NAMES = ("irradiance", "depth", "albedo", "normal", "thickness", "id")
 _BACKGROUND_DEPTH = 1e9  # Blender writes 1e10 where there is no surface
@@ -131,6 +133,36 @@ def read_channels(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[
     if not channels:
         raise SSSInputError(f"{path}: no channels")
     return channels, metadata, shape
+
+
+def read_header(path: str | os.PathLike) -> tuple[dict[str, Any], tuple[int, int]]:
+    """The first subimage's header attributes and ``(H, W)``, without reading pixels (cheap)."""
+    oiio = _oiio()
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise SSSInputError(f"{path}: not a readable image ({oiio.geterror() or 'unknown format'})")
+    try:
+        spec = inp.spec()
+        return {a.name: a.value for a in spec.extra_attribs}, (spec.height, spec.width)
+    finally:
+        inp.close()
+
+
+def exr_is_complete(path: str | os.PathLike) -> bool:
+    """Whether every pixel of the file decodes (a truncated or damaged file does not)."""
+    oiio = _oiio()
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        oiio.geterror()  # clear it
+        return False
+    try:
+        spec = inp.spec()
+        pixels = inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
+        if pixels is None:
+            inp.geterror()
+        return pixels is not None
+    finally:
+        inp.close()
 
 
 def load_channel_map(source: str | os.PathLike | Mapping[str, Any]) -> dict[str, Any]:
@@ -349,9 +381,35 @@ def read_frame(
 # ------------------------------------------------------------------------------------------------------------------
 
 
+def check_writable(path: str | os.PathLike, *, create_dirs: bool = True) -> pathlib.Path:
+    """Check, before any work, that a file can be written at ``path``: its folder exists (created with its parents
+    when ``create_dirs``) and accepts a new file, and ``path`` is not a folder. The check creates and removes a
+    temporary file there, so it is true where permission bits are not (root, read-only mounts, ACLs)."""
+    path = pathlib.Path(path)
+    if path.is_dir():
+        raise SSSInputError(f"{path}: output path is a directory")
+    directory = path.parent if str(path.parent) else pathlib.Path(".")
+    if create_dirs:
+        try:
+            directory.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise SSSInputError(f"{directory}: cannot create the output directory ({exc.strerror})") from None
+    if not directory.is_dir():
+        raise SSSInputError(f"{directory}: output directory does not exist")
+    try:
+        with tempfile.TemporaryFile(prefix=".sss_jax_probe.", dir=directory):
+            pass
+    except OSError as exc:
+        raise SSSInputError(f"{directory}: output directory is not writable ({exc.strerror})") from None
+    return path
+
+
 @contextlib.contextmanager
-def atomic_path(path: str | os.PathLike) -> Iterator[pathlib.Path]:
-    """Yield a temporary path beside ``path``; on success rename it into place, on any failure remove it."""
+def atomic_path(path: str | os.PathLike, *, overwrite: bool = True) -> Iterator[pathlib.Path]:
+    """Yield a temporary path beside ``path``; on success move it into place, on any failure remove it.
+
+    ``overwrite=False`` places it only if ``path`` does not exist at that moment (a hard link, atomic across
+    processes): a file another process created meanwhile is never replaced, an ``SSSInputError`` says so."""
     path = pathlib.Path(path)
     directory = path.parent if str(path.parent) else pathlib.Path(".")
     if not directory.is_dir():
@@ -367,15 +425,36 @@ def atomic_path(path: str | os.PathLike) -> Iterator[pathlib.Path]:
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp_path, 0o666 & ~umask)
-        os.replace(tmp_path, path)
+        if overwrite:
+            os.replace(tmp_path, path)
+        else:
+            _place_new(tmp_path, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             tmp_path.unlink()
         raise
 
 
-def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> pathlib.Path:
-    with atomic_path(path) as tmp:
+def _place_new(tmp_path: pathlib.Path, path: pathlib.Path) -> None:
+    """Move ``tmp_path`` to ``path`` only where ``path`` does not exist: ``link`` fails on an existing name, so two
+    processes racing for one name cannot both win (``replace`` would let the second silently overwrite the first)."""
+    try:
+        os.link(tmp_path, path)
+    except FileExistsError:
+        raise SSSInputError(f"{path}: was created by another process while this one worked; not overwritten") from None
+    except OSError as exc:  # a file system without hard links: the closest non-atomic equivalent
+        if exc.errno not in (errno.EPERM, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EXDEV):
+            raise
+        if path.exists():
+            raise SSSInputError(f"{path}: was created by another process while this one worked; not overwritten") \
+                from None
+        os.replace(tmp_path, path)
+        return
+    tmp_path.unlink()
+
+
+def write_bytes_atomic(path: str | os.PathLike, data: bytes, *, overwrite: bool = True) -> pathlib.Path:
+    with atomic_path(path, overwrite=overwrite) as tmp:
         tmp.write_bytes(data)
     return pathlib.Path(path)
 
@@ -402,10 +481,19 @@ def write_exr(
     channel_names: list[str] | None = None,
     half: bool = False,
     attributes: Mapping[str, Any] | None = None,
+    overwrite: bool = True,
 ) -> pathlib.Path:
     """Write an ``(H, W, C)`` image (or a dict of named ``(H, W)`` channels) as a ZIP-compressed EXR, float32 or
-    half, with ``attributes`` (str, int, float) in the header. Atomic."""
+    half, with ``attributes`` (str, int, float) in the header. Atomic; ``overwrite=False`` never replaces a file
+    that exists when the write completes (see ``atomic_path``).
+
+    The path must end in ``.exr``: the values are linear scene-referred floats, and another extension would make
+    OpenImageIO write them into a format that means something else (an 8-bit PNG labelled sRGB holding linear
+    values). ``write_png_preview`` writes display-encoded previews."""
     oiio = _oiio()
+    if pathlib.Path(path).suffix.lower() != ".exr":
+        raise SSSInputError(f"{path}: an EXR output needs the .exr extension (for an sRGB PNG preview use the "
+                            "preview writer, --png on the command line)")
     if isinstance(image, Mapping):
         channel_names = list(image)
         arrays = [np.asarray(image[k], np.float32) for k in channel_names]
@@ -436,7 +524,7 @@ def write_exr(
             spec.attribute(key, float(value))
         else:
             spec.attribute(key, str(value))
-    with atomic_path(path) as tmp:
+    with atomic_path(path, overwrite=overwrite) as tmp:
         out = oiio.ImageOutput.create(str(tmp))
         if out is None or not out.open(str(tmp), spec):
             raise SSSInputError(f"{path}: cannot open for writing ({oiio.geterror()})")
@@ -464,16 +552,20 @@ def display_transform(image: np.ndarray, *, exposure: float = 0.0, transform: st
 
 
 def write_png_preview(path: str | os.PathLike, image: np.ndarray, *, exposure: float = 0.0,
-                      transform: str = "srgb") -> pathlib.Path:
-    """An 8-bit sRGB PNG preview of a linear image through ``display_transform``. Atomic."""
+                      transform: str = "srgb", overwrite: bool = True) -> pathlib.Path:
+    """An 8-bit sRGB PNG preview of a linear image through ``display_transform`` (display-encoded with the sRGB
+    transfer function, and labelled sRGB in the file). Atomic."""
     oiio = _oiio()
+    if pathlib.Path(path).suffix.lower() != ".png":
+        raise SSSInputError(f"{path}: a PNG preview needs the .png extension")
     disp = display_transform(image, exposure=exposure, transform=transform)
     if disp.ndim == 2:
         disp = disp[..., None]
     data = np.round(disp * 255).astype(np.uint8)
     h, w, c = data.shape
     spec = oiio.ImageSpec(w, h, c, oiio.UINT8)
-    with atomic_path(path) as tmp:
+    spec.attribute("oiio:ColorSpace", "sRGB")  # the values went through the sRGB OETF above: the label is true
+    with atomic_path(path, overwrite=overwrite) as tmp:
         out = oiio.ImageOutput.create(str(tmp))
         if out is None or not out.open(str(tmp), spec):
             raise SSSInputError(f"{path}: cannot open for writing ({oiio.geterror()})")

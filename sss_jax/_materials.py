@@ -69,6 +69,13 @@ def _check_range(name: str, x: Array, lo: float, hi: float | None = None, *, lo_
         raise ValueError(f"{name} must lie in {bound} (and not be NaN); got {bad.tolist()}")
 
 
+def _check_finite(name: str, x: Array) -> None:
+    """Raise a ValueError naming the parameter when a concrete value is infinite (an inf STA scale, power or light
+    makes an inf or NaN image, not a bright one)."""
+    if _is_concrete(x) and np.any(np.isinf(np.asarray(x))):
+        raise ValueError(f"{name} must be finite; got {np.asarray(x).ravel().tolist()[:3]}")
+
+
 def _same_rows(*named: tuple[str, Array]) -> None:
     rows = {n: a.shape[0] for n, a in named}
     if len(set(rows.values())) > 1:
@@ -249,6 +256,8 @@ class STAParams(eqx.Module):
         _check_range("scale", self.scale, 0.0)
         _check_range("ambient", self.ambient, 0.0)
         _check_range("thickness_mm", self.thickness_mm, 0.0, lo_open=True)
+        for name in ("distortion", "power", "scale", "ambient"):  # thickness_mm = inf is paper-thin: allowed
+            _check_finite(name, getattr(self, name))
 
 
 class DirectionalLight(eqx.Module):
@@ -271,3 +280,4 @@ class DirectionalLight(eqx.Module):
 
     def __check_init__(self):
         _check_range("light colour", self.colour, 0.0)
+        _check_finite("light colour", self.colour)

@@ -129,7 +129,7 @@ def test_output_directory_that_cannot_exist(tmp_path, capsys):
 def test_output_into_missing_directory(tmp_path, capsys):
     inp = good_exr(tmp_path / "good.exr")
     out = tmp_path / "nowhere" / "o.exr"
-    assert run_cli(["apply", str(inp), "-o", str(out)] + MATERIAL) == 1
+    assert run_cli(["apply", str(inp), "-o", str(out)] + MATERIAL) == 2  # refused before the frame runs
     assert "output directory does not exist" in capsys.readouterr().err
     assert not out.parent.exists()
 
@@ -285,7 +285,7 @@ def test_preset_without_sta_parameters_for_sta(tmp_path):
 
 
 def test_batch_bad_frames_fail_alone(tmp_path):
-    from sss_jax._batch import process_frames
+    from sss_jax._batch import MANIFEST_NAME, process_frames
 
     src = tmp_path / "src"
     src.mkdir()
@@ -296,22 +296,58 @@ def test_batch_bad_frames_fail_alone(tmp_path):
     two_part_exr(src / "e_mismatch.exr")
     exr_with(src / "f_good.exr", G=np.full((6, 7), 0.5))
     out = tmp_path / "out"
-    out.mkdir()
-    (out / "g_blocked.exr").mkdir()  # the output path is taken by a directory: writing this frame fails
-    exr_with(src / "g_blocked.exr")
     mat = sj.BurleyMaterial([0.8, 0.6, 0.5], [1.0, 1.0, 1.0])
     r = process_frames(str(src / "*.exr"), "burley", mat, out_dir=out, samples=4, focal_px=100.0, progress=False,
-                       skip_existing=False)
+                       resume=False)
     status = {pathlib.Path(f.input).name: (f.status, f.message) for f in r.frames}
-    assert status["a_good.exr"][0] == "ok" and status["f_good.exr"][0] == "ok"
+    assert status["a_good.exr"][0] == "done" and status["f_good.exr"][0] == "done"
     expected = {"b_nan.exr": "irradiance has 1 non-finite values", "c_nodepth.exr": r"missing depth channel",
-                "d_empty.exr": "file is empty", "e_mismatch.exr": "subimage 1 is 3x2", "g_blocked.exr": "directory"}
+                "d_empty.exr": "file is empty", "e_mismatch.exr": "subimage 1 is 3x2"}
     for name, message in expected.items():
         st, msg = status[name]
         assert st == "failed" and re.search(message, msg, re.IGNORECASE), (name, msg)
-    # only the finished frames are there: no temporary or partial files
-    assert sorted(p.name for p in out.iterdir()) == ["a_good.exr", "f_good.exr", "g_blocked.exr"]
-    assert list((out / "g_blocked.exr").iterdir()) == []
+    # only the finished frames are there: no temporary or partial files; the manifest names every bad frame
+    assert sorted(p.name for p in out.iterdir()) == ["a_good.exr", "f_good.exr", MANIFEST_NAME]
+    book = json.loads((out / MANIFEST_NAME).read_text())
+    failed = {pathlib.Path(f["input"]).name: f["message"] for f in book["frames"] if f["status"] == "failed"}
+    assert sorted(failed) == sorted(expected) and all(n in failed[n] for n in failed)
+
+
+def test_an_output_path_taken_by_a_directory_stops_the_batch_before_any_frame(tmp_path, capsys):
+    # every output path is checked before the work starts: no frame is computed only to fail at its write
+    src = tmp_path / "src"
+    src.mkdir()
+    exr_with(src / "a.exr")
+    exr_with(src / "b.exr")
+    out = tmp_path / "out"
+    (out / "b.exr").mkdir(parents=True)
+    assert run_cli(["apply", str(src / "*.exr"), "--out-dir", str(out)] + MATERIAL) == 2
+    assert "b.exr: output path is a directory" in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == ["b.exr"] and list((out / "b.exr").iterdir()) == []
+
+
+def test_montecarlo_json_into_a_folder_that_takes_no_file_fails_before_simulating(tmp_path, capsys, monkeypatch):
+    import os
+    import tempfile
+
+    import sss_jax._montecarlo as mc
+
+    if os.geteuid() != 0:
+        folder = tmp_path / "ro"
+        folder.mkdir()
+        folder.chmod(0o555)
+    else:  # root ignores permission bits; sysfs refuses new files to everyone
+        folder = pathlib.Path("/sys/kernel")
+        try:
+            tempfile.TemporaryFile(dir=folder).close()
+            pytest.skip("no folder here refuses new files to root")
+        except OSError:
+            pass
+    ran = []
+    monkeypatch.setattr(mc, "simulate", lambda *a, **k: ran.append(1))
+    rc = run_cli(["montecarlo", "--albedo", "0.9", "--photons", "1000", "--json", str(folder / "mc.json")])
+    assert rc == 2 and ran == []  # refused before the simulation, not a traceback after it
+    assert "not writable" in capsys.readouterr().err
 
 
 # ------------------------------------------------------------------------------------------------------------------

@@ -2,6 +2,7 @@
 
 import json
 import math
+import pathlib
 
 import numpy as np
 import OpenImageIO as oiio
@@ -110,6 +111,16 @@ def test_png_preview_is_srgb(tmp_path):
     assert got[0, 0, 0] == round(255 * (1.055 * 0.5 ** (1 / 2.4) - 0.055))
     assert got[0, 1, 0] == round(255 * 12.92 * 0.002)
     assert got[0, 2, 0] == 255
+    # the file says what its values are: display-encoded sRGB, in PNG's own sRGB chunk (PNG spec 11.3.3.5: the
+    # 4-byte chunk type "sRGB" follows the chunk's length), which viewers honour
+    assert b"sRGB" in p.read_bytes()
+
+
+def test_exr_writer_refuses_other_extensions(tmp_path):
+    # OpenImageIO picks the format from the extension: x.png would get the linear floats as 8-bit "sRGB"
+    with pytest.raises(_io.SSSInputError, match=r"x.png: an EXR output needs the .exr extension"):
+        _io.write_exr(tmp_path / "x.png", np.full((2, 2, 3), 0.5, np.float32))
+    assert list(tmp_path.iterdir()) == []
 
 
 @pytest.mark.parametrize("content, message", [
@@ -218,7 +229,7 @@ def test_cli_apply_single_and_many(tmp_path, capsys):
     assert inp.spec().getattribute("sss_jax:technique") == "burley"
     inp.close()
     assert main(["apply", str(tmp_path / "*.exr"), "--out-dir", str(tmp_path / "many")] + args) == 0
-    assert sorted(p.name for p in (tmp_path / "many").iterdir()) == ["a.exr", "b.exr"]
+    assert sorted(p.name for p in (tmp_path / "many").iterdir()) == ["a.exr", "b.exr", "sss_jax_manifest.json"]
 
 
 def test_cli_apply_reports_each_failed_frame_and_goes_on(tmp_path, capsys):
@@ -231,7 +242,11 @@ def test_cli_apply_reports_each_failed_frame_and_goes_on(tmp_path, capsys):
     err = capsys.readouterr().err
     assert rc == 1
     assert "broken.exr" in err and "1 of 2 frame(s) failed" in err
-    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["good.exr"]
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["good.exr", "sss_jax_manifest.json"]
+    book = json.loads((tmp_path / "o" / "sss_jax_manifest.json").read_text())
+    status = {pathlib.Path(f["input"]).name: (f["status"], f["message"]) for f in book["frames"]}
+    assert status["good.exr"] == ("done", "") and status["broken.exr"][0] == "failed"
+    assert "broken.exr" in status["broken.exr"][1] and book["state"] == "complete"
 
 
 @pytest.mark.parametrize("argv, message", [
@@ -242,6 +257,13 @@ def test_cli_apply_reports_each_failed_frame_and_goes_on(tmp_path, capsys):
     (["--technique", "burley", "--d-mm", "1,1,1", "--taps", "4"], "--taps must be odd"),
     (["--technique", "burley", "--d-mm=-1,1,1"], r"d_mm must lie in \[0.0, inf\]"),
     (["--technique", "burley", "--d-mm", "1,1,1", "--albedo", "2,0,0"], r"albedo must lie in \[0.0, 1.0\]"),
+    # STA's own inputs, checked before any frame runs (albedo 2 and thickness -3 made values of 1.4e4)
+    (["--technique", "sta", "--light-dir", "0,0,1", "--albedo", "2,0.5,0.5"], r"--albedo must be 3 values in \[0, 1\]"),
+    (["--technique", "sta", "--light-dir", "0,0,1", "--thickness=-3"], r"--thickness must be >= 0"),
+    (["--technique", "sta", "--light-dir", "0,0,1", "--sta-scale", "inf"], r"scale must be finite"),
+    (["--technique", "sta", "--light-dir", "0,0,1", "--light-colour", "inf"], r"light colour must be finite"),
+    (["--technique", "sta", "--light-dir", "0,0,1", "--sta-power=-1"], r"power must lie in \[0.0, inf\]"),
+    (["--technique", "reference", "--d-mm", "1,1,1", "--radius-px=-1"], r"--radius-px must be >= 0"),
     (["--technique", "burley", "--d-mm", "1,1,1", "--focal-px=-3"], "--focal-px must be a finite positive"),
 ])
 def test_cli_apply_bad_arguments(tmp_path, capsys, argv, message):

@@ -14,6 +14,17 @@ EPILOG = """examples:
   sss-jax apply 'shots/*.exr' --out-dir sss/ --technique burley --albedo 0.8,0.6,0.5 --d-mm 3,1.4,0.8 --png
   sss-jax apply frame.exr -o sta.exr --technique sta --albedo 0.8,0.6,0.5 --light-dir 0.3,-0.4,0.9 --thickness 0.5
   sss-jax apply frame.exr -o skin.exr --technique separable --preset my_skin.json --focal-px 1200
+  sss-jax apply 'shots/*/beauty.exr' --out-dir sss/ --technique burley --preset skin --resume
+
+Outputs: --out-dir keeps each input's path below the inputs' common folder (shots/a/beauty.exr ->
+sss/a/beauty.exr), so inputs of one name never share an output; sss/sss_jax_manifest.json lists every frame's
+input, output, status (done, failed with the message, skipped, pending) and seconds, kept true on Ctrl-C. Before
+any frame runs, the batch is refused (exit 2, nothing written) when two inputs would write one output, an output is
+an input, an existing output was made from another input (--overwrite allows it), or a folder is not writable.
+--resume skips frames whose output is complete and was made from the same input (path, size, mtime) with the same
+technique, parameters and sss_jax version (recorded in its EXR header). Frames larger than a tile's budget run in
+tiles overlapping by the kernel's reach (same result); sample or tap counts beyond the footprint's pixels are
+clamped with a warning.
 
 Input channels: R,G,B irradiance and Z planar depth (scene units; inf = no surface); optional albedo.R/G/B, N.X/Y/Z,
 thickness, id (0 = no SSS: passes through untouched). A Blender multi-layer EXR works as it is (DiffDir + DiffInd,
@@ -32,7 +43,7 @@ def register(subparsers) -> None:
     )
     p.add_argument("inputs", nargs="+", help="input EXR files or glob patterns")
     where = p.add_mutually_exclusive_group(required=True)
-    where.add_argument("-o", "--output", type=pathlib.Path, help="output EXR (one input)")
+    where.add_argument("-o", "--output", type=pathlib.Path, help="output EXR (one input; must end in .exr)")
     where.add_argument("--out-dir", type=pathlib.Path, help="output directory: each output is named after its input")
     p.add_argument("--technique", required=True, help="sta, separable, burley or reference")
     p.add_argument("--albedo", type=rgb_triple, help="surface albedo R,G,B in [0,1] (overrides an albedo pass)")
@@ -60,6 +71,9 @@ def register(subparsers) -> None:
     sta.add_argument("--thickness", type=float, help="constant thickness in scene units where there is no thickness channel")
     p.add_argument("--half", action="store_true", help="write half-float EXR")
     p.add_argument("--png", action="store_true", help="also write an sRGB PNG preview beside each output")
+    p.add_argument("--resume", action="store_true", help="skip frames whose output is complete and was made from the "
+                   "same input with the same technique, parameters and version")
+    p.add_argument("--overwrite", action="store_true", help="allow replacing existing outputs made from other inputs")
     p.set_defaults(func=run)
 
 
@@ -114,34 +128,67 @@ def run(args) -> int:
         inputs = expand_inputs(args.inputs)
         if args.output is not None and len(inputs) != 1:
             raise ValueError(f"-o takes one input, got {len(inputs)}: use --out-dir for many")
+        sta = args.technique == "sta"
+        if args.output is not None and args.output.suffix.lower() != ".exr":
+            raise ValueError(f"-o {args.output}: the output is a linear float EXR and needs the .exr extension "
+                             "(--png adds an sRGB PNG preview beside it)")
+        # STA takes --albedo as it is (the materials of the other techniques check their own)
+        if sta and args.albedo is not None and not all(0.0 <= a <= 1.0 for a in args.albedo):  # NaN fails too
+            raise ValueError(f"--albedo must be 3 values in [0, 1], got {','.join(map(str, args.albedo))}")
+        if args.thickness is not None and not (args.thickness >= 0):
+            raise ValueError(f"--thickness must be >= 0 scene units, got {args.thickness}")
+        if args.radius_px is not None and args.radius_px < 0:
+            raise ValueError(f"--radius-px must be >= 0, got {args.radius_px}")
         material, light = _material(args)
-        if args.out_dir is not None:
-            args.out_dir.mkdir(parents=True, exist_ok=True)
     except (ValueError, OSError) as exc:
         print(f"sss-jax apply: {exc}", file=sys.stderr)
         return 2
 
-    from .._batch import process_frames
+    import warnings
+
+    from .._batch import Interrupted, process_frames
 
     if args.technique == "reference" and args.radius_px is None:
         args.radius_px = _reference_radius(inputs, args, material)
     sta = args.technique == "sta"
-    result = process_frames(
-        inputs, args.technique, material if not sta else (material, light),
-        out_dir=args.out_dir, outputs=None if args.output is None else [args.output], png=args.png,
-        focal_px=args.focal_px, mm_per_unit=args.mm_per_unit, channel_map=args.channel_map,
-        depth_kind=args.depth_kind, use_albedo_pass=args.albedo is None, samples=args.samples, taps=args.taps,
-        radius_px=args.radius_px, half=args.half, skip_existing=False, progress=len(inputs) > 1,
-        sta_albedo=args.albedo, sta_thickness=args.thickness,
-        on_frame_done=lambda r: print(
-            f"{'FAILED ' if r.status == 'failed' else ''}{r.input}"
-            + (f": {r.message}" if r.status == "failed" else f" -> {r.output} ({r.seconds:.2f} s)"),
-            file=sys.stderr),
-    )
+
+    def report(r):
+        if r.status == "failed":
+            line = f"FAILED {r.input}: {r.message}"
+        elif r.status == "skipped":
+            line = f"{r.input} -> {r.output} (skipped: {r.message})"
+        else:
+            line = f"{r.input} -> {r.output} ({r.seconds:.2f} s)" + (f"; {r.message}" if r.message else "")
+        print(line, file=sys.stderr)
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # each frame's clamp warning is in its report line
+            result = process_frames(
+                inputs, args.technique, material if not sta else (material, light),
+                out_dir=args.out_dir, outputs=None if args.output is None else [args.output], png=args.png,
+                focal_px=args.focal_px, mm_per_unit=args.mm_per_unit, channel_map=args.channel_map,
+                depth_kind=args.depth_kind, use_albedo_pass=args.albedo is None, samples=args.samples, taps=args.taps,
+                radius_px=args.radius_px, half=args.half, resume=args.resume, overwrite=args.overwrite,
+                progress=len(inputs) > 1 or sys.stderr.isatty(), sta_albedo=args.albedo, sta_thickness=args.thickness,
+                on_frame_done=report,
+            )
+    except KeyboardInterrupt as exc:
+        code = 128 + getattr(exc, "signum", 2)
+        where = f"; {args.out_dir / 'sss_jax_manifest.json'} lists the finished frames" if args.out_dir else ""
+        print(f"sss-jax apply: interrupted: only complete frames were written{where}", file=sys.stderr)
+        return code
+    except (ValueError, TypeError, OSError) as exc:
+        print(f"sss-jax apply: {exc}", file=sys.stderr)
+        return 2
     if result.failed:
         print(f"sss-jax apply: {len(result.failed)} of {len(result.frames)} frame(s) failed: "
               + "; ".join(f.input for f in result.failed), file=sys.stderr)
         return 1
+    skipped = sum(f.status == "skipped" for f in result.frames)
+    if skipped:
+        print(f"sss-jax apply: {skipped} of {len(result.frames)} frame(s) skipped (--resume: already complete)",
+              file=sys.stderr)
     return 0
 
 

@@ -41,7 +41,7 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from .._io import write_json_atomic
+    from .._io import SSSInputError, check_writable, write_json_atomic
     from .._montecarlo import simulate
 
     try:
@@ -53,6 +53,10 @@ def run(args) -> int:
             raise ValueError(f"--max-events must be >= 1, got {args.max_events}")
         if not args.json.parent.is_dir():
             raise ValueError(f"--json: directory {args.json.parent} does not exist")
+        try:  # before the simulation: a folder that takes no file fails now, not after minutes of work
+            check_writable(args.json, create_dirs=False)
+        except SSSInputError as exc:
+            raise ValueError(f"--json: {exc}") from None
         slab = None if args.slab_mm is None else args.slab_mm / args.mfp_mm
         result = simulate(args.albedo, photons=args.photons, g=args.g, eta=args.eta, slab_mfp=slab,
                           incidence=args.incidence, seed=args.seed, max_events=args.max_events,
@@ -62,7 +66,11 @@ def run(args) -> int:
         return 2
     data = result.to_json()
     data["mfp_mm"] = args.mfp_mm
-    write_json_atomic(args.json, data)
+    try:
+        write_json_atomic(args.json, data)
+    except (OSError, ValueError) as exc:  # the folder changed during the run
+        print(f"sss-jax montecarlo: --json {args.json}: cannot write ({exc})", file=sys.stderr)
+        return 1
     print(f"total reflectance {result.total_reflectance:.5f} +- {result.total_reflectance_stderr:.5f}"
           + (f", transmittance {result.total_transmittance:.5f} +- {result.total_transmittance_stderr:.5f}"
              if slab is not None else "")
