@@ -73,6 +73,7 @@ from .engines import (
     to_engine as to_engine,
 )
 from ._advise import advise as advise
+from ._batch import BatchResult as BatchResult, FrameResult as FrameResult, process_frames as process_frames
 from ._montecarlo import MCResult as MCResult, simulate as simulate, to_tabulated_profile as to_tabulated_profile
 from ._slab import MediumMaterial as MediumMaterial
 from ._fitting import (

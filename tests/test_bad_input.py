@@ -171,6 +171,12 @@ def test_glob_matching_nothing_and_too_many_for_o(tmp_path, capsys):
                        sj.TwoGaussianMaterial([1, 1, 1], [1, 1, 1], [1, 1, 1], [1, 1, 1]), sj.Camera(10.0)),
      "burley needs a BurleyMaterial"),
     (lambda: sj.Camera(-1.0), "focal_px must be a finite positive number"),
+    (lambda: sj.translucency(sj.Buffers(irradiance=jnp.ones((4, 4, 3)), depth=jnp.ones((4, 4))), sj.STAParams(),
+                             sj.Camera(10.0), sj.DirectionalLight((0.0, 0.0, 1.0)), albedo=(40.0, 0.5, 0.5)),
+     r"albedo must lie in \[0, 1\]"),
+    (lambda: sj.translucency(sj.Buffers(irradiance=jnp.ones((4, 4, 3)), depth=jnp.ones((4, 4))), sj.STAParams(),
+                             sj.Camera(10.0), sj.DirectionalLight((0.0, 0.0, 1.0)), thickness=-2.0),
+     "thickness must be >= 0"),
     (lambda: sj.get_technique("blur"), "valid techniques: sta, separable, burley, reference"),
 ])
 def test_python_api_bad_input(make, message):

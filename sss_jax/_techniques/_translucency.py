@@ -7,6 +7,7 @@ from typing import Callable
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 from .._checks import checked
@@ -15,7 +16,7 @@ from .._materials import BurleyMaterial, DirectionalLight, STAParams
 from .._profiles import burley_cdf
 from .._scene import Buffers, Camera, camera_positions, normals_from_depth
 from .._slab import MediumMaterial, slab_transmittance
-from ._common import _prepare, _work_dtype
+from ._common import _is_concrete, _prepare, _work_dtype
 
 
 def _safe_pow(x: Array, p: Array) -> Array:
@@ -152,6 +153,13 @@ def translucency(
     """
     if model not in TRANSLUCENCY_MODELS:
         raise ValueError(f"model={model!r} is not one of {TRANSLUCENCY_MODELS}")
+    # the same ranges the batch and the CLI check: out of range, the added light explodes (7e16 from albedo 40)
+    if albedo is not None and _is_concrete(albedo):
+        a = np.asarray(albedo, np.float64)
+        if not np.all((a >= 0) & (a <= 1)):
+            raise ValueError(f"albedo must lie in [0, 1] (and not be NaN), got {a.tolist()}")
+    if thickness is not None and _is_concrete(thickness) and not np.all(np.asarray(thickness, np.float64) >= 0):
+        raise ValueError(f"thickness must be >= 0 scene units (inf: infinitely thick), got {thickness}")
     if not isinstance(light, DirectionalLight):
         raise TypeError(f"translucency needs a DirectionalLight, got {type(light).__name__}")
     if model in _TRANSMITTANCE:
