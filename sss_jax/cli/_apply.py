@@ -146,7 +146,7 @@ def run(args) -> int:
 
     import warnings
 
-    from .._batch import Interrupted, process_frames
+    from .._batch import process_frames
 
     if args.technique == "reference" and args.radius_px is None:
         args.radius_px = _reference_radius(inputs, args, material)
