@@ -12,6 +12,8 @@ import pytest
 
 import sss_jax as sj
 from sss_jax import _fit_presets as FP
+from sss_jax._fit_presets._files import _markdown_table
+from sss_jax._fit_presets._references import _r_max_mfp
 from sss_jax import _io, _montecarlo, _presets
 from sss_jax.cli import main as cli
 
@@ -241,7 +243,7 @@ def test_rerunning_reproduces_a_preset_and_its_monte_carlo(tmp_path):
     prov = cached["provenance"]
     blue = cached["profiles"][2]
     again = _montecarlo.simulate(prov["single_scattering_albedo"][2], photons=prov["photons"], eta=prov["eta"],
-                                    seed=prov["seed"] + 2, r_max_mfp=FP._r_max_mfp(prov["single_scattering_albedo"][2]),
+                                    seed=prov["seed"] + 2, r_max_mfp=_r_max_mfp(prov["single_scattering_albedo"][2]),
                                     bins=len(blue["profile"]["r_mfp"]))
     np.testing.assert_allclose(again.total_reflectance, blue["total_reflectance"], rtol=1e-12)
     np.testing.assert_allclose((again.r_mfp * again.R), blue["profile"]["rR"], rtol=1e-9, atol=1e-15)
@@ -341,5 +343,5 @@ def test_engine_table_covers_every_preset_and_engine():
         np.testing.assert_allclose(eng["vs_burley"]["unreal"]["energy_lost"], expected, atol=1e-6)
     # the table in fits/README.md is the one these files give (the script wrote both)
     readme = (FITS / "README.md").read_text()
-    for line in FP._markdown_table(rows):
+    for line in _markdown_table(rows):
         assert line in readme
