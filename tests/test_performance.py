@@ -129,7 +129,8 @@ def test_grey_channels_share_one_kernel_evaluation():
     assert grey_exps.count((n,)) >= 4 and rgb_exps.count((n,)) - grey_exps.count((n,)) == 2 * 4 + 3
     # and the image is the one the three-channel evaluation gives
     shared = np.asarray(sj.burley(b, grey, CAM, **bilinear))
-    per_channel = np.asarray(_burley_impl(b, grey, CAM, 8, "post", "bilinear", None, 0.5, 3, True))
+    per_channel = np.asarray(_burley_impl(b, grey, CAM, samples=8, albedo_mode="post", interpolation="bilinear",
+                                          capacity=None, min_footprint_px=0.5, weight_channels=3, truncate=True))
     np.testing.assert_allclose(shared, per_channel, rtol=1e-12, atol=1e-14)
     assert np.abs(shared - 0.9 * np.asarray(b.irradiance)[..., :1]).max() > 1e-3  # it did scatter
 
@@ -141,7 +142,9 @@ def test_untruncated_frames_share_the_sample_radii():
     b = _scene(coverage_rows=24, h=24, w=32)
     small = sj.BurleyMaterial(albedo=[0.9, 0.8, 0.7], d_mm=[0.6, 0.3, 0.15])  # 0.12 px: diagonal 40 px = 333 d
     large = sj.BurleyMaterial(albedo=[0.9, 0.8, 0.7], d_mm=[60.0, 30.0, 15.0])  # 12 px: diagonal 3.3 d
-    impl = lambda m, truncate: np.asarray(_burley_impl(b, m, CAM, 8, "post", "bilinear", None, 0.0, 3, truncate))
+    impl = lambda m, truncate: np.asarray(_burley_impl(b, m, CAM, samples=8, albedo_mode="post",
+                                                       interpolation="bilinear", capacity=None, min_footprint_px=0.0,
+                                                       weight_channels=3, truncate=truncate))
     kw = dict(samples=8, min_footprint_px=0.0, compact=False, interpolation="bilinear")
     out_small = np.asarray(sj.burley(b, small, CAM, **kw))
     np.testing.assert_allclose(out_small, impl(small, True), rtol=1e-12, atol=1e-14)
@@ -167,10 +170,12 @@ def test_separable_bands_compute_only_their_own_levels_and_agree_with_one_band(a
     onehot = np.zeros((2, h, w))
     onehot[0, :, : w // 2], onehot[1, :, w // 2 :] = 1, 1
     w_table = jnp.asarray(rng.uniform(0.1, 1.0, (2, 3, n)))
-    args = (e, z, jnp.asarray(valid), level_weights, jnp.asarray([2.0, 5.0]), jnp.asarray(~valid), jnp.asarray(onehot),
-            w_table, jnp.full((h, w), 0.2), jnp.asarray(np.linspace(-1, 1, n)), jnp.asarray(10.0), True, "bilinear")
-    banded = np.asarray(_separable_pass(*args, rows_per_band=8, axis=axis))
-    whole = np.asarray(_separable_pass(*args, rows_per_band=h, axis=axis))
+    args = dict(e=e, z=z, valid=jnp.asarray(valid), level_weights=level_weights,
+                level_reach_px=jnp.asarray([2.0, 5.0]), skip=jnp.asarray(~valid), onehot=jnp.asarray(onehot),
+                w_table=w_table, inv_reach_mm=jnp.full((h, w), 0.2), unit_offsets=jnp.asarray(np.linspace(-1, 1, n)),
+                mm_per_unit=jnp.asarray(10.0), follow_surface=True, interpolation="bilinear", axis=axis)
+    banded = np.asarray(_separable_pass(**args, rows_per_band=8))
+    whole = np.asarray(_separable_pass(**args, rows_per_band=h))
     np.testing.assert_allclose(banded, whole, rtol=1e-13, atol=1e-13)
     np.testing.assert_array_equal(banded[:, ~valid], np.asarray(e)[:, ~valid])  # rows without SSS keep their value
     assert np.abs(banded - np.asarray(e))[:, valid].max() > 1e-2  # and the others were filtered
@@ -230,10 +235,12 @@ def test_separable_pass_matches_a_pixel_by_pixel_loop(axis, linear, taps_per_fus
     expected = t(_numpy_depth_aware_pass(t(e), t(z), t(valid), w_table, t(rows), reach_px, t(reach_mm), unit,
                                          mm_per_unit, linear))
     onehot = np.stack([rows == 0, rows == 1]).astype(np.float64)
-    got = _separable_pass(jnp.asarray(e), jnp.asarray(z), jnp.asarray(valid), jnp.asarray(valid[None] * 1.0),
-                          jnp.asarray([reach_px]), jnp.asarray(~valid), jnp.asarray(onehot), jnp.asarray(w_table),
-                          jnp.asarray(1.0 / reach_mm), jnp.asarray(unit), jnp.asarray(mm_per_unit), True,
-                          "bilinear" if linear else "nearest", rows_per_band=4, axis=axis)
+    got = _separable_pass(e=jnp.asarray(e), z=jnp.asarray(z), valid=jnp.asarray(valid),
+                          level_weights=jnp.asarray(valid[None] * 1.0), level_reach_px=jnp.asarray([reach_px]),
+                          skip=jnp.asarray(~valid), onehot=jnp.asarray(onehot), w_table=jnp.asarray(w_table),
+                          inv_reach_mm=jnp.asarray(1.0 / reach_mm), unit_offsets=jnp.asarray(unit),
+                          mm_per_unit=jnp.asarray(mm_per_unit), follow_surface=True,
+                          interpolation="bilinear" if linear else "nearest", rows_per_band=4, axis=axis)
     np.testing.assert_allclose(np.asarray(got), expected, rtol=1e-12, atol=1e-12)
     assert np.abs(expected - e)[:, valid].max() > 0.1  # it filtered
 
@@ -252,13 +259,16 @@ def test_materials_sharing_a_kernel_share_its_weight_term():
     ids = np.ones((24, 32), np.int32)
     ids[:, 10:20], ids[:, 20:] = 2, 3
     b = sj.Buffers(irradiance=b.irradiance, depth=b.depth, material_id=jnp.asarray(ids))
-    args = (b, mats, CAM, 9, "post", True, "bilinear", separable_module.SCALE_LEVELS, 0.5)
+    options = dict(taps=9, albedo_mode="post", follow_surface=True, interpolation="bilinear",
+                   scale_levels=separable_module.SCALE_LEVELS, min_footprint_px=0.5)
     shared = np.asarray(sj.separable(b, mats, CAM, taps=9))
-    np.testing.assert_allclose(shared, np.asarray(_separable_impl(*args, None)), rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(shared, np.asarray(_separable_impl(b, mats, CAM, **options, kernel_groups=None)),
+                               rtol=1e-12, atol=1e-14)
     albedo = np.asarray(mats.albedo)[ids - 1]
     assert np.abs(shared - albedo * np.asarray(b.irradiance)).max() > 1e-3  # it scattered (not local shading)
     # one per-pixel selection (an equality test against the material row) per kernel: two, not three
-    eqs = {g: len(_equations(lambda bb, g=g: _separable_impl(bb, *args[1:], g), b, primitive="eq"))
+    eqs = {g: len(_equations(lambda bb, g=g: _separable_impl(bb, mats, CAM, **options, kernel_groups=g), b,
+                             primitive="eq"))
            for g in (None, (0, 1, 0))}
     assert eqs[(0, 1, 0)] == eqs[None] - 1
 
