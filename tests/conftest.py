@@ -19,6 +19,14 @@ if not SHARED.exists():  # CI clones the repo with shared/ beside it; a develope
     SHARED = pathlib.Path(__file__).resolve().parents[1].parent / "shared"
 
 
+@pytest.fixture(autouse=True, scope="module")
+def _fresh_compilation_caches():
+    """Each test file starts from empty JAX caches: the compiled programs of 400 tests held in one process grew the
+    run's memory until XLA's compiler crashed late in the suite (it passes alone)."""
+    yield
+    jax.clear_caches()
+
+
 @pytest.fixture
 def as_users_run_it():
     """The messages a user sees: the test run checks every annotation (``--jaxtyping-packages`` in pyproject.toml),
