@@ -35,6 +35,7 @@ import glob
 import hashlib
 import json
 import math
+from numbers import Real
 import os
 import pathlib
 import signal
@@ -175,13 +176,21 @@ def _check_plan(jobs: list[tuple[pathlib.Path, pathlib.Path]], png: bool, manife
                             + (f"; and {len(problems) - 10} more" if len(problems) > 10 else ""))
 
 
-def _run_technique(technique: str, buffers: Buffers, material, camera: Camera, options: dict):
+# What a tile runs with: a tile's edge is not the frame's, and a tile's pixel grid starts at its own corner, so the
+# rules that depend on where the frame ends or on the pixel's place in it are the frame-independent ones: Burley's
+# fixed spiral, and the kernel renormalised at the edge (the overlap of the kernel's reach makes that exact inside).
+TILE_RULES = {"burley": dict(pattern="fixed", border="renormalise"), "separable": dict(border="renormalise"),
+              "reference": dict(border="renormalise")}
+
+
+def _run_technique(technique: str, buffers: Buffers, material, camera: Camera, options: dict, rules=None):
+    rules = rules or {}
     if technique == "burley":
-        return burley(buffers, material, camera, samples=options["samples"])
+        return burley(buffers, material, camera, samples=options["samples"], **rules)
     if technique == "separable":
-        return separable(buffers, material, camera, taps=options["taps"])
+        return separable(buffers, material, camera, taps=options["taps"], **rules)
     if technique == "reference":
-        return reference(buffers, material, camera, radius_px=options["radius_px"])
+        return reference(buffers, material, camera, radius_px=options["radius_px"], **rules)
     params, light = material
     return translucency(buffers, params, camera, light, albedo=options.get("albedo"),
                         thickness=options.get("thickness"))
@@ -355,7 +364,7 @@ def _separable_reach_mm(material, taps: int) -> np.ndarray:
     return np.asarray([float(np.max(np.abs(np.asarray(k.offsets_mm, np.float64)))) for k in rows])
 
 
-def _next_pow2(n: float) -> int:
+def _next_pow2(n: Real) -> int:
     return 1 << max(0, math.ceil(n) - 1).bit_length()
 
 
@@ -731,7 +740,8 @@ def process_frames(
                 validate_buffers(b, materials=count)
                 tile_cam = cam if technique != "sta" else Camera(cam.focal_px, cam.mm_per_unit,
                                                                  principal_point=(cx - xe0, cy - ye0))
-                res = np.asarray(_run_technique(technique, b, material, tile_cam, plan.options))
+                res = np.asarray(_run_technique(technique, b, material, tile_cam, plan.options,
+                                                TILE_RULES.get(technique)))
                 out[y:y + ty, x:x + tx] = res[r:r + ty, r:r + tx]
                 if tile_bar is not None:
                     tile_bar.update(1)

@@ -406,10 +406,12 @@ def test_samples_beyond_the_footprint_are_clamped_with_a_warning(frames, tmp_pat
 STA_MATERIAL = (sj.STAParams(thickness_mm=2.0), sj.DirectionalLight([0.3, -0.4, 0.9]))
 
 
+# tiles run with the frame-independent rules (TILE_RULES): the fixed spiral, the kernel renormalised at the edge
 @pytest.mark.parametrize("technique, material, options, direct", [
-    ("burley", MAT, dict(samples=8), lambda b, c: sj.burley(b, MAT, c, samples=8)),
-    ("separable", MAT, dict(taps=9), lambda b, c: sj.separable(b, MAT, c, taps=9)),
-    ("reference", MAT, dict(radius_px=4), lambda b, c: sj.reference(b, MAT, c, radius_px=4)),
+    ("burley", MAT, dict(samples=8),
+     lambda b, c: sj.burley(b, MAT, c, samples=8, pattern="fixed", border="renormalise")),
+    ("separable", MAT, dict(taps=9), lambda b, c: sj.separable(b, MAT, c, taps=9, border="renormalise")),
+    ("reference", MAT, dict(radius_px=4), lambda b, c: sj.reference(b, MAT, c, radius_px=4, border="renormalise")),
     ("sta", STA_MATERIAL, dict(sta_thickness=0.5),
      lambda b, c: sj.translucency(b, STA_MATERIAL[0], c, STA_MATERIAL[1], thickness=0.5)),
 ])
