@@ -383,7 +383,7 @@ def separable_edge_error(buffers: Buffers, material, camera: Camera, taps: int,
     valid = np.asarray(_sss_mask(buffers))
     if not valid.any():
         return 0.0, 0.0, 0.0
-    kernels = material.separable_kernels(taps, jnp.float64 if jax.config.read("jax_enable_x64") else jnp.float32)
+    kernels = material.separable_kernels(taps, jax.dtypes.canonicalize_dtype(jnp.float64))
     offsets, weights = np.asarray(kernels.offsets_mm, np.float64), np.asarray(kernels.weights, np.float64)
     depth = np.asarray(buffers.depth, np.float64)[valid]
     ppm = float(camera.focal_px) / (float(np.min(depth)) * float(camera.mm_per_unit))
