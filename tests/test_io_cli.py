@@ -207,8 +207,9 @@ def test_cli_demo_writes_images_and_summary(tmp_path, capsys):
     ref, mask = read("reference"), np.asarray(sj.demo_scene(48, 64).buffers.material_id) > 0
     for name in ("burley_8", "separable_preintegrated_9", "local"):
         diff = (read(name) - ref)[mask]
+        # the summary keeps five decimals
         assert rows[name]["rel_l2_vs_reference"] == pytest.approx(np.linalg.norm(diff) / np.linalg.norm(ref[mask]),
-                                                                  rel=1e-5)
+                                                                  abs=6e-6)
     assert 0 < rows["burley_8"]["rel_l2_vs_reference"] < rows["local"]["rel_l2_vs_reference"]
     assert rows["sta"]["energy_ratio_rgb"][0] > 1  # STA adds light
     assert "rel L2 vs ref" in capsys.readouterr().out
