@@ -151,7 +151,7 @@ def transmission_curves(preset: dict, slab: dict, *, points: int = 60) -> dict[s
     """A preset's slab transmittance at normal light and view from its fitted STA, the closed-form thin model and the
     tabulated slab model, against its cached Monte Carlo ``slab`` block: the values at the Monte Carlo thicknesses,
     their relative L2 over all channels, and fine curves over t/d for plots."""
-    from ._slab import slab_transmittance
+    from .._slab import slab_transmittance
 
     sta = preset["sta"]
     f64 = jax.dtypes.canonicalize_dtype(jnp.float64)  # float32 unless x64 is on (the preset script turns it on)
@@ -186,8 +186,8 @@ def engine_errors(albedo, d_mm: np.ndarray, mc_profile, mc_albedo) -> dict[str, 
     """What each engine renders for the preset (``engines.engine_marginals``: its kernel as that engine builds it)
     against the Burley profile and against the Monte Carlo profile, as 1D-marginal bin masses (bins of d/4 out to
     20 d plus both tails): relative L2 and the fraction of the reference's diffuse reflectance the engine loses."""
-    from .engines._common import masses_from_cdf as _masses_from_cdf
-    from .engines import engine_errors_against, engine_marginals
+    from ..engines._common import masses_from_cdf as _masses_from_cdf
+    from ..engines import engine_errors_against, engine_marginals
 
     marg = engine_marginals(albedo, d_mm)
     edges = marg["edges"]

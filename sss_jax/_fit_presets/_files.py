@@ -100,8 +100,8 @@ def _medium_T_cell(preset: dict) -> str:
     """The preset's medium transmittance (its ``transmittance`` table, as ``sss-jax transmit`` reads it) at 1, 2, 4 mm."""
     if "transmittance" not in preset:
         return "-"
-    from ._materials import BurleyMaterial
-    from ._slab import MediumMaterial
+    from .._materials import BurleyMaterial
+    from .._slab import MediumMaterial
 
     medium = MediumMaterial.from_tables(BurleyMaterial(preset["albedo"], preset["burley"]["d_mm"]),
                                         [preset["transmittance"]])

@@ -74,7 +74,7 @@ def fit_preset(name: str, *, photons: int = DEFAULT_PHOTONS, seed: int = 0, solv
 
 
 def _fit_preset(name, *, photons, seed, solver, taps, cache_dir, measured_csv, artist, log) -> dict[str, Any]:
-    from .engines import engine_blocks
+    from ..engines import engine_blocks
 
     log = log or (lambda s: None)
     t_start = time.perf_counter()

@@ -155,7 +155,7 @@ def montecarlo_medium_slabs(name: str, medium: dict, *, photons: int, seed: int,
                             log: Callable[[str], None]) -> dict[str, Any]:
     """The slab transmittance table of the preset's own medium (``_slab.medium_slab_table``: its reduced
     coefficients, its eta on both faces), cached beside the profiles under ``medium_slab`` with its provenance."""
-    from ._slab import MEDIUM_TAU_NODES, medium_slab_table
+    from .._slab import MEDIUM_TAU_NODES, medium_slab_table
 
     alpha = np.asarray(medium["single_scattering_albedo"], np.float64)
     sigma_t = 1.0 / np.asarray(medium["mean_free_path_mm"], np.float64)
@@ -187,7 +187,7 @@ def _burley_residual(x, data):
 def fit_burley_d(result: MCResult, mfp_mm: float, d0_mm: float, *, solver: str = "optimistix") -> dict[str, Any]:
     """Burley's d (mm) closest to a Monte Carlo profile: least squares on ``r R(r)`` of the unit-energy profiles over
     the run's bins, from ``d0`` (the searchlight ``mfp / s(A)``), within [d0/20, 20 d0]."""
-    from ._fitting import _solve
+    from .._fitting import _solve
 
     r = result.r_mfp * mfp_mm
     R_mc = result.R / (mfp_mm**2) / max(result.total_reflectance, 1e-300)
