@@ -183,6 +183,19 @@ def random_walk_medium(subsurface_color, subsurface_radius, *, subsurface_scale:
     return {"single_scattering_albedo": random_walk_single_scattering_albedo(albedo, version), "mean_free_path_mm": mfp}
 
 
+# The Principled BSDF inputs both EEVEE engines read (one list: the Blender node, whichever EEVEE renders it)
+EEVEE_FLAGS: tuple[Flag, ...] = (
+    Flag("--albedo", ALBEDO_HELP, key="Subsurface Color", required=True),
+    Flag("--radius", "blender/eevee/eevee-next: Subsurface Radius, scene units", key="Subsurface Radius",
+         required=True),
+    Flag("--scale", "blender/eevee/eevee-next: Subsurface Scale (default 1)", key="Subsurface Scale",
+         option="subsurface_scale", kind="float"),
+    Flag("--blender-version", "blender/eevee/eevee-next: Blender version", key="blender_version",
+         option="blender_version", kind="str"),
+    MM_PER_UNIT,
+)
+
+
 class Blender(AbstractEngine):
     """Cycles (Principled BSDF, any subsurface method)."""
 

@@ -11,8 +11,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ._base import ALBEDO_HELP, MM_PER_UNIT, AbstractEngine, Flag
-from ._blender import parse_version
+from ._base import AbstractEngine, Flag
+from ._blender import EEVEE_FLAGS, parse_version
 from ._common import FOUR_PI, material, piecewise_masses, rgb, s_fit, scalar
 
 _EEVEE_EMPIRICAL = 0.6
@@ -65,16 +65,7 @@ class Eevee(AbstractEngine):
         "Cycles; its kernel is the radial profile used as a 1D separable kernel (see engine_profile_error)")
     source: ClassVar[str] = ("blender/blender source/blender/gpu/intern/gpu_material.c, compute_sss_kernel "
                              "(2.80-3.x; legacy EEVEE to 4.1)")
-    flags: ClassVar[tuple[Flag, ...]] = (
-        Flag("--albedo", ALBEDO_HELP, key="Subsurface Color", required=True),
-        Flag("--radius", "blender/eevee/eevee-next: Subsurface Radius, scene units", key="Subsurface Radius",
-             required=True),
-        Flag("--scale", "blender/eevee/eevee-next: Subsurface Scale (default 1)", key="Subsurface Scale",
-             option="subsurface_scale", kind="float"),
-        Flag("--blender-version", "blender/eevee/eevee-next: Blender version", key="blender_version",
-             option="blender_version", kind="str"),
-        MM_PER_UNIT,
-    )
+    flags: ClassVar[tuple[Flag, ...]] = EEVEE_FLAGS
 
     def to_engine(self, albedo, d_mm, *, subsurface_scale: float = 1.0, mm_per_unit: float = 1000.0,
                   samples: int = EEVEE_DEFAULT_SAMPLES, blender_version: str = "4.1") -> dict[str, Any]:

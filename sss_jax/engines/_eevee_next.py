@@ -19,8 +19,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ._base import ALBEDO_HELP, MM_PER_UNIT, AbstractEngine, Flag
-from ._blender import CURRENT_BLENDER, parse_version, version_warning
+from ._base import AbstractEngine, Flag
+from ._blender import EEVEE_FLAGS, CURRENT_BLENDER, parse_version, version_warning
 from ._common import FOUR_PI, burley_cdf_np, burley_marginal_masses, material, rgb, s_fit, scalar
 
 FIRST_NEXT = (4, 2)
@@ -48,16 +48,7 @@ class EeveeNext(AbstractEngine):
     source: ClassVar[str] = ("blender/blender source/blender/draw/engines/eevee_next/shaders/"
                              "eevee_subsurface_convolve_comp.glsl and eevee_subsurface_shared.hh burley_setup "
                              "(4.2-4.4; draw/engines/eevee/ from 4.5), gpu_shader_material_principled.glsl")
-    flags: ClassVar[tuple[Flag, ...]] = (
-        Flag("--albedo", ALBEDO_HELP, key="Subsurface Color", required=True),
-        Flag("--radius", "blender/eevee/eevee-next: Subsurface Radius, scene units", key="Subsurface Radius",
-             required=True),
-        Flag("--scale", "blender/eevee/eevee-next: Subsurface Scale (default 1)", key="Subsurface Scale",
-             option="subsurface_scale", kind="float"),
-        Flag("--blender-version", "blender/eevee/eevee-next: Blender version", key="blender_version",
-             option="blender_version", kind="str"),
-        MM_PER_UNIT,
-    )
+    flags: ClassVar[tuple[Flag, ...]] = EEVEE_FLAGS
 
     def to_engine(self, albedo, d_mm, *, subsurface_scale: float = 1.0, mm_per_unit: float = 1000.0,
                   blender_version: str = CURRENT_BLENDER) -> dict[str, Any]:
