@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 from typing import ClassVar
 
-import jax
 import numpy as np
 from jaxtyping import Array, Float
 
