@@ -24,7 +24,7 @@ from __future__ import annotations
 import abc
 import dataclasses
 import inspect
-from typing import Any, Callable
+from typing import Any, Callable, ClassVar
 
 import equinox as eqx
 from jaxtyping import Array, Float
@@ -57,6 +57,8 @@ class AbstractTechnique(eqx.Module):
     name: eqx.AbstractClassVar[str]  # the registry's name
     conserves_energy: eqx.AbstractClassVar[bool]  # redistributes light (True) or adds it (False)
     material_type: eqx.AbstractClassVar[type | tuple[type, ...]]  # the material class(es) it takes
+    # the option whose value is the technique's sample count, which a report sweeps ("samples", "taps"; None: none)
+    count_option: ClassVar[str | None] = None
 
     def __check_init__(self):
         for field in self.option_fields():
@@ -85,13 +87,31 @@ class AbstractTechnique(eqx.Module):
         """The technique's options (the fields declared with ``option``), in declaration order."""
         return tuple(f for f in dataclasses.fields(cls) if "help" in f.metadata)
 
+    @classmethod
+    def option_fields_names(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in cls.option_fields())
+
     def options(self) -> dict[str, Any]:
         """The options' values by name (what a report or a manifest records)."""
         return {f.name: getattr(self, f.name) for f in self.option_fields()}
 
+    def replace(self, **changes: Any) -> "AbstractTechnique":
+        """This technique with some options changed (``t.replace(samples=64)``)."""
+        return dataclasses.replace(self, **changes)
+
+    @classmethod
+    def accepts(cls, material: Any, **options: Any) -> bool:
+        """Whether the technique with ``options`` (its defaults elsewhere) takes ``material``; host side, without
+        building the technique."""
+        return isinstance(material, cls.material_type)
+
+    def takes(self, material: Any) -> bool:
+        """Whether ``material`` is one this technique (with its options) takes."""
+        return type(self).accepts(material, **self.options())
+
     def check_material(self, material: Any) -> None:
-        """A ``TypeError`` naming the technique and the material classes it takes, unless ``material`` is one."""
-        if not isinstance(material, self.material_type):
+        """A ``TypeError`` naming the technique and the material classes it takes, unless it takes ``material``."""
+        if not self.takes(material):
             kinds = self.material_type if isinstance(self.material_type, tuple) else (self.material_type,)
             raise TypeError(f"{self.name} needs a {' or '.join(k.__name__ for k in kinds)}, "
                             f"got {type(material).__name__}")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 import math
 from typing import ClassVar
 
@@ -45,6 +46,7 @@ class Burley(AbstractTechnique):
 
     name: ClassVar[str] = "burley"
     conserves_energy: ClassVar[bool] = True
+    count_option: ClassVar[str | None] = "samples"
     material_type: ClassVar[type] = BurleyMaterial
 
     samples: int = option(default_of(_f, "samples"), "spiral samples per pixel (per frame)")
@@ -93,4 +95,6 @@ def burley(buffers: Buffers, material: BurleyMaterial, camera: Camera, **options
     return Burley(**options)(buffers, material, camera)
 
 
+# the function's own docstring and signature (its options, their defaults): help() and inspect read them
 burley.__doc__ = _f.__doc__
+burley.__signature__ = inspect.signature(_f)

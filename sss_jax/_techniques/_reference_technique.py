@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 from typing import ClassVar
 
 from jaxtyping import Array, Float
@@ -73,4 +74,6 @@ def reference(buffers: Buffers, material: BurleyMaterial | ProfileMaterial, came
     return Reference(**options)(buffers, material, camera)
 
 
+# the function's own docstring and signature (its options, their defaults): help() and inspect read them
 reference.__doc__ = _f.__doc__
+reference.__signature__ = inspect.signature(_f)

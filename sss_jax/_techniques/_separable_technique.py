@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 import math
 from typing import ClassVar
 
@@ -39,6 +40,7 @@ class Separable(AbstractTechnique):
 
     name: ClassVar[str] = "separable"
     conserves_energy: ClassVar[bool] = True
+    count_option: ClassVar[str | None] = "taps"
     material_type: ClassVar[tuple[type, ...]] = (TwoGaussianMaterial, BurleyMaterial, ProfileMaterial)
 
     taps: int = option(default_of(_f, "taps"), "taps per 1D pass (odd)")
@@ -97,4 +99,6 @@ def separable(buffers: Buffers, material: TwoGaussianMaterial | BurleyMaterial |
     return Separable(**options)(buffers, material, camera)
 
 
+# the function's own docstring and signature (its options, their defaults): help() and inspect read them
 separable.__doc__ = _f.__doc__
+separable.__signature__ = inspect.signature(_f)

@@ -7,6 +7,7 @@ poses as a material.
 
 from __future__ import annotations
 
+import inspect
 from typing import ClassVar
 
 from jaxtyping import Array, Float
@@ -41,6 +42,10 @@ class Translucency(AbstractTechnique):
     model: str = option(default_of(_f, "model"), "the STA ('sta'), HDRP's thin-object transmission ('thin') or "
                         "slab transport ('slab')", choices=_translucency.TRANSLUCENCY_MODELS)
 
+    @classmethod
+    def accepts(cls, material, **options) -> bool:
+        return isinstance(material, _MODEL_MATERIALS[options.get("model", default_of(_f, "model"))])
+
     def check_material(self, material) -> None:
         kinds = _MODEL_MATERIALS[self.model]
         if not isinstance(material, kinds):
@@ -65,4 +70,6 @@ def translucency(buffers: Buffers, params: STAParams | BurleyMaterial | MediumMa
     return Translucency(light, **options)(buffers, params, camera)
 
 
+# the function's own docstring and signature (its options, their defaults): help() and inspect read them
 translucency.__doc__ = _f.__doc__
+translucency.__signature__ = inspect.signature(_f)
