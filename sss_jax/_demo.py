@@ -59,8 +59,9 @@ class DemoResult:
     compile_seconds: dict[str, float]
     errors: dict[str, float]  # relative L2 against the reference over SSS pixels
     energy: dict[str, np.ndarray]  # output / input energy per channel over SSS pixels (albedo divided out)
-    # the images that are technique runs (the reference aside): image name -> (technique name, count or None)
-    runs: dict[str, tuple[str, int | None]] = dataclasses.field(default_factory=dict)
+    # the images that are technique runs (the reference aside): image name -> (the report's label of the run, count
+    # or None, whether the technique conserves energy)
+    runs: dict[str, tuple[str, int | None, bool]] = dataclasses.field(default_factory=dict)
 
 
 def run_demo(*, height: int = 192, width: int = 256, samples: int = 32, taps: int = 25, repeats: int = 2,
@@ -72,19 +73,20 @@ def run_demo(*, height: int = 192, width: int = 256, samples: int = 32, taps: in
     mat = demo_burley_material()
     tg = demo_two_gaussian()
     sta = STAParams(**DEMO_STA)
-    # image name -> (technique, its material); the reference first, timed once (it is slow by design)
-    runs: dict[str, tuple[AbstractTechnique, object]] = {
-        f"burley_{samples}": (Burley(samples=samples), mat),
-        f"separable_preintegrated_{taps}": (Separable(taps=taps), mat),
-        f"separable_two_gaussian_{taps}": (Separable(taps=taps), tg),
-        "sta": (Translucency(scene.back_light), sta),
+    # image name -> (technique, its material, the report's label of the run); the reference first, timed once (it
+    # is slow by design). The two-Gaussian separable keeps a label of its own beside the pre-integrated one.
+    runs: dict[str, tuple[AbstractTechnique, object, str]] = {
+        f"burley_{samples}": (Burley(samples=samples), mat, "burley"),
+        f"separable_preintegrated_{taps}": (Separable(taps=taps), mat, "separable"),
+        f"separable_two_gaussian_{taps}": (Separable(taps=taps), tg, "separable_two_gaussian"),
+        "sta": (Translucency(scene.back_light), sta, "sta"),
     }
     mask = np.asarray(b.material_id) > 0
     albedo = np.asarray(b.albedo)
     irr = np.asarray(b.irradiance)
     local = albedo * irr
     images, seconds, compile_s = {}, {}, {}
-    timed = [("reference", Reference(), mat, 0)] + [(name, t, m, repeats) for name, (t, m) in runs.items()]
+    timed = [("reference", Reference(), mat, 0)] + [(name, t, m, repeats) for name, (t, m, _) in runs.items()]
     for name, technique, material, reps in timed:
         say(f"rendering {name} ...")
         img, seconds[name], compile_s[name] = time_call(lambda: technique(b, material, cam), reps)
@@ -100,8 +102,8 @@ def run_demo(*, height: int = 192, width: int = 256, samples: int = 32, taps: in
         errors[name] = rel_l2(img, ref, mask=mask)
         scattered = img / np.where(albedo > 0, albedo, 1)
         energy[name] = scattered[mask].sum(0) / irr[mask].sum(0)
-    counts = {name: (t.name, None if t.count_option is None else int(getattr(t, t.count_option)))
-              for name, (t, _) in runs.items()}
+    counts = {name: (label, None if t.count_option is None else int(getattr(t, t.count_option)), t.conserves_energy)
+              for name, (t, _, label) in runs.items()}
     return DemoResult(scene=scene, images=images, seconds=seconds, compile_seconds=compile_s, errors=errors,
                       energy=energy, runs=counts)
 
@@ -173,9 +175,8 @@ def demo_report_data(result: DemoResult, trade=()):
     h, w = np.asarray(b.depth).shape
     ms = lambda name: 1e3 * result.seconds[name]
     runs, seen = [], set()
-    for name, (tech, count) in result.runs.items():
-        img = result.images[name]
-        runs.append(TechniqueRun(tech, count, ms(name), (img,)))
+    for name, (tech, count, conserves) in result.runs.items():
+        runs.append(TechniqueRun(tech, count, ms(name), (result.images[name],), conserves_energy=conserves))
         seen.add((tech, count))
     runs += [r for r in trade if (r.technique, r.count) not in seen]
     runs.sort(key=lambda r: (r.technique, r.count or 0))

@@ -95,7 +95,7 @@ def demo_sections(result, montecarlo=None) -> list[tuple[str, str, dict]]:
                       "Separable and Burley redistribute light (1 up to image borders and depth edges); STA adds "
                       "light through thickness by design and does not conserve energy.")
     rep.table(sec, [dict(technique=n, R=float(e[0]), G=float(e[1]), B=float(e[2]),
-                         conserves="yes" if ENERGY_CONSERVING.get(result.runs.get(n, (n,))[0], True)
+                         conserves="yes" if (result.runs[n][2] if n in result.runs else ENERGY_CONSERVING.get(n, True))
                          else "no (adds light)")
                     for n, e in result.energy.items() if n != "local"], "energy ratio", key="energy")
 
