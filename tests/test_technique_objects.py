@@ -279,3 +279,17 @@ def test_errors_are_defined_once():
     assert sj.SSSInputError is _errors.SSSInputError is io.SSSInputError and issubclass(sj.SSSInputError, ValueError)
     assert sj.SamplingWarning is _errors.SamplingWarning is _common.SamplingWarning
     assert sj.ReferenceWindowWarning is _errors.ReferenceWindowWarning is ref.ReferenceWindowWarning
+
+
+def test_the_wrappers_reuse_objects_but_not_across_types(as_users_run_it):
+    from sss_jax._techniques._base import built
+
+    assert built(sj.Burley, {"samples": 8}) is built(sj.Burley, {"samples": 8})
+    assert built(sj.Burley, {"samples": 8}) is not built(sj.Burley, {"samples": 16})
+    assert built(sj.Burley, {"frames": 1}).frames is not True
+    # a bool is not the integer it equals: the function's own check still sees it
+    with pytest.raises(ValueError, match="frames must be a positive integer, got True"):
+        sj.burley(frame(), BURLEY, CAM, frames=True)
+    # an unhashable option is built afresh
+    seed = jnp.asarray(3, jnp.uint32)
+    assert built(sj.Burley, {"seed": seed}).seed is seed

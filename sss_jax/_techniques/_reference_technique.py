@@ -11,7 +11,7 @@ from .._errors import ReferenceWindowWarning
 from .._materials import BurleyMaterial, ProfileMaterial
 from .._scene import Buffers, Camera
 from . import _reference
-from ._base import AbstractTechnique, default_of, option, tile_options
+from ._base import AbstractTechnique, built, call_options, default_of, option, tile_options
 from ._common import ALBEDO_MODES, BORDERS
 
 _f = _reference.reference
@@ -50,8 +50,8 @@ class Reference(AbstractTechnique):
     def __call__(self, buffers: Buffers, material: BurleyMaterial | ProfileMaterial, camera: Camera, *,
                  origin: tuple[int, int] = (0, 0),
                  frame_shape: tuple[int, int] | None = None) -> Float[Array, "H W 3"]:
-        self.check_material(material)
-        return _f(buffers, material, camera, **self.options(), **tile_options(_f, buffers, origin, frame_shape))
+        options = call_options(self, material)
+        return _f(buffers, material, camera, **options, **tile_options(_f, buffers, origin, frame_shape))
 
     def window_px(self, buffers: Buffers, material: BurleyMaterial | ProfileMaterial, camera: Camera) -> int:
         """Host side: the window radius a call uses (``radius_px``, or the default for these buffers)."""
@@ -71,7 +71,7 @@ class Reference(AbstractTechnique):
 
 def reference(buffers: Buffers, material: BurleyMaterial | ProfileMaterial, camera: Camera,
               **options) -> Float[Array, "H W 3"]:
-    return Reference(**options)(buffers, material, camera)
+    return built(Reference, options)(buffers, material, camera)
 
 
 # the function's own docstring and signature (its options, their defaults): help() and inspect read them

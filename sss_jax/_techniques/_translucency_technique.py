@@ -17,7 +17,7 @@ from .._materials import BurleyMaterial, DirectionalLight, STAParams
 from .._scene import Buffers, Camera
 from .._slab import MediumMaterial
 from . import _translucency
-from ._base import AbstractTechnique, default_of, option
+from ._base import AbstractTechnique, call_options, default_of, option
 
 _f = _translucency.translucency
 
@@ -46,6 +46,9 @@ class Translucency(AbstractTechnique):
     def accepts(cls, material, **options) -> bool:
         return isinstance(material, _MODEL_MATERIALS[options.get("model", default_of(_f, "model"))])
 
+    def takes(self, material) -> bool:
+        return isinstance(material, _MODEL_MATERIALS[self.model])
+
     def check_material(self, material) -> None:
         kinds = _MODEL_MATERIALS[self.model]
         if not isinstance(material, kinds):
@@ -55,9 +58,8 @@ class Translucency(AbstractTechnique):
     def __call__(self, buffers: Buffers, material: STAParams | BurleyMaterial | MediumMaterial, camera: Camera, *,
                  origin: tuple[int, int] = (0, 0),
                  frame_shape: tuple[int, int] | None = None) -> Float[Array, "H W 3"]:
-        self.check_material(material)
         del origin, frame_shape  # a local pass: a tile with its halo needs no placing in the frame
-        return _f(buffers, material, camera, self.light, **self.options())
+        return _f(buffers, material, camera, self.light, **call_options(self, material))
 
     def reach_px(self, buffers: Buffers, material: STAParams | BurleyMaterial | MediumMaterial,
                  camera: Camera) -> int:
