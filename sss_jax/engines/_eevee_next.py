@@ -76,6 +76,16 @@ class EeveeNext(AbstractEngine):
         unit = scalar("mm_per_unit", params.get("mm_per_unit", 1000.0))
         return albedo, radius * scale * unit / (FOUR_PI * _s_normalised(albedo))
 
+    def rendered(self, albedo, d_mm, edges, params=None):
+        """The pass after ``EEVEE_FRAMES`` TAA samples (16 samples each, sample 0 at the centre), noise-averaged."""
+        from ._rendered import EEVEE_FRAMES, eevee_next_weights, ring_masses
+
+        frames = eevee_next_weights(albedo, d_mm, EEVEE_FRAMES)
+        masses = sum(ring_masses(r, w, edges) for r, w in frames) / len(frames)
+        return {f"eevee-next:taa{EEVEE_FRAMES}": (masses, np.asarray(albedo, np.float64),
+                                                  f"EEVEE Next's pass after {EEVEE_FRAMES} TAA samples of 16, "
+                                                  "noise-averaged")}
+
     def marginal(self, albedo, d_mm, edges, params=None):
         albedo = np.asarray(albedo, np.float64)
         d = np.asarray(d_mm, np.float64)

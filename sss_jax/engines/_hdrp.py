@@ -95,6 +95,18 @@ class Hdrp(AbstractEngine):
         mask = scalar("subsurface_mask", params.get("Subsurface Mask", 1.0), positive=False, lo=0.0, hi=1.0)
         return albedo, color * mult * mask * unit / (1000.0 * ws)
 
+    def rendered(self, albedo, d_mm, edges, params=None):
+        """The pass at each quality level (budget 20/40/80) at ``RENDER_PX_PER_MM``, noise-averaged."""
+        from ._rendered import HDRP_BUDGETS, RENDER_PX_PER_MM, hdrp_samples, ring_masses
+
+        out = {}
+        for quality, budget in HDRP_BUDGETS.items():
+            radii, weights = hdrp_samples(d_mm, budget, RENDER_PX_PER_MM)
+            out[f"hdrp:{quality}"] = (ring_masses(radii, weights, edges), np.asarray(albedo),
+                                      f"HDRP's pass, quality {quality} (budget {budget}, {len(radii)} samples at "
+                                      f"{RENDER_PX_PER_MM:g} px/mm), noise-averaged")
+        return out
+
     def marginal(self, albedo, d_mm, edges, params=None):
         """Burley truncated at the filter radius (CDF 0.997 of the widest channel, ``UpdateKernel``) and renormalised
         by the shader's weight sum."""
