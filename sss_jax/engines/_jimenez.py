@@ -81,6 +81,24 @@ def jimenez_masses(strength, falloff, sss_width, mm_per_unit, n_samples, edges) 
     return piecewise_masses(lo, hi, spread, edges, dirac=1.0 - strength)
 
 
+def jimenez_comb_masses(strength, falloff, sss_width: float, mm_per_unit: float, n_samples: int,
+                        edges: np.ndarray, px_per_mm: float) -> np.ndarray:
+    """The comb one Jimenez pass applies at ``px_per_mm``: every tap a bilinear fetch, pixel masses spread over the
+    pixels' footprints; ``sss_width`` is the effective width (sssWidth times alpha)."""
+    offsets, weights = jimenez_kernel(strength, falloff, n_samples=n_samples)
+    t = offsets * _world_mm(sss_width, mm_per_unit) * px_per_mm  # px
+    lo_px = int(math.floor(t.min())) - 1
+    n_px = int(math.floor(t.max())) + 2 - lo_px + 1
+    pixel = np.zeros((n_px, 3))
+    p0 = np.floor(t)
+    f = t - p0
+    for i in range(len(t)):
+        pixel[int(p0[i]) - lo_px] += (1 - f[i]) * weights[i]
+        pixel[int(p0[i]) + 1 - lo_px] += f[i] * weights[i]
+    centres = (np.arange(n_px) + lo_px) / px_per_mm
+    return piecewise_masses(centres - 0.5 / px_per_mm, centres + 0.5 / px_per_mm, pixel, edges)
+
+
 def _fit(albedo, d, unit, n_samples, masses=jimenez_masses):
     """Least-squares fit of (effective sssWidth, falloff, strength) to the Burley marginal; see ``Jimenez.to_engine``.
     ``masses(strength, falloff, width, unit, n_samples, edges)``: the kernel model fitted (the taps spread over their
@@ -112,8 +130,6 @@ def _fit(albedo, d, unit, n_samples, masses=jimenez_masses):
 
 
 def _comb(px_per_mm: float):
-    from ._rendered import jimenez_comb_masses
-
     def masses(strength, falloff, width, unit, n_samples, edges):
         return jimenez_comb_masses(strength, falloff, width, unit, n_samples, edges, px_per_mm)
 
@@ -227,7 +243,7 @@ class Jimenez(AbstractEngine):
 
     def rendered(self, albedo, d_mm, edges, params=None):
         """The comb at ``RENDER_PX_PER_MM`` for the exact conversion's parameters and for ``rendered_fit``'s."""
-        from ._rendered import RENDER_PX_PER_MM, jimenez_comb_masses
+        from ._rendered import RENDER_PX_PER_MM
 
         p = self.to_engine(albedo, d_mm) if params is None or "sssWidth" not in params else params
         refit = p.get("rendered_fit") or rendered_fit(albedo, d_mm, mm_per_unit=p["mm_per_unit"],

@@ -9,7 +9,7 @@ passes on frames; docs/engines.md cites the sources.
 - EEVEE Next (``eevee_subsurface.cc`` ``precompute_samples_location``): per TAA sample 16 samples at ``x = (1 +
   rand_v/16) i/16`` of the truncated CDF of ``d0 max(radius)``, sample 0 at the centre, weighted ``burley_eval(d_c,
   r) pdf_inv`` and renormalised, averaged over ``frames`` TAA samples (rings again: ``rand_u`` turns the pattern).
-- Jimenez (``SSSSBlurPS``): the comb of ``calculateKernel`` taps at ``offset 2/3 sssWidth alpha`` mm per kernel unit,
+- Jimenez (``SSSSBlurPS``, ``_jimenez.jimenez_comb_masses``): the comb of ``calculateKernel`` taps at ``offset 2/3 sssWidth alpha`` mm per kernel unit,
   each a bilinear fetch at ``px_per_mm`` (its weight split between two pixels), every pixel's mass spread over its
   footprint; the vertical pass (the horizontal one is W/H wider on a non-square frame).
 """
@@ -20,12 +20,13 @@ import math
 
 import numpy as np
 
-from ._common import piecewise_masses, masses_from_cdf, unit_burley_inverse_cdf
+from ._common import masses_from_cdf, unit_burley_inverse_cdf
 
 HDRP_BUDGETS = {"low": 20, "medium": 40, "high": 80}  # DefaultSssSampleBudgetForQualityLevel
 HDRP_FILTER_UNITS = float(unit_burley_inverse_cdf(np.array(0.997)))  # UpdateKernel: CDF 0.997 of the widest d
 EEVEE_SAMPLE_LEN = 16
 EEVEE_TRUNCATE_CDF = 0.9963790093708328
+EEVEE_MIN_RADIUS = 1e-4  # convolve shader: a channel's radius is at least 1e-4 of the largest (4.2)
 EEVEE_D0 = 0.25 / math.pi / (1.9 - 1.0 + 3.5 * 0.2**2)  # burley_setup(1, 1)
 RENDER_PX_PER_MM = 1.0  # the pixel density at which the rendered kernels are stated
 EEVEE_FRAMES = 256  # TAA samples of a final EEVEE render (the viewport default is 16)
@@ -68,8 +69,6 @@ def hdrp_samples(d_mm: np.ndarray, budget: int, px_per_mm: float) -> tuple[np.nd
 def eevee_next_weights(albedo, d_mm: np.ndarray, frames: int) -> list[tuple[np.ndarray, np.ndarray]]:
     """Per TAA sample (``rand_v`` from the base-3 radical inverse of ``k + 1``, as the ``eevee-next`` technique),
     the radii (16,) mm and per-channel weights (16, 3) of EEVEE Next's pass on a flat surface."""
-    from .._techniques._eevee_next import EEVEE_MIN_RADIUS
-
     a = np.asarray(albedo, np.float64)
     a = a / max(1e-6, float(np.max(a)))
     s = 1.9 - a + 3.5 * (a - 0.8) ** 2
@@ -93,23 +92,3 @@ def eevee_next_weights(albedo, d_mm: np.ndarray, frames: int) -> list[tuple[np.n
         w = (np.exp(-r[:, None] / d_shader) + np.exp(-r[:, None] / (3 * d_shader))) / (4 * d_shader) * pdf_inv[:, None]
         out.append((r, w / w.sum(axis=0)))
     return out
-
-
-def jimenez_comb_masses(strength, falloff, sss_width: float, mm_per_unit: float, n_samples: int,
-                        edges: np.ndarray, px_per_mm: float) -> np.ndarray:
-    """The comb one Jimenez pass applies at ``px_per_mm``: every tap a bilinear fetch, pixel masses spread over the
-    pixels' footprints; ``sss_width`` is the effective width (sssWidth times alpha)."""
-    from ._jimenez import _world_mm, jimenez_kernel
-
-    offsets, weights = jimenez_kernel(strength, falloff, n_samples=n_samples)
-    t = offsets * _world_mm(sss_width, mm_per_unit) * px_per_mm  # px
-    lo_px = int(math.floor(t.min())) - 1
-    n_px = int(math.floor(t.max())) + 2 - lo_px + 1
-    pixel = np.zeros((n_px, 3))
-    p0 = np.floor(t)
-    f = t - p0
-    for i in range(len(t)):
-        pixel[int(p0[i]) - lo_px] += (1 - f[i]) * weights[i]
-        pixel[int(p0[i]) + 1 - lo_px] += f[i] * weights[i]
-    centres = (np.arange(n_px) + lo_px) / px_per_mm
-    return piecewise_masses(centres - 0.5 / px_per_mm, centres + 0.5 / px_per_mm, pixel, edges)
