@@ -23,7 +23,7 @@ import numpy as np
 from ._common import masses_from_cdf, unit_burley_inverse_cdf
 
 HDRP_BUDGETS = {"low": 20, "medium": 40, "high": 80}  # DefaultSssSampleBudgetForQualityLevel
-HDRP_FILTER_UNITS = float(unit_burley_inverse_cdf(np.array(0.997)))  # UpdateKernel: CDF 0.997 of the widest d
+HDRP_FILTER_UNITS = float(unit_burley_inverse_cdf(np.array([0.997]))[0])  # UpdateKernel: CDF 0.997 of the widest d
 EEVEE_SAMPLE_LEN = 16
 EEVEE_TRUNCATE_CDF = 0.9963790093708328
 EEVEE_MIN_RADIUS = 1e-4  # convolve shader: a channel's radius is at least 1e-4 of the largest (4.2)
@@ -92,3 +92,35 @@ def eevee_next_weights(albedo, d_mm: np.ndarray, frames: int) -> list[tuple[np.n
         w = (np.exp(-r[:, None] / d_shader) + np.exp(-r[:, None] / (3 * d_shader))) / (4 * d_shader) * pdf_inv[:, None]
         out.append((r, w / w.sum(axis=0)))
     return out
+
+
+def hdrp_masses(d_mm: np.ndarray, budget: int, edges: np.ndarray, px_per_mm: float = RENDER_PX_PER_MM) -> np.ndarray:
+    """HDRP's pass at ``budget`` as bin masses (noise-averaged rings)."""
+    radii, weights = hdrp_samples(d_mm, budget, px_per_mm)
+    return ring_masses(radii, weights, edges)
+
+
+def eevee_next_masses(albedo, d_mm: np.ndarray, frames: int, edges: np.ndarray) -> np.ndarray:
+    """EEVEE Next's pass after ``frames`` TAA samples as bin masses (noise-averaged rings)."""
+    per_frame = eevee_next_weights(albedo, d_mm, frames)
+    radii = np.concatenate([r for r, _ in per_frame])  # every frame's rings at once, each frame's weight 1/frames
+    return ring_masses(radii, np.concatenate([w for _, w in per_frame]) / len(per_frame), edges)
+
+
+def fit_d_through(render, d_mm: np.ndarray, edges: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The d per channel whose rendered kernel ``render(d) -> masses`` is closest to ``reference`` (the material's
+    Burley marginal on ``edges``): ``scipy.optimize.least_squares`` (trf) over ``log(d' / d)`` in [-3, 3] from 0 on
+    the residuals ``(m(d') - m_ref) / ||m_ref||`` of the three channels. Returns ``(d', relative L2 per channel)``."""
+    from scipy.optimize import least_squares
+
+    from ._common import relative_l2
+
+    d = np.asarray(d_mm, np.float64)
+    norm = np.linalg.norm(reference, axis=1, keepdims=True)
+
+    def residuals(p):
+        return ((render(d * np.exp(p)) - reference) / norm).ravel()
+
+    sol = least_squares(residuals, np.zeros(3), bounds=(-3.0, 3.0), method="trf", diff_step=1e-4, max_nfev=200)
+    d_fit = d * np.exp(sol.x)
+    return d_fit, relative_l2(render(d_fit), reference)
