@@ -329,3 +329,69 @@ def test_jimenez_image_matches_the_port():
         ref = jimenez_port(img, z, ids > 0, np.asarray(SKIN.albedo[0]), np.asarray(params.strength),
                            np.asarray(params.falloff), float(params.sss_width), float(params.alpha), 100.0, 17)
         assert np.linalg.norm(out - ref) / np.linalg.norm(ref) < 0.02
+
+
+# --- options, tiles, gradients --------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda: HdrpPass(quality="ultra"), "quality='ultra' is not one of"),
+    (lambda: HdrpPass(budget=0), r"budget must be in \[1, 1000\]"),
+    (lambda: HdrpPass(frames=0), r"frames must be in \[1, inf\]"),
+    (lambda: EeveeNextPass(blender_version="4.1"), "EEVEE Next starts with 4.2"),
+    (lambda: JimenezPass(taps=13), "taps=13 is not one of"),
+    (lambda: JimenezParams(strength=[1.5, 0, 0], falloff=1.0, sss_width=0.01), "strength must be within"),
+])
+def test_bad_options_name_themselves(make, message, as_users_run_it):
+    with pytest.raises(ValueError, match=message):
+        make()
+
+
+def test_registry_builds_the_passes():
+    assert sj.technique("hdrp", quality="high").samples == 80
+    assert sj.technique("hdrp", budget=7).samples == 7
+    for name in ("hdrp", "eevee-next", "jimenez"):
+        cls = sj.TECHNIQUES[name]
+        assert cls.conserves_energy and all(f.metadata.get("help") for f in cls.option_fields())
+
+
+def test_a_tile_with_its_halo_is_the_frame():
+    e, z, ids = stepped_frame(16, 20, seed=4)
+    cam = sj.Camera(focal_px=40.0, mm_per_unit=1.0)
+    full = buffers_of(e, z, ids)
+    for tech in (HdrpPass(quality="low"), EeveeNextPass(frames=2)):
+        whole = np.asarray(tech(full, SKIN, cam))
+        halo = tech.reach_px(full, SKIN, cam)
+        r0, c0 = 5, 8  # the tile's kept pixels: rows 5..9, cols 8..11; the buffer adds the halo (clipped to the frame)
+        rs, cs = max(0, r0 - halo), max(0, c0 - halo)
+        sub = buffers_of(e[rs:r0 + 5 + halo, cs:c0 + 4 + halo], z[rs:r0 + 5 + halo, cs:c0 + 4 + halo],
+                         ids[rs:r0 + 5 + halo, cs:c0 + 4 + halo])
+        tile = np.asarray(tech(sub, SKIN, cam, origin=(rs, cs), frame_shape=(16, 20)))
+        np.testing.assert_allclose(tile[r0 - rs:r0 - rs + 5, c0 - cs:c0 - cs + 4], whole[r0:r0 + 5, c0:c0 + 4],
+                                   rtol=1e-12)
+
+
+def test_gradients_are_finite():
+    e, z, ids = stepped_frame(6, 7, seed=5)
+    cam = sj.Camera(focal_px=40.0, mm_per_unit=1.0)
+    b = buffers_of(e, z, ids)
+    for tech in (HdrpPass(quality="low"), EeveeNextPass(frames=1)):
+        g = jax.grad(lambda d: jnp.sum(tech(b, sj.BurleyMaterial(SKIN.albedo, d), cam)))(SKIN.d_mm)
+        assert np.all(np.isfinite(np.asarray(g))) and np.any(np.asarray(g) != 0)
+    cam_j = sj.Camera(focal_px=20.0, mm_per_unit=1000.0)
+    bj = buffers_of(e, z * 0.01, ids)
+
+    def loss(width):
+        p = JimenezParams(strength=[0.5, 0.4, 0.3], falloff=[1.0, 0.37, 0.3], sss_width=width)
+        return jnp.sum(JimenezPass()(bj, p, cam_j))
+
+    g = jax.grad(loss)(jnp.asarray(0.012))
+    assert np.isfinite(float(g)) and float(g) != 0
+
+
+def test_jimenez_refuses_a_traced_burley_material(as_users_run_it):
+    cam = sj.Camera(focal_px=20.0, mm_per_unit=1000.0)
+    e, z, ids = stepped_frame(6, 7)
+    with pytest.raises(TypeError, match="trace JimenezParams instead"):
+        jax.jit(lambda d: JimenezPass()(buffers_of(e, z * 0.01, ids), sj.BurleyMaterial(SKIN.albedo, d), cam))(
+            SKIN.d_mm)

@@ -108,6 +108,10 @@ def _fitted(albedo: tuple, d_mm: tuple, mm_per_unit: float, taps: int) -> dict[s
 
 def jimenez_params_for(material: BurleyMaterial, camera: Camera, taps: int) -> JimenezParams:
     """The engine parameters ``engines.Jimenez.to_engine`` fits for a one-row ``BurleyMaterial`` (host side)."""
+    if any(isinstance(x, jax.core.Tracer) for x in (material.albedo, material.d_mm, camera.mm_per_unit)):
+        raise TypeError("jimenez fits its parameters to a BurleyMaterial on the host (scipy), which a traced material "
+                        "cannot give: trace JimenezParams instead (jimenez_params_for(material, camera, taps) "
+                        "outside jit)")
     if material.count != 1:
         raise ValueError(f"jimenez takes one material (the shader has one kernel), got {material.count}")
     albedo = tuple(float(v) for v in np.asarray(material.albedo[0], np.float64))
