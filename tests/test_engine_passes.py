@@ -259,12 +259,13 @@ def test_jimenez_matches_the_shader_port(taps, follow):
 
 
 def test_jimenez_horizontal_pass_reaches_w_over_h_farther():
-    # an impulse in a 9 x 45 frame: the horizontal spread (px) is W/H = 5 times the vertical one
-    h, w = 9, 45
+    # an impulse in a 21 x 105 frame: the horizontal spread (px) is W/H = 5 times the vertical one (the vertical
+    # pass reaches 4 px, 2 px per kernel unit, so the frame's edge does not clamp it)
+    h, w = 21, 105
     e = np.zeros((h, w, 3))
     e[h // 2, w // 2] = 1.0
     z = np.ones((h, w))
-    params = JimenezParams(strength=[1.0] * 3, falloff=[1.0] * 3, sss_width=0.02)
+    params = JimenezParams(strength=[1.0] * 3, falloff=[1.0] * 3, sss_width=0.075)  # 2/3 width f / z = 2 px
     cam = sj.Camera(focal_px=40.0, mm_per_unit=1000.0)
     out = np.asarray(JimenezPass(follow_surface=False)(buffers_of(e, z, np.ones((h, w), np.int64)), params, cam))
     cols, rows = out[h // 2, :, 0], out[:, w // 2, 0]
