@@ -221,7 +221,9 @@ def test_jimenez_fit_inverse_and_alpha():
 
 def test_engine_profile_error_and_blocks():
     err = sj.engine_profile_error(ALBEDO, D_MM)
-    assert set(err) == {"cycles", "eevee", "eevee-next", "hdrp", "unreal", "jimenez"}
+    rendered = {"hdrp:low", "hdrp:medium", "hdrp:high", "eevee-next:taa256", "jimenez:comb"}  # #29
+    assert set(err) == {"cycles", "eevee", "eevee-next", "hdrp", "unreal", "jimenez",
+                        *rendered, *(k + "-refit" for k in rendered)}
     # Burley-based engines render the reference up to truncation (Cycles 16 d: CDF 0.9964; HDRP: CDF 0.997; EEVEE
     # Next: 16 d0 max(radius) >= 16 d)
     for engine in ("cycles", "eevee-next", "hdrp", "unreal"):
@@ -415,3 +417,50 @@ def test_engine_kernels_reproduce_the_stored_preset_errors(name):
     for kernel in ("cycles", "eevee", "hdrp", "unreal", "jimenez"):
         np.testing.assert_allclose(err[kernel]["error_relative_l2"], stored[kernel]["error_relative_l2"], atol=1e-6)
         np.testing.assert_allclose(err[kernel]["energy_lost"], stored[kernel]["energy_lost"], atol=1e-9)
+
+
+# --- what the engines' own passes render (issue #29) ----------------------------------------------------------------
+
+
+def test_ring_masses_are_the_arcsine_law():
+    # a ring of radius r, uniform in angle, projects to x = r cos(theta): P(X <= x) = 1/2 + asin(x / r) / pi
+    from sss_jax.engines._rendered import ring_masses
+
+    edges = np.tile(np.linspace(-3.0, 3.0, 162), (3, 1))
+    m = ring_masses(np.array([2.0, 0.0]), np.array([[0.75] * 3, [0.25] * 3]), edges)
+    x = edges[0]
+    cdf = 0.75 * (0.5 + np.arcsin(np.clip(x / 2.0, -1, 1)) / np.pi) + 0.25 * (x >= 0)  # the r = 0 ring: a Dirac
+    np.testing.assert_allclose(m[0], np.r_[cdf[0], np.diff(cdf), 1 - cdf[-1]], atol=1e-12)
+
+
+def test_rendered_engine_kernels():
+    from sss_jax.engines._rendered import eevee_next_weights, hdrp_samples
+
+    err = sj.engine_profile_error([0.8, 0.5, 0.4], [3.0, 1.4, 0.8])  # the issue's skin
+    worst = {k: max(v["error_relative_l2"]) for k, v in err.items()}
+    # HDRP at 1 px/mm: the filter area allows thousands of samples, so the budget decides; error falls with it
+    radii, _ = hdrp_samples(np.array([3.0, 1.4, 0.8]), 40, 1.0)
+    assert len(radii) == 40
+    assert worst["hdrp:low"] > worst["hdrp:medium"] > worst["hdrp:high"] > worst["hdrp"]
+    assert 0.1 < worst["hdrp:low"] < 0.25 and worst["hdrp:high"] < 0.03  # measured 0.174, 0.018
+    # EEVEE Next: sample 0 sits at the centre with a weight of its own; 256 TAA samples do not wash it out
+    frames = eevee_next_weights([0.8, 0.5, 0.4], np.array([3.0, 1.4, 0.8]), 256)
+    centre = np.mean([w[0] for r, w in frames], axis=0)
+    assert all(r[0] == 0 for r, w in frames) and np.all((centre > 0.04) & (centre < 0.3))
+    assert worst["eevee-next:taa256"] > 10 * worst["eevee-next"]
+    # the parameters fitted through each pass render it closer than the exact conversion's (least squares over
+    # the three channels); for Jimenez the comb is farther than the taps spread over their footprints
+    sq = lambda k: np.sum(np.square(err[k]["error_relative_l2"]))
+    for key in ("hdrp:low", "hdrp:medium", "hdrp:high", "eevee-next:taa256", "jimenez:comb"):
+        assert sq(key + "-refit") <= sq(key) + 1e-12, key
+    assert sq("jimenez:comb") > sq("jimenez") and sq("eevee-next:taa256-refit") < 0.5 * sq("eevee-next:taa256")
+    for key in ("hdrp:medium", "eevee-next:taa256", "jimenez:comb"):
+        assert err[key]["what"] != err["hdrp"]["what"]  # each entry says what it is
+        np.testing.assert_allclose(err[key]["energy_lost"], 0.0, atol=1e-9)  # the passes renormalise
+    blocks = sj.engine_blocks([0.8, 0.5, 0.4], [3.0, 1.4, 0.8])
+    assert blocks["jimenez"]["rendered_fit"]["error_relative_l2"] == pytest.approx(
+        err["jimenez:comb-refit"]["error_relative_l2"])
+    assert blocks["hdrp"]["rendered_fit"]["medium"]["error_relative_l2"] == pytest.approx(
+        err["hdrp:medium-refit"]["error_relative_l2"])
+    assert blocks["eevee-next"]["rendered_fit"]["error_relative_l2_exact"] == pytest.approx(
+        err["eevee-next:taa256"]["error_relative_l2"])

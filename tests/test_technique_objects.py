@@ -43,12 +43,13 @@ FUNCTIONS = {"burley": _burley.burley, "separable": _separable.separable, "refer
 
 
 def test_registry_names_classes_and_energy():
-    assert set(sj.TECHNIQUES) == {"sta", "separable", "burley", "reference"}
+    assert set(sj.TECHNIQUES) == {"sta", "separable", "burley", "reference", "hdrp", "eevee-next", "jimenez"}
     for name, cls in sj.TECHNIQUES.items():
         assert issubclass(cls, sj.AbstractTechnique) and cls.name == name
         assert sj.ENERGY_CONSERVING[name] is cls.conserves_energy
     # the paper's Sec. 3: the STA adds light, the others redistribute it
-    assert sj.ENERGY_CONSERVING == {"sta": False, "separable": True, "burley": True, "reference": True}
+    assert sj.ENERGY_CONSERVING == {"sta": False, "separable": True, "burley": True, "reference": True,
+                                    "hdrp": True, "eevee-next": True, "jimenez": True}  # the engines' passes: #29
 
 
 def test_registry_errors_list_the_valid_names(as_users_run_it):

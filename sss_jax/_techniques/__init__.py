@@ -54,6 +54,13 @@ from ._separable_technique import Separable as Separable
 from ._separable_technique import separable as separable
 from ._translucency_technique import Translucency as Translucency
 from ._translucency_technique import translucency as translucency
+from ._eevee_next import EeveeNextPass as EeveeNextPass
+from ._eevee_next import eevee_next as eevee_next
+from ._hdrp import HdrpPass as HdrpPass
+from ._hdrp import hdrp as hdrp
+from ._jimenez import JimenezParams as JimenezParams
+from ._jimenez import JimenezPass as JimenezPass
+from ._jimenez import jimenez as jimenez
 from ._separable import SCALE_LEVELS as SCALE_LEVELS
 from ._separable import kernel_groups as kernel_groups
 from ._separable import separable_edge_error as separable_edge_error

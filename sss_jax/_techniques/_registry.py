@@ -8,11 +8,15 @@ from typing import Any
 
 from ._base import AbstractTechnique
 from ._burley_technique import Burley
+from ._eevee_next import EeveeNextPass
+from ._hdrp import HdrpPass
+from ._jimenez import JimenezPass
 from ._reference_technique import Reference
 from ._separable_technique import Separable
 from ._translucency_technique import Translucency
 
-TECHNIQUES: dict[str, type[AbstractTechnique]] = {cls.name: cls for cls in (Translucency, Separable, Burley, Reference)}
+TECHNIQUES: dict[str, type[AbstractTechnique]] = {cls.name: cls for cls in (Translucency, Separable, Burley, Reference,
+                                                                           HdrpPass, EeveeNextPass, JimenezPass)}
 
 # Which techniques redistribute light (True) and which add it (False): the report shows this.
 ENERGY_CONSERVING: dict[str, bool] = {name: cls.conserves_energy for name, cls in TECHNIQUES.items()}

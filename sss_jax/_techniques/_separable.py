@@ -330,8 +330,9 @@ def separable(
     leaves from every pixel) and its taps spread over the frame (``frame_truncation``): as d grows past the frame the
     light spreads over it and out, never back onto its own pixel. With concrete inputs, where the taps' cells at the
     widest reach are too coarse for a hard edge, a ``SamplingWarning`` states the error they imply
-    (``separable_edge_error``). ``border="renormalise"`` counts off-image taps as the centre instead (Jimenez's
-    shader; the kernel cut at the frame renormalised), as if the surface beyond looked like the inside.
+    (``separable_edge_error``). ``border="renormalise"`` counts off-image taps as the centre instead (the kernel
+    cut at the frame renormalised), as if the surface beyond looked like the inside; Jimenez's shader does neither:
+    its sampler clamps, so an off-image tap reads the edge texel (the ``jimenez`` technique).
 
     ``impl`` (``_dispatch``): "auto" runs the formulation above on a CPU backend ("xla-cpu") and the whole-frame one
     elsewhere ("xla-gpu": per tap a gather at each pixel's own offset, Jimenez's shader, so no reach levels and no

@@ -92,6 +92,13 @@ class AbstractEngine(eqx.Module):
         engine has no kernel of its own here."""
         return None
 
+    def rendered(self, albedo: np.ndarray, d_mm: np.ndarray, edges: np.ndarray,
+                 params: dict[str, Any] | None = None) -> dict[str, tuple[np.ndarray, np.ndarray, str]]:
+        """What the engine's own screen-space pass renders (``_rendered``), per configuration: ``{key: (masses
+        (3, 163), albedo, what)}`` on ``edges``, ``what`` naming the budget and the model. Empty: no pass of its own
+        is modelled."""
+        return {}
+
     # --- the command line -------------------------------------------------------------------------------------
 
     def params_from_flags(self, values: dict[str, Any]) -> dict[str, Any]:

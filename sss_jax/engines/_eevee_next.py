@@ -76,6 +76,46 @@ class EeveeNext(AbstractEngine):
         unit = scalar("mm_per_unit", params.get("mm_per_unit", 1000.0))
         return albedo, radius * scale * unit / (FOUR_PI * _s_normalised(albedo))
 
+    def rendered_fit(self, albedo, d_mm, *, subsurface_scale: float = 1.0, mm_per_unit: float = 1000.0,
+                     blender_version: str = CURRENT_BLENDER) -> dict[str, Any]:
+        """The Subsurface Radius whose pass after ``EEVEE_FRAMES`` TAA samples renders closest to the material's
+        Burley marginal (``_rendered.fit_d_through``: the centre sample's weight makes the exact radius too
+        narrow), beside the exact conversion's rendered error."""
+        from ._common import bins, relative_l2
+        from ._rendered import EEVEE_FRAMES, eevee_next_masses, fit_d_through
+
+        albedo, d = material(albedo, d_mm)
+        edges = bins(d)
+        ref = burley_marginal_masses(d, edges)
+        render = lambda dd: eevee_next_masses(albedo, dd, EEVEE_FRAMES, edges)
+        d_fit, err = fit_d_through(render, d, edges, ref)
+        params = self.to_engine(albedo, d_fit, subsurface_scale=subsurface_scale, mm_per_unit=mm_per_unit,
+                                blender_version=blender_version)
+        return {"frames": EEVEE_FRAMES, "d_mm": d_fit.tolist(), "Subsurface Radius": params["Subsurface Radius"],
+                "error_relative_l2": err.tolist(), "error_relative_l2_exact": relative_l2(render(d), ref).tolist()}
+
+    def block(self, albedo, d_mm, **options) -> dict[str, Any]:
+        """The exact conversion and, beside it, ``rendered_fit`` (the radius fitted through the pass)."""
+        out = super().block(albedo, d_mm, **options)
+        if np.all(np.asarray(d_mm, np.float64) > 0):
+            out["rendered_fit"] = self.rendered_fit(albedo, d_mm, subsurface_scale=out["Subsurface Scale"],
+                                                    mm_per_unit=out["mm_per_unit"],
+                                                    blender_version=out["blender_version"])
+        return out
+
+    def rendered(self, albedo, d_mm, edges, params=None):
+        """The pass after ``EEVEE_FRAMES`` TAA samples (16 samples each, sample 0 at the centre), noise-averaged,
+        for the exact radius and for the radius fitted through the pass (``rendered_fit``)."""
+        from ._rendered import EEVEE_FRAMES, eevee_next_masses
+
+        refit = (params or {}).get("rendered_fit") or self.rendered_fit(albedo, d_mm)
+        what = f"EEVEE Next's pass after {EEVEE_FRAMES} TAA samples of 16, noise-averaged"
+        key = f"eevee-next:taa{EEVEE_FRAMES}"
+        a = np.asarray(albedo, np.float64)
+        return {key: (eevee_next_masses(a, d_mm, EEVEE_FRAMES, edges), a, what),
+                key + "-refit": (eevee_next_masses(a, np.asarray(refit["d_mm"]), EEVEE_FRAMES, edges), a,
+                                 what + ", the radius fitted through it")}
+
     def marginal(self, albedo, d_mm, edges, params=None):
         albedo = np.asarray(albedo, np.float64)
         d = np.asarray(d_mm, np.float64)

@@ -17,7 +17,8 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ._base import ALBEDO_HELP, MM_PER_UNIT, AbstractEngine, Flag
-from ._common import burley_cdf_np, burley_inverse_cdf_np, burley_marginal_masses, material, rgb, scalar
+from ._common import (burley_cdf_np, burley_inverse_cdf_np, burley_marginal_masses, material, relative_l2, rgb,
+                      scalar)
 
 
 def srgb_encode(linear) -> np.ndarray:
@@ -94,6 +95,52 @@ class Hdrp(AbstractEngine):
         ws = scalar("world_scale", params.get("World Scale", 1.0))
         mask = scalar("subsurface_mask", params.get("Subsurface Mask", 1.0), positive=False, lo=0.0, hi=1.0)
         return albedo, color * mult * mask * unit / (1000.0 * ws)
+
+    def rendered_fit(self, albedo, d_mm, *, mm_per_unit: float = 1000.0,
+                     subsurface_mask: float = 1.0) -> dict[str, Any]:
+        """Per quality level, the diffusion profile whose pass (at ``RENDER_PX_PER_MM``, noise-averaged) renders
+        closest to the material's Burley marginal (``_rendered.fit_d_through``), beside the exact conversion's
+        rendered error: the exact profile is what HDRP's idealised kernel needs, not what its sampled pass needs."""
+        from ._common import bins
+        from ._rendered import HDRP_BUDGETS, RENDER_PX_PER_MM, fit_d_through, hdrp_masses
+
+        albedo, d = material(albedo, d_mm)
+        edges = bins(d)
+        ref = burley_marginal_masses(d, edges)
+        out = {}
+        for quality, budget in HDRP_BUDGETS.items():
+            render = lambda dd, budget=budget: hdrp_masses(dd, budget, edges)
+            d_fit, err = fit_d_through(render, d, edges, ref)
+            params = self.to_engine(albedo, d_fit, mm_per_unit=mm_per_unit, subsurface_mask=subsurface_mask)
+            out[quality] = {"budget": budget, "px_per_mm": RENDER_PX_PER_MM, "d_mm": d_fit.tolist(),
+                            **{k: params[k] for k in ("Scattering Color", "Scattering Color (inspector sRGB)",
+                                                      "Scattering Color (inspector hex)", "Multiplier")},
+                            "error_relative_l2": err.tolist(),
+                            "error_relative_l2_exact": relative_l2(render(d), ref).tolist()}
+        return out
+
+    def block(self, albedo, d_mm, **options) -> dict[str, Any]:
+        """The exact conversion and, beside it, ``rendered_fit`` (the profile fitted through the pass per quality)."""
+        out = super().block(albedo, d_mm, **options)
+        if np.all(np.asarray(d_mm, np.float64) > 0):
+            out["rendered_fit"] = self.rendered_fit(albedo, d_mm, mm_per_unit=out["mm_per_unit"],
+                                                    subsurface_mask=out["Subsurface Mask"])
+        return out
+
+    def rendered(self, albedo, d_mm, edges, params=None):
+        """The pass at each quality level (budget 20/40/80) at ``RENDER_PX_PER_MM``, noise-averaged, for the exact
+        profile and for the profile fitted through the pass (``rendered_fit``)."""
+        from ._rendered import HDRP_BUDGETS, RENDER_PX_PER_MM, hdrp_masses
+
+        refit = (params or {}).get("rendered_fit") or self.rendered_fit(albedo, d_mm)
+        out = {}
+        for quality, budget in HDRP_BUDGETS.items():
+            what = (f"HDRP's pass, quality {quality} (budget {budget} samples at {RENDER_PX_PER_MM:g} px/mm), "
+                    "noise-averaged")
+            out[f"hdrp:{quality}"] = (hdrp_masses(d_mm, budget, edges), np.asarray(albedo), what)
+            out[f"hdrp:{quality}-refit"] = (hdrp_masses(np.asarray(refit[quality]["d_mm"]), budget, edges),
+                                            np.asarray(albedo), what + ", the profile fitted through it")
+        return out
 
     def marginal(self, albedo, d_mm, edges, params=None):
         """Burley truncated at the filter radius (CDF 0.997 of the widest channel, ``UpdateKernel``) and renormalised

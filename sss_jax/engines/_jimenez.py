@@ -81,8 +81,28 @@ def jimenez_masses(strength, falloff, sss_width, mm_per_unit, n_samples, edges) 
     return piecewise_masses(lo, hi, spread, edges, dirac=1.0 - strength)
 
 
-def _fit(albedo, d, unit, n_samples):
-    """Least-squares fit of (effective sssWidth, falloff, strength) to the Burley marginal; see ``Jimenez.to_engine``."""
+def jimenez_comb_masses(strength, falloff, sss_width: float, mm_per_unit: float, n_samples: int,
+                        edges: np.ndarray, px_per_mm: float) -> np.ndarray:
+    """The comb one Jimenez pass applies at ``px_per_mm``: every tap a bilinear fetch, pixel masses spread over the
+    pixels' footprints; ``sss_width`` is the effective width (sssWidth times alpha)."""
+    offsets, weights = jimenez_kernel(strength, falloff, n_samples=n_samples)
+    t = offsets * _world_mm(sss_width, mm_per_unit) * px_per_mm  # px
+    lo_px = int(math.floor(t.min())) - 1
+    n_px = int(math.floor(t.max())) + 2 - lo_px + 1
+    pixel = np.zeros((n_px, 3))
+    p0 = np.floor(t)
+    f = t - p0
+    for i in range(len(t)):
+        pixel[int(p0[i]) - lo_px] += (1 - f[i]) * weights[i]
+        pixel[int(p0[i]) + 1 - lo_px] += f[i] * weights[i]
+    centres = (np.arange(n_px) + lo_px) / px_per_mm
+    return piecewise_masses(centres - 0.5 / px_per_mm, centres + 0.5 / px_per_mm, pixel, edges)
+
+
+def _fit(albedo, d, unit, n_samples, masses=jimenez_masses):
+    """Least-squares fit of (effective sssWidth, falloff, strength) to the Burley marginal; see ``Jimenez.to_engine``.
+    ``masses(strength, falloff, width, unit, n_samples, edges)``: the kernel model fitted (the taps spread over their
+    footprints; ``rendered_fit`` passes the comb the shader renders)."""
     from scipy.optimize import least_squares
 
     edges = bins(d)
@@ -90,7 +110,7 @@ def _fit(albedo, d, unit, n_samples):
     norm = np.linalg.norm(ref, axis=1, keepdims=True)
 
     def residuals(p):
-        m = jimenez_masses(p[4:7], p[1:4], math.exp(p[0]), unit, n_samples, edges)
+        m = masses(p[4:7], p[1:4], math.exp(p[0]), unit, n_samples, edges)
         return ((m - ref) / norm).ravel()
 
     best = None
@@ -105,8 +125,33 @@ def _fit(albedo, d, unit, n_samples):
         if best is None or sol.cost < best.cost:
             best = sol
     p = best.x
-    err = relative_l2(jimenez_masses(p[4:7], p[1:4], math.exp(p[0]), unit, n_samples, edges), ref)
+    err = relative_l2(masses(p[4:7], p[1:4], math.exp(p[0]), unit, n_samples, edges), ref)
     return p, best, err
+
+
+def _comb(px_per_mm: float):
+    def masses(strength, falloff, width, unit, n_samples, edges):
+        return jimenez_comb_masses(strength, falloff, width, unit, n_samples, edges, px_per_mm)
+
+    return masses
+
+
+def rendered_fit(albedo, d_mm, *, mm_per_unit: float = 1000.0, n_samples: int = JIMENEZ_DEFAULT_SAMPLES,
+                 alpha: float = 1.0, px_per_mm: float | None = None) -> dict[str, Any]:
+    """The parameters whose comb, as the shader renders it at ``px_per_mm`` (bilinear taps, pixel footprints),
+    is closest to the Burley marginal (the objective of ``Jimenez.to_engine`` with the rendered comb in place of
+    the taps spread over their footprints), and that error beside the exact conversion's rendered error."""
+    from ._rendered import RENDER_PX_PER_MM
+
+    albedo, d = material(albedo, d_mm)
+    ppm = RENDER_PX_PER_MM if px_per_mm is None else scalar("px_per_mm", px_per_mm)
+    unit = scalar("mm_per_unit", mm_per_unit)
+    p, sol, err = _fit(albedo, d, unit, n_samples, masses=_comb(ppm))
+    return {"sssWidth": math.exp(p[0]) / alpha, "strength": p[4:7].tolist(), "falloff": p[1:4].tolist(),
+            "alpha": alpha, "nSamples": int(n_samples), "mm_per_unit": unit, "px_per_mm": ppm,
+            "error_relative_l2": err.tolist(), "status": int(sol.status), "evaluations": int(sol.nfev),
+            "metric": "relative L2 of the comb's 1D-marginal bin masses rendered at px_per_mm (bilinear taps, "
+                      "pixel footprints) against Burley's, per channel"}
 
 
 class Jimenez(AbstractEngine):
@@ -187,9 +232,32 @@ class Jimenez(AbstractEngine):
         return albedo, d
 
     def block(self, albedo, d_mm, **options) -> dict[str, Any]:
+        """``to_engine``'s fit (the taps spread over their footprints) and, beside it, ``rendered_fit``: the
+        parameters fitted through the comb the shader renders at ``RENDER_PX_PER_MM``."""
         if not np.all(np.asarray(d_mm, np.float64) > 0):
             return {"error": "separable SSS needs d_mm > 0 in every channel"}
-        return super().block(albedo, d_mm, **options)
+        out = super().block(albedo, d_mm, **options)
+        out["rendered_fit"] = rendered_fit(albedo, d_mm, mm_per_unit=out["mm_per_unit"], n_samples=out["nSamples"],
+                                           alpha=out["alpha"])
+        return out
+
+    def rendered(self, albedo, d_mm, edges, params=None):
+        """The comb at ``RENDER_PX_PER_MM`` for the exact conversion's parameters and for ``rendered_fit``'s."""
+        from ._rendered import RENDER_PX_PER_MM
+
+        p = self.to_engine(albedo, d_mm) if params is None or "sssWidth" not in params else params
+        refit = p.get("rendered_fit") or rendered_fit(albedo, d_mm, mm_per_unit=p["mm_per_unit"],
+                                                      n_samples=int(p.get("nSamples", JIMENEZ_DEFAULT_SAMPLES)),
+                                                      alpha=float(p.get("alpha", 1.0)))
+        out = {}
+        for key, q, what in (("jimenez:comb", p, "the fitted kernel's comb"),
+                             ("jimenez:comb-refit", refit, "the comb of the parameters fitted through it")):
+            width = float(q["sssWidth"]) * float(q.get("alpha", 1.0))
+            m = jimenez_comb_masses(q["strength"], q["falloff"], width, q["mm_per_unit"],
+                                    int(q.get("nSamples", JIMENEZ_DEFAULT_SAMPLES)), edges, RENDER_PX_PER_MM)
+            out[key] = (m, np.asarray(albedo), f"Jimenez's pass, {what}, rendered at {RENDER_PX_PER_MM:g} px/mm "
+                                               "(bilinear taps)")
+        return out
 
     def marginal(self, albedo, d_mm, edges, params=None):
         p = self.to_engine(albedo, d_mm) if params is None or "sssWidth" not in params else params

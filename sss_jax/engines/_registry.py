@@ -76,14 +76,17 @@ def engine_blocks(albedo, d_mm, *, mm_per_unit: float | None = None,
     return {name: REGISTRY[name].block(albedo, d, **{**unit, **options.get(name, {})}) for name in BLOCK_ENGINES}
 
 
-def engine_marginals(albedo, d_mm, *, blocks: dict[str, dict[str, Any]] | None = None) -> dict[str, Any]:
+def engine_marginals(albedo, d_mm, *, blocks: dict[str, dict[str, Any]] | None = None,
+                     rendered: bool = True) -> dict[str, Any]:
     """What each engine renders for the material, as 1D-marginal bin masses (3, 163) on the reference bins.
 
     ``edges`` (3, 162) in mm; ``reference``: the untruncated Burley marginal; then one entry per engine kernel
     (``KERNELS``: ``cycles``, ``eevee``, ``eevee-next``, ``hdrp``, ``unreal``, ``jimenez``), each the engine's own
     kernel as its class builds it (``AbstractEngine.marginal``), from ``blocks`` (a preset's engine blocks) where
     given, so a stored fit is not redone. Masses are normalised profiles; each engine's albedo factor is in
-    ``albedo``.
+    ``albedo``. With ``rendered`` (default), also what each engine's own pass renders at its real budget
+    (``AbstractEngine.rendered``: ``hdrp:low|medium|high``, ``eevee-next:taa256``, ``jimenez:comb``,
+    ``jimenez:comb-refit``), each described in ``rendered`` (key -> what it is).
     """
     albedo, d = material(albedo, d_mm)
     if not np.all(d > 0):
@@ -92,35 +95,46 @@ def engine_marginals(albedo, d_mm, *, blocks: dict[str, dict[str, Any]] | None =
     edges = bins(d)
     out: dict[str, Any] = {"edges": edges, "reference": burley_marginal_masses(d, edges)}
     albedos = {"reference": albedo}
+    whats: dict[str, str] = {}
     for name, engine in REGISTRY.items():
         if engine.kernel is None:
             continue
         block = blocks.get(name)
-        result = engine.marginal(albedo, d, edges, block if isinstance(block, dict) and "error" not in block else None)
+        known = block if isinstance(block, dict) and "error" not in block else None
+        result = engine.marginal(albedo, d, edges, known)
         if result is not None:
             out[engine.kernel], albedos[engine.kernel] = result
+        if rendered:
+            for key, (masses, a, what) in engine.rendered(albedo, d, edges, known).items():
+                out[key], albedos[key], whats[key] = masses, a, what
     out["albedo"] = albedos
+    out["rendered"] = whats
     return out
 
 
-def engine_errors_against(marg: dict[str, Any], ref: np.ndarray, ref_albedo) -> dict[str, dict[str, list[float]]]:
+def engine_errors_against(marg: dict[str, Any], ref: np.ndarray, ref_albedo) -> dict[str, dict[str, Any]]:
     """Each engine's marginal masses of ``engine_marginals`` against reference masses ``ref (3, 163)`` on the same
     bins (Burley's, or a Monte Carlo profile's) with that reference's albedo (3,): relative L2 and energy lost."""
     a_ref = np.asarray(ref_albedo, np.float64)
     out = {}
-    for kernel in KERNELS:
+    for kernel in (*KERNELS, *marg.get("rendered", {})):
         if kernel not in marg:
             continue
         m = marg[kernel]
         a = np.asarray(marg["albedo"][kernel])
         total = a * np.sum(m, axis=1)
         lost = np.where(a_ref > 0, 1.0 - total / np.where(a_ref > 0, a_ref * np.sum(ref, axis=1), 1.0), 0.0)
-        out[kernel] = {"error_relative_l2": relative_l2(m, ref).tolist(), "energy_lost": lost.tolist()}
+        what = marg.get("rendered", {}).get(kernel, "the engine's idealised kernel (its conversion's profile, "
+                                                    "truncated or fitted as the engine builds it)")
+        out[kernel] = {"error_relative_l2": relative_l2(m, ref).tolist(), "energy_lost": lost.tolist(), "what": what}
     return out
 
 
-def engine_profile_error(albedo, d_mm, **options) -> dict[str, dict[str, list[float]]]:
-    """Per engine kernel, how far it renders from the Burley reference of the material, per channel.
+def engine_profile_error(albedo, d_mm, **options) -> dict[str, dict[str, Any]]:
+    """Per engine kernel, how far it renders from the Burley reference of the material, per channel: each engine's
+    idealised kernel (``hdrp``, ``eevee-next``, ``jimenez``, ...) and, beside it, what its own pass renders at its real
+    budget (``hdrp:low``/``medium``/``high``, ``eevee-next:taa256``, ``jimenez:comb`` at 1 px/mm and
+    ``jimenez:comb-refit``, the parameters fitted through that comb), each entry naming itself in ``what``.
 
     ``error_relative_l2``: ``||m_engine - m_ref|| / ||m_ref||`` over the 1D-marginal bin masses of
     ``engine_marginals`` (161 bins of width d/4 centred on 0 plus both tails); the 1D marginal is what one pass of a

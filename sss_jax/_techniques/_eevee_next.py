@@ -1,0 +1,223 @@
+"""EEVEE Next's own screen-space subsurface pass (Blender 4.2 and later), as the engine executes it
+(``eevee-next`` technique).
+
+blender/blender ``source/blender/draw/engines/eevee_next/eevee_subsurface.cc`` (4.2-4.4; ``draw/engines/eevee/``
+from 4.5, same code) ``SubsurfaceModule::precompute_samples_location``, ``burley_sample``, ``burley_eval``,
+``burley_pdf``, and ``shaders/eevee_subsurface_convolve_comp.glsl`` (``main``). Once per TAA sample the engine draws
+``(rand_u, rand_v)`` and lays out ``sample_len = 16`` samples in units of the pixel's largest radius:
+
+- ``x_i = (1 + rand_v / 16) i / 16`` (sample 0 always at the centre), ``r_i = burley_sample(d0, x_i)`` with
+  ``d0 = burley_setup(1, 1)`` and the CDF truncated at ``16 d`` (``SSS_BURLEY_TRUNCATE_CDF``), angle
+  ``golden_angle i + 2 pi rand_u``, ``pdf_inv_i = TRUNCATE_CDF / burley_eval(d0, r_i)``;
+- per pixel the pattern is turned by ``interleaved_gradient_noise(texel) * golden_angle`` and scaled to pixels by
+  ``focal_px * max_radius / z``; nothing happens where that footprint is at most one pixel;
+- each sample is a nearest fetch (the sampler clamps to a border of id 0: off-frame samples are rejected, as are
+  samples on another object); its weight is ``burley_eval(d, |P_sample - P|)`` (the 3D distance of the view-space
+  positions) times ``pdf_inv_i``, and the sum is normalised per channel.
+
+``d = burley_setup(max(radius, 1e-4 max radius), A / max A)``; for sss_jax's material the radius is
+``engines.EeveeNext``'s (``d 4 pi s(A / max A)``), so the pass's d is the material's wherever no channel is clamped.
+``frames=K`` averages K TAA samples; sss_jax draws ``(rand_u, rand_v)`` for TAA sample ``k`` from the (2, 3) Halton
+pair of ``k + 1 + seed`` (Blender takes them from its sampling module's low-discrepancy sequence: not read).
+Texel rows count from the bottom of the frame and the pattern's y points up, as in OpenGL.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, ClassVar
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from .._checks import checked
+from .._materials import BurleyMaterial
+from .._profiles import burley_inverse_ccdf
+from .._scene import Buffers, Camera
+from ._base import AbstractTechnique, option
+from ._common import ALBEDO_MODES, _check_albedo_mode, _finish, _prepare, _safe_sqrt, _work_dtype
+from ._engine_frame import check_count, frame_geometry, nearest_fetch
+
+EEVEE_SAMPLE_LEN = 16  # SubsurfaceModule::end_sync, data_.sample_len (EEVEE Next, 4.2 and later)
+EEVEE_BURLEY_TRUNCATE = 16.0  # SSS_BURLEY_TRUNCATE
+EEVEE_BURLEY_TRUNCATE_CDF = 0.9963790093708328  # SSS_BURLEY_TRUNCATE_CDF: Burley's CDF at 16 d
+EEVEE_MIN_RADIUS = 1e-4  # convolve shader: clamped_sss_radius (4.2; the uniform min_radius later)
+GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))
+FIRST_VERSION = (4, 2)  # EEVEE Next replaces EEVEE legacy (whose pass was separable) in Blender 4.2
+
+
+def burley_setup(radius, albedo):
+    """``burley_setup``: ``d = radius / (4 pi s)``, ``s = 1.9 - A + 3.5 (A - 0.8)^2`` (A already normalised)."""
+    s = 1.9 - albedo + 3.5 * (albedo - 0.8) ** 2
+    return 0.25 / math.pi * radius / s
+
+
+EEVEE_D0 = burley_setup(1.0, 1.0)
+
+
+def halton(index, base: int, dtype) -> Array:
+    """The radical inverse of the non-negative integer ``index`` (traced int) in ``base``."""
+    index = jnp.asarray(index, jnp.uint32)
+    result = jnp.zeros((), dtype)
+    f = 1.0
+    for _ in range(20):  # 20 digits of base 2 cover 10^6 frames
+        f = f / base
+        result = result + f * (index % base).astype(dtype)
+        index = index // base
+    return result
+
+
+def interleaved_gradient_noise(x: Array, y: Array) -> Array:
+    """Jimenez's interleaved gradient noise ``fract(52.9829189 fract(0.06711056 x + 0.00583715 y))`` of a texel
+    (Blender's ``interleaved_gradient_noise(texel, 0, 0)``)."""
+    inner = 0.06711056 * x + 0.00583715 * y
+    return jnp.mod(52.9829189 * jnp.mod(inner, 1.0), 1.0)
+
+
+def eevee_samples(frame, seed, dtype):
+    """``(x, y, pdf_inv)`` of the 16 samples of TAA sample ``frame`` (units of the largest radius)."""
+    key = jnp.asarray(frame, jnp.uint32) + 1 + jnp.asarray(seed, jnp.uint32)
+    rand_u, rand_v = halton(key, 2, dtype), halton(key, 3, dtype)
+    i = jnp.arange(EEVEE_SAMPLE_LEN, dtype=dtype)
+    theta = GOLDEN_ANGLE * i + 2 * jnp.pi * rand_u
+    x = (1 + rand_v / EEVEE_SAMPLE_LEN) * (i / EEVEE_SAMPLE_LEN)
+    u = x * EEVEE_BURLEY_TRUNCATE_CDF
+    r = jnp.where(u > 0, burley_inverse_ccdf(1 - u, jnp.asarray(EEVEE_D0, dtype)), 0.0)
+    e3 = jnp.exp(-r / (3 * EEVEE_D0))
+    eval_d0 = (e3 * e3 * e3 + e3) / (8 * jnp.pi * EEVEE_D0)  # burley_eval (C++), r < 16 d0 always
+    return jnp.cos(theta) * r, jnp.sin(theta) * r, EEVEE_BURLEY_TRUNCATE_CDF / eval_d0
+
+
+def _s_normalised(albedo: Array) -> Array:
+    a = albedo / jnp.maximum(1e-6, jnp.max(albedo, axis=-1, keepdims=True))
+    return 1.9 - a + 3.5 * (a - 0.8) ** 2
+
+
+@eqx.filter_jit
+def _eevee_next_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, frames: int, albedo_mode: str,
+                     seed, origin: tuple[int, int], frame_shape) -> Array:
+    dtype = _work_dtype(buffers.irradiance.dtype)
+    d_table = checked(material.d_mm.astype(dtype), "d_mm")
+    prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
+    h, w = buffers.depth.shape
+    rows, cols, fh, _, cx, cy = frame_geometry(buffers, camera, origin, frame_shape)
+    focal = camera.focal_px.astype(dtype)
+    mm_per_unit = camera.mm_per_unit.astype(dtype)
+    albedo_mat = jnp.clip(material.albedo.astype(dtype), 0.0, 1.0)[prep.rows]
+    # the radius EEVEE Next is given for the material (engines.EeveeNext), in mm, and the d its shader derives
+    s_norm = _s_normalised(albedo_mat)
+    radius = jnp.where(prep.valid[..., None], d_table[prep.rows] * 4 * jnp.pi * s_norm, 0.0)
+    max_radius = jnp.max(radius, axis=-1)
+    safe_max = jnp.where(max_radius > 0, max_radius, 1.0)
+    clamped = jnp.maximum(EEVEE_MIN_RADIUS, radius / safe_max[..., None]) * safe_max[..., None]
+    d = 0.25 / jnp.pi * clamped / s_norm  # burley_setup, mm
+    z = prep.depth
+    scale_px = jnp.where(prep.valid, focal * max_radius / (jnp.where(prep.valid, z, 1.0) * mm_per_unit), 0.0)
+    active = prep.valid & (scale_px > 1.0)
+    theta = interleaved_gradient_noise(cols.astype(dtype), (fh - 1 - rows).astype(dtype)) * GOLDEN_ANGLE
+    cos_t, sin_t = jnp.cos(theta), jnp.sin(theta)
+    ids = (buffers.material_id.astype(jnp.int32) if buffers.material_id is not None
+           else jnp.ones((h, w), jnp.int32))
+    ids = jnp.where(prep.valid, ids, 0)
+    flat = jnp.concatenate([prep.irradiance, z[..., None], ids[..., None].astype(dtype)], axis=-1).reshape(h * w, 5)
+    local_c = jnp.arange(w, dtype=dtype)[None, :]
+    local_r = jnp.arange(h, dtype=dtype)[:, None]
+    # view-space x, y of the centre (scene units; y down as sss_jax's camera)
+    px_c = (local_c + 0.5 - cx) / focal * z
+    py_c = (local_r + 0.5 - cy) / focal * z
+    inv_d = 1.0 / d
+
+    def one_frame(k, acc):
+        sx, sy, pdf_inv = eevee_samples(k, seed, dtype)
+
+        def sample(i, carry):
+            acc_e, acc_w = carry
+            # from_rotation(theta) then from_scale: rotate the pattern, scale it to pixels; y up in the pattern
+            ox = scale_px * (cos_t * sx[i] - sin_t * sy[i])
+            oy = -scale_px * (sin_t * sx[i] + cos_t * sy[i])
+            col_f, row_f = local_c + ox, local_r + oy
+            fetched, inside = nearest_fetch(flat, h, w, jnp.floor(row_f + 0.5).astype(jnp.int32),
+                                            jnp.floor(col_f + 0.5).astype(jnp.int32))
+            ok = active & inside & (fetched[..., 4] == ids.astype(dtype))
+            zs = fetched[..., 3]
+            dx = (col_f + 0.5 - cx) / focal * zs - px_c
+            dy = (row_f + 0.5 - cy) / focal * zs - py_c
+            dz = zs - z
+            r = _safe_sqrt(dx * dx + dy * dy + dz * dz) * mm_per_unit
+            e3 = jnp.exp(-r[..., None] * inv_d / 3)
+            weight = (e3 * e3 * e3 + e3) * 0.25 * inv_d * pdf_inv[i]  # burley_eval (GLSL) * pdf_inv
+            weight = jnp.where(ok[..., None], weight, 0.0)
+            return acc_e + weight * fetched[..., :3], acc_w + weight
+
+        zero = jnp.zeros((h, w, 3), dtype)
+        acc_e, acc_w = jax.lax.fori_loop(0, EEVEE_SAMPLE_LEN, sample, (zero, zero))
+        scattered = jnp.where(acc_w > 0, acc_e / jnp.where(acc_w > 0, acc_w, 1.0), 0.0)  # safe_rcp
+        return acc + jnp.where(active[..., None], scattered, prep.irradiance)
+
+    total = jax.lax.fori_loop(0, frames, one_frame, jnp.zeros((h, w, 3), dtype))
+    return _finish(buffers, prep, total / frames)
+
+
+class EeveeNextPass(AbstractTechnique):
+    """EEVEE Next's screen-space subsurface pass (``eevee_subsurface_convolve_comp.glsl``) on sss_jax's buffers.
+
+    ``frames`` TAA samples are averaged (each with its own ``rand_u``, ``rand_v``: EEVEE's viewport and renders
+    accumulate 16 to 256 and more); ``blender_version`` must be 4.2 or later (the 16-sample pattern; EEVEE legacy,
+    up to 4.1, ran a separable pass). Takes a ``BurleyMaterial``; ``EeveeNextPass.material_from_engine(params)``
+    reads Principled BSDF inputs (``engines.EeveeNext.from_engine``).
+    """
+
+    name: ClassVar[str] = "eevee-next"
+    conserves_energy: ClassVar[bool] = True
+    material_type: ClassVar[type | tuple[type, ...]] = BurleyMaterial
+
+    frames: int = option(16, "eevee-next: TAA samples accumulated (each a new 16-sample pattern)")
+    blender_version: str = option("4.2", "eevee-next: Blender version (4.2 or later: the 16-sample pattern)")
+    albedo_mode: str = option("post", "eevee-next: albedo applied after the scatter, or split before and after",
+                              choices=ALBEDO_MODES)
+    seed: int = option(0, "eevee-next: offset into the TAA sample sequence", static=False)
+
+    def __check_init__(self):
+        check_count("frames", self.frames, lo=1)
+        from ..engines._blender import parse_version
+
+        if parse_version(self.blender_version) < FIRST_VERSION:
+            raise ValueError(f"blender_version {self.blender_version}: EEVEE Next starts with 4.2; earlier versions "
+                             "have EEVEE legacy, whose pass is separable (not this one)")
+
+    def __call__(self, buffers: Buffers, material: BurleyMaterial, camera: Camera, *,
+                 origin: tuple[int, int] = (0, 0), frame_shape: tuple[int, int] | None = None
+                 ) -> Float[Array, "H W 3"]:
+        self.check_material(material)
+        _check_albedo_mode(self.albedo_mode)
+        if buffers.irradiance.ndim != 3:
+            raise ValueError(f"eevee-next takes one image (H, W, 3); vmap for a batch, got {buffers.irradiance.shape}")
+        return _eevee_next_impl(buffers, material, camera, int(self.frames), self.albedo_mode, self.seed,
+                                tuple(int(o) for o in origin), None if frame_shape is None else tuple(frame_shape))
+
+    def reach_px(self, buffers: Buffers, material: BurleyMaterial, camera: Camera) -> int:
+        """The farthest sample (``x < 1 + 1/16`` of the truncated CDF, at most 16 d0 max radius) at the nearest
+        SSS pixel."""
+        from ._hdrp import _max_ppm
+
+        a = np.asarray(material.albedo, np.float64)
+        s = 1.9 - a / np.maximum(1e-6, a.max(-1, keepdims=True))
+        s = s + 3.5 * (a / np.maximum(1e-6, a.max(-1, keepdims=True)) - 0.8) ** 2
+        radius = float(np.max(np.asarray(material.d_mm, np.float64) * 4 * math.pi * s))
+        return int(math.ceil(_max_ppm(buffers, camera) * EEVEE_BURLEY_TRUNCATE * EEVEE_D0 * radius)) + 1
+
+    @staticmethod
+    def material_from_engine(params: dict[str, Any]) -> BurleyMaterial:
+        """The ``BurleyMaterial`` for Principled BSDF inputs (``engines.EeveeNext.from_engine``)."""
+        from ..engines import get_engine
+
+        albedo, d = get_engine("eevee-next").from_engine(dict(params))
+        return BurleyMaterial(albedo, d)
+
+
+def eevee_next(buffers: Buffers, material: BurleyMaterial, camera: Camera, **options) -> Float[Array, "H W 3"]:
+    """EEVEE Next's own subsurface pass: ``EeveeNextPass(**options)(buffers, material, camera)``."""
+    return EeveeNextPass(**options)(buffers, material, camera)

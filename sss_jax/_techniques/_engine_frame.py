@@ -1,0 +1,49 @@
+"""What the engines' own passes (``_hdrp``, ``_eevee_next``, ``_jimenez``) share: a buffer's place in the whole frame
+(tiles), the frame's pixel coordinates, and the checks of their options.
+
+A tile passes its top-left pixel in the frame (``origin``) and the frame's ``(H, W)`` (``frame_shape``): the
+per-pixel hashes, the texel coordinates an engine's noise reads and the field of view follow the frame. Samples
+that land outside the buffer are treated as off-frame; a tile's halo (``reach_px``) keeps them from the pixels it
+keeps.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jaxtyping import Array
+
+from .._scene import Buffers, Camera
+
+
+def frame_geometry(buffers: Buffers, camera: Camera, origin, frame_shape):
+    """``(rows, cols, frame_h, frame_w, cx, cy)``: the frame row and column (int32, (H, W)) of every pixel of the
+    buffer, the frame's size and its principal point (pixels, the image centre unless the camera states one)."""
+    h, w = buffers.depth.shape
+    oy, ox = (int(o) for o in origin)
+    if oy < 0 or ox < 0:
+        raise ValueError(f"origin must be (row, col) >= 0, got {tuple(origin)!r}")
+    fh, fw = (int(s) for s in (frame_shape if frame_shape is not None else (h, w)))
+    if oy + h > fh or ox + w > fw:
+        raise ValueError(f"a buffer of {(h, w)} at origin {(oy, ox)} does not fit in frame_shape {(fh, fw)}")
+    rows = jnp.broadcast_to(jnp.arange(h, dtype=jnp.int32)[:, None] + oy, (h, w))
+    cols = jnp.broadcast_to(jnp.arange(w, dtype=jnp.int32)[None, :] + ox, (h, w))
+    cx, cy = camera.principal_point if camera.principal_point is not None else (fw / 2, fh / 2)
+    return rows, cols, fh, fw, float(cx) - ox, float(cy) - oy
+
+
+def check_count(name: str, value, *, lo: int, hi: int | None = None) -> int:
+    """An integer option within ``[lo, hi]``; the error names the option."""
+    if isinstance(value, bool) or not hasattr(value, "__index__"):
+        raise ValueError(f"{name} must be an integer, got {value!r}")
+    v = int(value)
+    if v < lo or (hi is not None and v > hi):
+        raise ValueError(f"{name} must be in [{lo}, {hi if hi is not None else 'inf'}], got {value!r}")
+    return v
+
+
+def nearest_fetch(flat: Array, height: int, width: int, row: Array, col: Array):
+    """Point fetch of ``flat (H*W, K)`` at integer pixel ``(row, col)``; ``inside`` is False off the buffer (the
+    fetched row is then the clamped one and must be masked)."""
+    inside = (row >= 0) & (row < height) & (col >= 0) & (col < width)
+    idx = jnp.clip(row, 0, height - 1) * width + jnp.clip(col, 0, width - 1)
+    return jnp.take(flat, idx, axis=0), inside

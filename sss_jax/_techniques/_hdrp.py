@@ -1,0 +1,197 @@
+"""Unity HDRP's own screen-space subsurface pass, as the engine executes it (``hdrp`` technique).
+
+Unity-Technologies/Graphics ``com.unity.render-pipelines.high-definition/Runtime/Material/SubsurfaceScattering/
+SubsurfaceScattering.compute`` (``EvaluateSss``, ``EvaluateSample``, ``ComputeBilateralWeight``), with
+``Runtime/Material/DiffusionProfile/DiffusionProfile.hlsl`` (``SampleBurleyDiffusionProfile``,
+``EvalBurleyDiffusionProfile``) and ``DiffusionProfileSettings.cs`` (``SSS_PIXELS_PER_SAMPLE = 4``,
+``DefaultSssSampleBudgetForQualityLevel`` Low/Medium/High = 20/40/80, Max 1000; ``UpdateKernel``: the filter radius
+is the radius holding 0.997 of the widest channel's energy). Per SSS pixel:
+
+- ``n = min(floor(pi (filter radius px)^2 / 4), budget)``; ``n < 1`` keeps the pixel's own irradiance;
+- sample ``i < n`` at the widest channel's Burley radius for ``u = i/n + 0.5/n`` (the whole CDF), angle
+  ``2 pi frac(i / golden ratio) + phase``, ``phase`` a per-pixel hash (sss_jax's ``spiral_rotation`` of the frame
+  pixel, frame and seed: HDRP hashes the pixel and its depth bits; TAA sees a new pattern per frame);
+- a point fetch at ``pixel + round(px_per_mm r (cos, sin))``;
+- weight ``EvalBurleyDiffusionProfile(sqrt(r^2 + (dz mm)^2), S) * rcpPdf``: each channel's profile at the 3D
+  distance (the bilateral weight) over the sampling pdf of the widest channel;
+- samples off the frame or on a pixel without SSS (HDRP tags SSS lighting non-zero and skips zero lighting) are
+  skipped, and the weights renormalised over the rest: ``albedo * sum(w E) / sum(w)``.
+
+``d_mm`` is HDRP's scattering distance (``1 / shapeParam``, the exact conversion of ``engines.Hdrp``); a channel
+with ``d = 0`` keeps its own irradiance (HDRP would divide by ``FLT_MIN``). ``frames=K`` averages K frames, each
+with its own rotation hash (what TAA converges to).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, ClassVar
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from .._checks import checked
+from .._materials import BurleyMaterial
+from .._profiles import burley_inverse_ccdf
+from .._scene import Buffers, Camera
+from .._units import px_per_mm
+from ._base import AbstractTechnique, option
+from ._burley import spiral_rotation
+from ._common import _check_albedo_mode, _finish, _prepare, _safe_sqrt, _work_dtype, ALBEDO_MODES
+from ._engine_frame import check_count, frame_geometry, nearest_fetch
+
+HDRP_QUALITY_BUDGETS = {"low": 20, "medium": 40, "high": 80}  # DefaultSssSampleBudgetForQualityLevel
+HDRP_MAX_BUDGET = 1000  # DefaultSssSampleBudgetForQualityLevel.Max
+HDRP_PIXELS_PER_SAMPLE = 4  # DiffusionProfileConstants.SSS_PIXELS_PER_SAMPLE
+HDRP_FILTER_CDF = 0.997  # DiffusionProfileSettings.UpdateKernel: the filter radius holds 99.7% of the energy
+GOLDEN_RATIO = (1.0 + math.sqrt(5.0)) / 2.0
+# the filter radius in units of d: Burley's CDF 1 - e^-x/4 - 3 e^(-x/3)/4 = 0.997 (closed form of _profiles)
+with jax.enable_x64(True):
+    FILTER_RADIUS_UNITS = float(np.asarray(burley_inverse_ccdf(np.float64(1 - HDRP_FILTER_CDF), np.float64(1.0))))
+
+
+def hdrp_budget(quality: str, budget: int | None) -> int:
+    """The sample budget: ``budget`` where given (1..1000, HDRP's custom budget), else the quality level's."""
+    if budget is not None:
+        return check_count("budget", budget, lo=1, hi=HDRP_MAX_BUDGET)
+    if quality not in HDRP_QUALITY_BUDGETS:
+        raise ValueError(f"quality={quality!r} is not one of {tuple(HDRP_QUALITY_BUDGETS)}")
+    return HDRP_QUALITY_BUDGETS[quality]
+
+
+def _exp_sum(x: Array) -> Array:
+    """``exp(-x/3) + exp(-x)`` (the Burley profile times ``8 pi r / S``), one exponential."""
+    e3 = jnp.exp(-x / 3)
+    return e3 * (1 + e3 * e3)
+
+
+@eqx.filter_jit
+def _hdrp_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, budget: int, frames: int,
+               albedo_mode: str, seed, origin: tuple[int, int], frame_shape) -> Array:
+    dtype = _work_dtype(buffers.irradiance.dtype)
+    d_table = checked(material.d_mm.astype(dtype), "d_mm")
+    prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
+    h, w = buffers.depth.shape
+    rows, cols, _, _, _, _ = frame_geometry(buffers, camera, origin, frame_shape)
+    mm_per_unit = camera.mm_per_unit.astype(dtype)
+    d_pix = jnp.where(prep.valid[..., None], d_table[prep.rows], 0.0)  # (H, W, 3), mm
+    d_max = jnp.max(d_pix, axis=-1)
+    ppm = jnp.where(prep.valid, px_per_mm(prep.depth, focal_px=camera.focal_px.astype(dtype),
+                                          mm_per_unit=mm_per_unit), 0.0)
+    filter_px = FILTER_RADIUS_UNITS * d_max * ppm
+    count = jnp.floor(jnp.pi * filter_px * filter_px / HDRP_PIXELS_PER_SAMPLE)
+    n = jnp.minimum(count, budget)  # float: exact for counts far below 2^24
+    active = prep.valid & (n >= 1)
+    n_safe = jnp.where(active, n, 1.0)
+    has_d = d_pix > 0
+    shape = jnp.where(has_d, 1.0 / jnp.where(has_d, d_pix, 1.0), 0.0)  # S = 1/d per channel (mm^-1)
+    flat = jnp.concatenate([prep.irradiance, prep.depth[..., None], prep.valid[..., None].astype(dtype)],
+                           axis=-1).reshape(h * w, 5)
+    local_r = jnp.arange(h, dtype=jnp.int32)[:, None]
+    local_c = jnp.arange(w, dtype=jnp.int32)[None, :]
+
+    def one_frame(k, acc):
+        phase = spiral_rotation(rows, cols, k, seed, dtype=dtype)
+
+        def sample(i, carry):
+            total_e, total_w = carry
+            fi = jnp.asarray(i, dtype)
+            u = fi / n_safe + 0.5 / n_safe
+            r = burley_inverse_ccdf(1 - u, jnp.where(active, d_max, 1.0))  # mm, the widest channel's
+            phi = 2 * jnp.pi * jnp.mod(fi / GOLDEN_RATIO, 1.0)
+            psi = phase + phi
+            step = ppm * r
+            sr = local_r + jnp.round(step * jnp.sin(psi)).astype(jnp.int32)
+            sc = local_c + jnp.round(step * jnp.cos(psi)).astype(jnp.int32)
+            fetched, inside = nearest_fetch(flat, h, w, sr, sc)
+            ok = active & (fi < n) & inside & (fetched[..., 4] > 0)
+            rel_z_mm = (fetched[..., 3] - prep.depth) * mm_per_unit
+            r3 = _safe_sqrt(r * r + rel_z_mm * rel_z_mm)
+            rcp_pdf = jnp.where(active, d_max, 0.0) / _exp_sum(jnp.where(active, r / jnp.where(active, d_max, 1.0),
+                                                                         0.0))
+            weight = shape * _exp_sum(r3[..., None] * shape) * rcp_pdf[..., None]
+            weight = jnp.where(ok[..., None], weight, 0.0)
+            return total_e + weight * fetched[..., :3], total_w + weight
+
+        zero = jnp.zeros((h, w, 3), dtype)
+        total_e, total_w = jax.lax.fori_loop(0, budget, sample, (zero, zero))
+        scattered = jnp.where(total_w > 0, total_e / jnp.where(total_w > 0, total_w, 1.0), 0.0)
+        keep = ~active[..., None] | ~has_d
+        return acc + jnp.where(keep, prep.irradiance, scattered)
+
+    total = jax.lax.fori_loop(0, frames, one_frame, jnp.zeros((h, w, 3), dtype))
+    return _finish(buffers, prep, total / frames)
+
+
+class HdrpPass(AbstractTechnique):
+    """HDRP's screen-space subsurface pass (``SubsurfaceScattering.compute``) on sss_jax's buffers.
+
+    ``quality`` low/medium/high is the sample budget 20/40/80; ``budget`` (1..1000) overrides it; ``frames`` averages
+    that many TAA frames; ``seed`` turns the per-pixel hash. Takes a ``BurleyMaterial`` (HDRP's profile holds
+    Burley's d directly: ``engines.Hdrp``); ``HdrpPass.material_from_engine(params)`` reads a diffusion profile's
+    values.
+    """
+
+    name: ClassVar[str] = "hdrp"
+    conserves_energy: ClassVar[bool] = True
+    material_type: ClassVar[type | tuple[type, ...]] = BurleyMaterial
+
+    quality: str = option("medium", "hdrp: sample budget by quality level (low 20, medium 40, high 80)",
+                          choices=tuple(HDRP_QUALITY_BUDGETS))
+    budget: int | None = option(None, "hdrp: explicit sample budget 1..1000 (overrides --quality)")
+    frames: int = option(1, "hdrp: TAA frames averaged, each with its own rotation hash")
+    albedo_mode: str = option("post", "hdrp: texturing mode (post-scatter, or pre-and-post)", choices=ALBEDO_MODES)
+    seed: int = option(0, "hdrp: seed of the per-pixel rotation hash", static=False)
+
+    def __check_init__(self):
+        hdrp_budget(self.quality, self.budget)
+        check_count("frames", self.frames, lo=1)
+
+    @property
+    def samples(self) -> int:
+        """The budget the pass runs with."""
+        return hdrp_budget(self.quality, self.budget)
+
+    def __call__(self, buffers: Buffers, material: BurleyMaterial, camera: Camera, *,
+                 origin: tuple[int, int] = (0, 0), frame_shape: tuple[int, int] | None = None
+                 ) -> Float[Array, "H W 3"]:
+        self.check_material(material)
+        _check_albedo_mode(self.albedo_mode)
+        if buffers.irradiance.ndim != 3:
+            raise ValueError(f"hdrp takes one image (H, W, 3); vmap for a batch, got {buffers.irradiance.shape}")
+        return _hdrp_impl(buffers, material, camera, self.samples, int(self.frames), self.albedo_mode, self.seed,
+                          tuple(int(o) for o in origin), None if frame_shape is None else tuple(frame_shape))
+
+    def reach_px(self, buffers: Buffers, material: BurleyMaterial, camera: Camera) -> int:
+        """The farthest sample: the radius of sample ``n-1`` (``u = 1 - 0.5/n``) at the nearest SSS pixel."""
+        return int(math.ceil(_max_ppm(buffers, camera) * _sample_radius_mm(material, self.samples))) + 1
+
+    @staticmethod
+    def material_from_engine(params: dict[str, Any]) -> BurleyMaterial:
+        """The ``BurleyMaterial`` HDRP renders for a diffusion profile's values (``engines.Hdrp.from_engine``)."""
+        from ..engines import get_engine
+
+        albedo, d = get_engine("hdrp").from_engine(dict(params))
+        return BurleyMaterial(albedo, d)
+
+
+def _max_ppm(buffers: Buffers, camera: Camera) -> float:
+    z = np.asarray(buffers.depth, np.float64)
+    ok = np.isfinite(z) & (z > 0)
+    if not ok.any():
+        return 0.0
+    return float(camera.focal_px) / (float(np.min(z[ok])) * float(camera.mm_per_unit))
+
+
+def _sample_radius_mm(material: BurleyMaterial, n: int) -> float:
+    d = float(np.max(np.asarray(material.d_mm, np.float64)))
+    with jax.enable_x64(True):
+        return float(np.asarray(burley_inverse_ccdf(np.float64(0.5 / n), np.float64(d))))
+
+
+def hdrp(buffers: Buffers, material: BurleyMaterial, camera: Camera, **options) -> Float[Array, "H W 3"]:
+    """HDRP's own subsurface pass: ``HdrpPass(**options)(buffers, material, camera)`` (see ``HdrpPass``)."""
+    return HdrpPass(**options)(buffers, material, camera)
