@@ -284,6 +284,61 @@ def test_cli_apply_missing_focal_length(tmp_path, capsys):
     assert not (tmp_path / "o.exr").exists()
 
 
+def write_renderer_exr(path, channels: dict, attrs=None):
+    """An EXR as renderers write it, through the OpenEXR library itself (neither sss_jax's writer nor OpenImageIO):
+    each channel in its own type, half colour, float depth, uint32 ids."""
+    import OpenEXR
+
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage, **(attrs or {})}
+    with OpenEXR.File(header, {k: np.ascontiguousarray(v) for k, v in channels.items()}) as f:
+        f.write(str(path))
+
+
+def renderer_frame(path, ids, h=12, w=16):
+    rng = np.random.default_rng(3)
+    ch = {c: rng.uniform(0.2, 1, (h, w)).astype(np.float16) for c in "RGB"}
+    ch["Z"] = np.full((h, w), 30.0, np.float32)
+    ch["id"] = ids.astype(np.uint32)
+    write_renderer_exr(path, ch, {"sss_jax:focal_px": 200.0, "sss_jax:mm_per_unit": 10.0})
+    return ch
+
+
+def test_uint32_id_channel_reads_as_integers_and_apply_scatters_the_object(tmp_path, capsys, as_users_run_it):
+    """Issue #30: a uint32 id (0 background, 1 object) came through OpenImageIO's normalising float conversion as
+    2.3e-10 = 1/(2^32-1), every pixel id 0, nothing scattered."""
+    h, w = 12, 16
+    ids = np.ones((h, w), np.uint32)
+    ids[:, :5] = 0
+    src = tmp_path / "ids.exr"
+    ch = renderer_frame(src, ids)
+    inp = oiio.ImageInput.open(str(src))
+    assert str(inp.spec().channelformat(inp.spec().channelnames.index("id"))) == "uint"  # as a renderer stores it
+    inp.close()
+    f = _io.read_frame(src)
+    np.testing.assert_array_equal(f.material_id, ids.astype(np.int32))
+    assert f.sss_pixels == h * (w - 5)
+    out = tmp_path / "o.exr"
+    assert main(["apply", str(src), "-o", str(out), "--technique", "burley", "--d-mm", "2,1,0.5",
+                 "--albedo", "0.8,0.6,0.5"]) == 0, capsys.readouterr().err
+    got = _io.read_frame(out, channel_map={"irradiance": ["R", "G", "B"], "depth": "R"}).irradiance
+    rgb = np.stack([ch[c].astype(np.float32) for c in "RGB"], -1)
+    np.testing.assert_array_equal(got[:, :5], rgb[:, :5])  # id 0 passes through untouched
+    changed = np.abs(got[:, 5:] - 0.8 * rgb[:, 5:]).max(axis=-1) > 1e-3  # scattered, not albedo x irradiance
+    assert changed.mean() > 0.9
+    assert "no pixel to scatter" not in capsys.readouterr().err
+
+
+def test_a_frame_without_sss_pixels_warns(tmp_path, capsys, as_users_run_it):
+    src = tmp_path / "zero.exr"
+    renderer_frame(src, np.zeros((12, 16)))
+    with pytest.warns(_io.NoSSSPixelsWarning, match="id channel 'id' is 0 on every surface pixel"):
+        _io.read_frame(src)
+    out = tmp_path / "o.exr"
+    assert main(["apply", str(src), "-o", str(out), "--technique", "burley", "--d-mm", "2,1,0.5"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("warning: ") >= 1 and err.count("no pixel to scatter") == 1, err
+
+
 def test_cli_help_shows_examples(capsys):
     for cmd in ("apply", "demo"):
         with pytest.raises(SystemExit):

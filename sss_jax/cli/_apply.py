@@ -7,6 +7,7 @@ import pathlib
 import sys
 
 from . import rgb_triple
+from ._options import WarningPrinter
 
 EPILOG = """examples:
   sss-jax apply frame.exr -o out.exr --technique burley --albedo 0.8,0.6,0.5 --d-mm 3,1.4,0.8 --focal-px 1200 --mm-per-unit 10
@@ -144,13 +145,10 @@ def run(args) -> int:
         print(f"sss-jax apply: {exc}", file=sys.stderr)
         return 2
 
-    import warnings
-
     from .._batch import process_frames
 
-    if args.technique == "reference" and args.radius_px is None:
-        args.radius_px = _reference_radius(inputs, args, material)
     sta = args.technique == "sta"
+    shown = WarningPrinter("sss-jax apply")
 
     def report(r):
         if r.status == "failed":
@@ -158,12 +156,15 @@ def run(args) -> int:
         elif r.status == "skipped":
             line = f"{r.input} -> {r.output} (skipped: {r.message})"
         else:
-            line = f"{r.input} -> {r.output} ({r.seconds:.2f} s)" + (f"; {r.message}" if r.message else "")
+            said = r.message and (r.message in shown or f"{r.input}: {r.message}" in shown)
+            line = f"{r.input} -> {r.output} ({r.seconds:.2f} s)" + (f"; {r.message}" if r.message and not said
+                                                                    else "")
         print(line, file=sys.stderr)
 
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", UserWarning)  # each frame's clamp warning is in its report line
+        with shown:
+            if args.technique == "reference" and args.radius_px is None:
+                args.radius_px = _reference_radius(inputs, args, material)
             result = process_frames(
                 inputs, args.technique, material if not sta else (material, light),
                 out_dir=args.out_dir, outputs=None if args.output is None else [args.output], png=args.png,
