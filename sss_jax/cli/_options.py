@@ -3,7 +3,11 @@ brings a run's warnings to the user."""
 
 from __future__ import annotations
 
+import argparse
+import dataclasses
+import inspect
 import sys
+from typing import Any, Iterable
 
 
 class WarningPrinter:
@@ -40,3 +44,153 @@ class WarningPrinter:
 
     def __exit__(self, *exc):
         return self._catcher.__exit__(*exc)
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# technique flags: one builder for every command, from the technique classes' option fields
+# ------------------------------------------------------------------------------------------------------------------
+
+_UNSET = type("_Unset", (), {"__repr__": lambda self: "(the technique's default)"})()
+
+
+@dataclasses.dataclass(frozen=True)
+class OptionSpec:
+    """One technique option as a technique declares it: its default, its help and, for a closed set, its choices."""
+
+    technique: str
+    name: str
+    default: Any
+    help: str
+    choices: tuple | None = None
+
+
+def technique_option_specs(names: Iterable[str] | None = None) -> dict[str, list[OptionSpec]]:
+    """``{option name: [its spec in each technique that has it]}`` for the registered techniques (or ``names``).
+
+    A technique class's options are its fields declared with ``option`` (``option_fields()``: default, help and
+    choices in the field's metadata). A registry entry that is still a function gives its keyword-only parameters
+    with defaults (help: the function's name and the default)."""
+    from .._techniques import TECHNIQUES
+
+    specs: dict[str, list[OptionSpec]] = {}
+    for tech in (TECHNIQUES if names is None else names):
+        entry = TECHNIQUES[tech]
+        if isinstance(entry, type) and hasattr(entry, "option_fields"):
+            for field in entry.option_fields():
+                default = field.default if field.default is not dataclasses.MISSING else field.default_factory()
+                choices = field.metadata.get("choices")
+                specs.setdefault(field.name, []).append(OptionSpec(tech, field.name, default, field.metadata["help"],
+                                                                   None if choices is None else tuple(choices)))
+        else:
+            for p in inspect.signature(entry).parameters.values():
+                if p.kind == p.KEYWORD_ONLY and p.default is not p.empty:
+                    specs.setdefault(p.name, []).append(
+                        OptionSpec(tech, p.name, p.default, f"sss_jax.{entry.__name__}'s {p.name} option"))
+    return specs
+
+
+def _flag(name: str) -> str:
+    return "--" + name.replace("_", "-")
+
+
+def _dest(name: str) -> str:
+    return f"technique_option_{name}"
+
+
+def _show(value: Any) -> str:
+    return "none" if value is None else str(value).lower() if isinstance(value, bool) else str(value)
+
+
+def _parse_value(text: str, specs: list[OptionSpec]) -> Any:
+    """The value of ``text`` for an option: one of its choices (by spelling, case-insensitive, so ``none``/``true``
+    reach None/True), else the type of its default (int, float, bool, str), else a number or a list of numbers."""
+    word = text.strip()
+    for spec in specs:
+        for choice in spec.choices or ():
+            if _show(choice).lower() == word.lower():
+                return choice
+    if any(spec.choices for spec in specs):
+        valid = sorted({_show(c) for s in specs for c in (s.choices or ())})
+        raise argparse.ArgumentTypeError(f"expected one of {', '.join(valid)}, got {text!r}")
+    kinds = {type(s.default) for s in specs if s.default is not None}
+    if kinds & {bool}:
+        if word.lower() in ("1", "true", "yes", "on"):
+            return True
+        if word.lower() in ("0", "false", "no", "off"):
+            return False
+        raise argparse.ArgumentTypeError(f"expected true or false, got {text!r}")
+    if word.lower() == "none" and any(s.default is None for s in specs):
+        return None
+    try:
+        if kinds & {int}:
+            value = float(word)
+            if value != int(value):
+                raise ValueError
+            return int(value)
+        if kinds & {float} or not kinds:
+            values = tuple(float(v) for v in word.split(","))
+            return values[0] if len(values) == 1 else values
+    except (ValueError, OverflowError):
+        what = "an integer" if kinds & {int} else "a number (or R,G,B)"
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+    return word
+
+
+def _help(specs: list[OptionSpec]) -> str:
+    def one(s: OptionSpec) -> str:
+        extra = f"default {_show(s.default)}"
+        if s.choices:
+            extra += f"; one of {', '.join(_show(c) for c in s.choices)}"
+        return extra
+
+    if len(specs) == 1:
+        s = specs[0]
+        return f"{s.technique}: {s.help} ({one(s)})".replace("%", "%%")
+    helps = {s.help for s in specs}
+    text = specs[0].help if len(helps) == 1 else "; ".join(f"{s.technique}: {s.help}" for s in specs)
+    return (f"{text} ({'; '.join(f'{s.technique}: {one(s)}' for s in specs)})").replace("%", "%%")
+
+
+def add_technique_flags(parser: argparse.ArgumentParser, *, techniques: Iterable[str] | None = None,
+                        exclude: Iterable[str] = (), title: str = "technique options") -> list[str]:
+    """Add one ``--<option>`` flag per technique option (of ``techniques``, default every registered one), built from
+    the techniques' own declarations: its help, default and choices in the help, its values parsed to the option's
+    type. Options the command sets through flags of its own are ``exclude``d. A flag left out keeps the technique's
+    default. Returns the option names added."""
+    specs = technique_option_specs(techniques)
+    group = parser.add_argument_group(title, "the techniques' own options; a flag left out keeps the technique's "
+                                      "default")
+    added = []
+    for name, per_technique in specs.items():
+        if name in set(exclude):
+            continue
+        group.add_argument(_flag(name), dest=_dest(name), default=_UNSET, metavar=name.upper(),
+                           type=lambda text, s=per_technique: _parse_value(text, s), help=_help(per_technique))
+        added.append(name)
+    parser.set_defaults(technique_flags=tuple(added))
+    return added
+
+
+def given_technique_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The technique options the user gave on the command line (flags from ``add_technique_flags``)."""
+    return {n: getattr(args, _dest(n)) for n in getattr(args, "technique_flags", ())
+            if getattr(args, _dest(n), _UNSET) is not _UNSET}
+
+
+def technique_options(args: argparse.Namespace, technique: str, *, others: Iterable[str] = ()) -> dict[str, Any]:
+    """The options given on the command line that ``technique`` takes, checked against its choices. A given option
+    that neither ``technique`` nor any of ``others`` (the command's other techniques) takes is an error naming the
+    flag and the techniques that have it."""
+    specs = technique_option_specs()
+    given = given_technique_options(args)
+    mine = {s.name: s for ss in specs.values() for s in ss if s.technique == technique}
+    running = {technique, *others}
+    for name, value in given.items():
+        owners = [s.technique for s in specs.get(name, ())]
+        if not running & set(owners):
+            raise ValueError(f"{_flag(name)} is an option of {', '.join(owners)}, not of {', '.join(sorted(running))}")
+        spec = mine.get(name)
+        if spec is not None and spec.choices is not None and value not in spec.choices:
+            raise ValueError(f"{_flag(name)} {_show(value)}: {technique} takes one of "
+                             f"{', '.join(_show(c) for c in spec.choices)}")
+    return {n: v for n, v in given.items() if n in mine}
