@@ -344,3 +344,66 @@ def test_cli_help_shows_examples(capsys):
         with pytest.raises(SystemExit):
             main([cmd, "--help"])
         assert "example" in capsys.readouterr().out
+
+
+def _help_of(capsys, command):
+    with pytest.raises(SystemExit):
+        main([command, "--help"])
+    return " ".join(capsys.readouterr().out.split())
+
+
+def test_every_technique_option_is_a_flag_with_its_own_help(capsys):
+    """Issue #26: the technique flags come from the technique classes' option fields, with their help and choices."""
+    from sss_jax._techniques import TECHNIQUES
+
+    apply_help = _help_of(capsys, "apply")
+    for flag in ("--border", "--pattern", "--frames", "--seed", "--interpolation", "--model", "--impl"):
+        assert flag in apply_help, flag
+    pattern = next(f for f in TECHNIQUES["burley"].option_fields() if f.name == "pattern")
+    assert " ".join(pattern.metadata["help"].split()) in apply_help
+    assert "{rotated,fixed}" in apply_help
+    report_help = _help_of(capsys, "report")
+    assert "--border" in report_help and "--pattern" in report_help
+
+
+def test_an_option_added_to_a_technique_appears_on_every_command(capsys, monkeypatch):
+    from sss_jax._techniques import TECHNIQUES
+    from sss_jax._techniques._base import option
+
+    class Wider(TECHNIQUES["burley"]):
+        blur_factor: float = option(1.5, "how much wider the test technique draws its kernel")
+
+    monkeypatch.setitem(TECHNIQUES, "burley", Wider)
+    for command in ("apply", "report"):
+        text = _help_of(capsys, command)
+        assert "--blur-factor" in text and "how much wider the test technique draws its kernel" in text, command
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--technique", "burley", "--border", "sideways"], "--border: expected one of leaves, renormalise"),
+    (["--technique", "separable", "--pattern", "fixed"], "--pattern is an option of burley, not of separable"),
+    (["--technique", "separable", "--interpolation", "bilinear"],
+     "--interpolation bilinear: separable takes one of linear, nearest"),
+    (["--technique", "burley", "--frames", "1.5"], "--frames: expected an integer"),
+])
+def test_technique_flags_bad_values(tmp_path, capsys, as_users_run_it, argv, message):
+    a = tmp_path / "a.exr"
+    synthetic_frame(a, focal=200.0)
+    try:
+        rc = main(["apply", str(a), "-o", str(tmp_path / "o.exr"), "--d-mm", "1,1,1"] + argv)
+    except SystemExit as exc:
+        rc = exc.code
+    assert rc == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "o.exr").exists()
+
+
+def test_apply_prints_the_techniques_sampling_warning(tmp_path, capsys, as_users_run_it):
+    """5 taps for a kernel far wider than the frame: the separable's SamplingWarning reached nobody (issue #26)."""
+    a = tmp_path / "a.exr"
+    synthetic_frame(a, h=24, w=32, focal=200.0)
+    rc = main(["apply", str(a), "-o", str(tmp_path / "o.exr"), "--technique", "separable", "--taps", "5",
+               "--d-mm", "20,10,5", "--mm-per-unit", "10"])
+    err = capsys.readouterr().err
+    assert rc == 0, err
+    assert err.count("warning: ") == 1 and "separable: 5 taps at a reach of" in err, err

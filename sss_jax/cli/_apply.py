@@ -7,7 +7,7 @@ import pathlib
 import sys
 
 from . import rgb_triple
-from ._options import WarningPrinter
+from ._options import WarningPrinter, add_technique_flags, technique_options
 
 EPILOG = """examples:
   sss-jax apply frame.exr -o out.exr --technique burley --albedo 0.8,0.6,0.5 --d-mm 3,1.4,0.8 --focal-px 1200 --mm-per-unit 10
@@ -32,6 +32,11 @@ thickness, id (0 = no SSS: passes through untouched). A Blender multi-layer EXR 
 Depth, DiffCol, IndexOB); --albedo overrides the albedo pass. The focal length and scene unit come from the flags,
 the EXR header (sss_jax:focal_px, sss_jax:mm_per_unit) or a sidecar <name>.json (camera.focal_px, scene_unit_mm).
 """
+
+
+# technique options that apply sets through flags of its own (--samples, --taps, --radius-px; STA's --albedo and
+# --thickness, which also stand for the frame's albedo and thickness)
+OWN_FLAGS = ("samples", "taps", "radius_px", "albedo", "thickness")
 
 
 def register(subparsers) -> None:
@@ -70,6 +75,8 @@ def register(subparsers) -> None:
     sta.add_argument("--sta-thickness-mm", type=rgb_triple, default=(1.0, 1.0, 1.0),
                      help="thickness falloff per channel, mm: t = exp(-thickness / this)")
     sta.add_argument("--thickness", type=float, help="constant thickness in scene units where there is no thickness channel")
+    # every other option of the techniques, with the techniques' own help (--border, --pattern, --frames, ...)
+    add_technique_flags(p, exclude=OWN_FLAGS)
     p.add_argument("--half", action="store_true", help="write half-float EXR")
     p.add_argument("--png", action="store_true", help="also write an sRGB PNG preview beside each output")
     p.add_argument("--resume", action="store_true", help="skip frames whose output is complete and was made from the "
@@ -141,13 +148,13 @@ def run(args) -> int:
         if args.radius_px is not None and args.radius_px < 0:
             raise ValueError(f"--radius-px must be >= 0, got {args.radius_px}")
         material, light = _material(args)
+        options = technique_options(args, args.technique)
     except (ValueError, OSError) as exc:
         print(f"sss-jax apply: {exc}", file=sys.stderr)
         return 2
 
     from .._batch import process_frames
 
-    sta = args.technique == "sta"
     shown = WarningPrinter("sss-jax apply")
 
     def report(r):
@@ -165,15 +172,7 @@ def run(args) -> int:
         with shown:
             if args.technique == "reference" and args.radius_px is None:
                 args.radius_px = _reference_radius(inputs, args, material)
-            result = process_frames(
-                inputs, args.technique, material if not sta else (material, light),
-                out_dir=args.out_dir, outputs=None if args.output is None else [args.output], png=args.png,
-                focal_px=args.focal_px, mm_per_unit=args.mm_per_unit, channel_map=args.channel_map,
-                depth_kind=args.depth_kind, use_albedo_pass=args.albedo is None, samples=args.samples, taps=args.taps,
-                radius_px=args.radius_px, half=args.half, resume=args.resume, overwrite=args.overwrite,
-                progress=len(inputs) > 1 or sys.stderr.isatty(), sta_albedo=args.albedo, sta_thickness=args.thickness,
-                on_frame_done=report,
-            )
+            result = _run_batch(process_frames, inputs, args, options, material, light, report)
     except KeyboardInterrupt as exc:
         code = 128 + getattr(exc, "signum", 2)
         where = f"; {args.out_dir / 'sss_jax_manifest.json'} lists the finished frames" if args.out_dir else ""
@@ -191,6 +190,70 @@ def run(args) -> int:
         print(f"sss-jax apply: {skipped} of {len(result.frames)} frame(s) skipped (--resume: already complete)",
               file=sys.stderr)
     return 0
+
+
+def _run_batch(process_frames, inputs, args, options, material, light, report):
+    """``process_frames`` with the technique as it takes it: an object built from the registry with every option
+    given (``technique(name, **options)``), or, where the batch still takes a technique's name, the name and the
+    counts (other options refused: that batch cannot pass them on)."""
+    import inspect
+
+    from .._techniques import TECHNIQUES
+
+    accepted = inspect.signature(process_frames).parameters
+    takes_object = "Technique" in str(accepted["technique"].annotation)
+    counts = {"samples": args.samples, "taps": args.taps, "radius_px": args.radius_px}
+    common = dict(
+        out_dir=args.out_dir, outputs=None if args.output is None else [args.output], png=args.png,
+        focal_px=args.focal_px, mm_per_unit=args.mm_per_unit, channel_map=args.channel_map,
+        depth_kind=args.depth_kind, use_albedo_pass=args.albedo is None, half=args.half, resume=args.resume,
+        overwrite=args.overwrite, progress=len(inputs) > 1 or sys.stderr.isatty(), on_frame_done=report)
+    cls = TECHNIQUES[args.technique]
+    fields = {f.name for f in cls.option_fields()} if hasattr(cls, "option_fields") else set()
+    if takes_object:
+        from .._techniques import technique
+
+        own = dict(counts, albedo=args.albedo, thickness=args.thickness)
+        options = {**{k: v for k, v in own.items() if k in fields and v is not None}, **options}
+        extra = {"light": light} if light is not None else {}
+        return process_frames(inputs, technique(args.technique, **extra, **options), material,
+                              **{k: v for k, v in common.items() if k in accepted})
+    if options:
+        raise ValueError(f"{', '.join('--' + k.replace('_', '-') for k in options)}: this version's batch takes a "
+                         "technique's name and its counts only, not its other options")
+    technique = args.technique
+    _check_frames(inputs, args, material, light, counts)
+    return process_frames(inputs, technique, material if light is None else (material, light),
+                          sta_albedo=args.albedo, sta_thickness=args.thickness, **counts,
+                          **{k: v for k, v in common.items() if k in accepted})
+
+
+def _check_frames(inputs, args, material, light, counts) -> None:
+    """The technique's own warnings (sampling, window) for each readable frame, for a batch that does not compute
+    them (it runs the frames traced): ``check`` of the technique object on the frame's buffers."""
+    import warnings
+
+    from .._io import read_frame
+    from .._scene import Camera
+    from .._techniques import TECHNIQUES, technique
+
+    cls = TECHNIQUES[args.technique]
+    if not hasattr(cls, "check"):
+        return
+    fields = {f.name for f in cls.option_fields()}
+    tech = technique(args.technique, **({"light": light} if light is not None else {}),
+                     **{k: v for k, v in counts.items() if k in fields and v is not None})
+    for path in inputs:
+        try:
+            f = read_frame(path, channel_map=args.channel_map, focal_px=args.focal_px, mm_per_unit=args.mm_per_unit,
+                           depth_kind=args.depth_kind)
+        except (OSError, ValueError):
+            continue  # reported when the batch reaches it
+        if f.focal_px is None:
+            continue
+        cam = Camera(f.focal_px, f.mm_per_unit or 1.0)
+        for w in tech.check(f.to_buffers(use_albedo=args.albedo is None), material, cam):
+            warnings.warn(f"{path}: {w}", type(w), stacklevel=2)
 
 
 def _reference_radius(inputs, args, material) -> int:

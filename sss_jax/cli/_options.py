@@ -137,18 +137,24 @@ def _parse_value(text: str, specs: list[OptionSpec]) -> Any:
 
 
 def _help(specs: list[OptionSpec]) -> str:
+    """The techniques' help, then the default and choices: once where the techniques agree, per technique where not."""
     def one(s: OptionSpec) -> str:
         extra = f"default {_show(s.default)}"
         if s.choices:
             extra += f"; one of {', '.join(_show(c) for c in s.choices)}"
         return extra
 
-    if len(specs) == 1:
-        s = specs[0]
-        return f"{s.technique}: {s.help} ({one(s)})".replace("%", "%%")
-    helps = {s.help for s in specs}
-    text = specs[0].help if len(helps) == 1 else "; ".join(f"{s.technique}: {s.help}" for s in specs)
-    return (f"{text} ({'; '.join(f'{s.technique}: {one(s)}' for s in specs)})").replace("%", "%%")
+    who = ", ".join(s.technique for s in specs)
+    helps = list(dict.fromkeys(s.help for s in specs))
+    text = helps[0] if len(helps) == 1 else "; ".join(f"{s.technique}: {s.help}" for s in specs)
+    extras = list(dict.fromkeys(one(s) for s in specs))
+    tail = extras[0] if len(extras) == 1 else "; ".join(f"{s.technique}: {one(s)}" for s in specs)
+    return f"[{who}] {text} ({tail})".replace("%", "%%")
+
+
+def _metavar(name: str, specs: list[OptionSpec]) -> str:
+    choices = list(dict.fromkeys(_show(c) for s in specs for c in (s.choices or ())))
+    return "{" + ",".join(choices) + "}" if choices else name.upper()
 
 
 def add_technique_flags(parser: argparse.ArgumentParser, *, techniques: Iterable[str] | None = None,
@@ -164,7 +170,7 @@ def add_technique_flags(parser: argparse.ArgumentParser, *, techniques: Iterable
     for name, per_technique in specs.items():
         if name in set(exclude):
             continue
-        group.add_argument(_flag(name), dest=_dest(name), default=_UNSET, metavar=name.upper(),
+        group.add_argument(_flag(name), dest=_dest(name), default=_UNSET, metavar=_metavar(name, per_technique),
                            type=lambda text, s=per_technique: _parse_value(text, s), help=_help(per_technique))
         added.append(name)
     parser.set_defaults(technique_flags=tuple(added))
