@@ -407,3 +407,26 @@ def test_apply_prints_the_techniques_sampling_warning(tmp_path, capsys, as_users
     err = capsys.readouterr().err
     assert rc == 0, err
     assert err.count("warning: ") == 1 and "separable: 5 taps at a reach of" in err, err
+
+
+def test_report_without_a_light_says_sta_was_left_out(tmp_path, capsys, as_users_run_it):
+    """Issue #27: without --light-dir the report left STA out without a word."""
+    a = tmp_path / "a.exr"
+    synthetic_frame(a, focal=200.0)
+    rc = main(["report", str(a), "--out", str(tmp_path / "rep"), "--d-mm", "1,0.5,0.25", "--mm-per-unit", "10",
+               "--taps", "9", "--samples", "8", "--repeats", "0", "--no-images", "--no-progress"])
+    err = capsys.readouterr().err
+    assert rc == 0, err
+    assert "STA left out" in err
+    notes = json.loads((tmp_path / "rep" / "report.json").read_text())["notes"]
+    assert any("STA left out" in n and "--light-dir" in n for n in notes)
+
+
+def test_report_refuses_a_frame_without_sss_pixels(tmp_path, capsys, as_users_run_it):
+    src = tmp_path / "zero.exr"
+    renderer_frame(src, np.zeros((12, 16)))
+    rc = main(["report", str(src), "--out", str(tmp_path / "rep"), "--d-mm", "1,0.5,0.25", "--techniques",
+               "burley", "--samples", "8", "--repeats", "0", "--no-progress"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "no pixel" in err, err
+    assert not (tmp_path / "rep" / "report.json").exists()
