@@ -135,6 +135,47 @@ def test_a_word_that_is_not_a_number_is_still_a_flag(capsys):
     assert "expected one argument" in capsys.readouterr().err
 
 
+def test_demo_out_onto_an_existing_file(tmp_path, capsys):
+    """Issue #30: `demo --out README.md` said "[Errno 17] File exists"."""
+    target = tmp_path / "README.md"
+    target.write_text("mine")
+    assert run_cli(["demo", "--out", str(target), "--size", "8x8"]) == 2
+    err = capsys.readouterr().err
+    assert f"--out {target} is an existing file, not a folder" in err and "Errno" not in err
+    assert target.read_text() == "mine"
+
+
+def test_demo_out_into_a_folder_of_the_users_own_files(tmp_path, capsys):
+    """Issue #30: a folder holding the user's own reference.exr and summary.json was silently overwritten."""
+    folder = tmp_path / "mine"
+    folder.mkdir()
+    good_exr(folder / "reference.exr")
+    (folder / "summary.json").write_text('{"my": "notes"}')
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    assert run_cli(["demo", "--out", str(folder), "--size", "8x8"]) == 2
+    err = capsys.readouterr().err
+    assert "holds files a demo did not make (reference.exr, summary.json)" in err and "--overwrite" in err
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
+
+
+def test_demo_out_into_its_own_earlier_output_or_with_overwrite_is_allowed(tmp_path):
+    from sss_jax.cli._demo import _check_out
+
+    folder = tmp_path / "demo"
+    folder.mkdir()
+    good_exr(folder / "reference.exr")
+    (folder / "summary.json").write_text(json.dumps({"made_by": "sss-jax demo", "width": 8, "height": 8, "rows": []}))
+    _check_out(folder, overwrite=False)  # a demo's folder: no error
+    (folder / "summary.json").write_text('{"my": "notes"}')
+    with pytest.raises(ValueError, match="holds files a demo did not make"):
+        _check_out(folder, overwrite=False)
+    _check_out(folder, overwrite=True)
+    (folder / "notes.txt").write_text("")  # files the demo never writes do not count
+    (folder / "summary.json").unlink()
+    (folder / "reference.exr").unlink()
+    _check_out(folder, overwrite=False)
+
+
 def test_missing_focal_length(tmp_path, capsys):
     inp = good_exr(tmp_path / "good.exr")
     out = tmp_path / "o.exr"
