@@ -5,11 +5,14 @@ Reading understands three namings of the channels a screen-space pass needs:
   ``thickness``, ``id``;
 - Blender multi-layer: ``<ViewLayer>.<pass>.<channel>``: irradiance = ``DiffDir + DiffInd`` (Blender stores diffuse
   light divided by the diffuse colour), albedo = ``DiffCol``, depth = ``Depth.Z`` (background 1e10 -> inf),
-  normal = ``Normal``, material id = ``IndexOB`` (or ``IndexMA``);
+  normal = ``Normal`` (world space in Blender: turned into camera space with the camera's orientation from the
+  header's ``worldToCamera`` or the sidecar's camera, else not used, with a warning), material id = ``IndexOB`` (or
+  ``IndexMA``);
 - a user channel map (dict, or a JSON/TOML file) from our buffer names to channel names.
 
 Depth is planar view depth in scene units; ``depth_kind="distance"`` converts distance-to-camera to planar with the
-focal length. Camera intrinsics come from explicit arguments, else the EXR header (``sss_jax:focal_px``,
+focal length. Channels stored as integers (an id pass as uint32) keep their values (OpenImageIO's float conversion
+would normalise them). Camera intrinsics come from explicit arguments, else the EXR header (``sss_jax:focal_px``,
 ``sss_jax:mm_per_unit``), else a sidecar ``<stem>.json`` (``camera.focal_px``, ``scene_unit_mm``).
 
 Every write goes to a temporary file in the target directory and is renamed into place: an interrupted run never
@@ -338,6 +341,38 @@ def _sidecar(path: pathlib.Path) -> dict[str, Any]:
     return data if isinstance(data, dict) else {}
 
 
+def world_to_camera_rotation(metadata: Mapping[str, Any], side: Mapping[str, Any]) -> tuple[np.ndarray, str] | None:
+    """The rotation ``R (3, 3)`` taking world-space directions to sss_jax's camera space (x right, y down, z forward:
+    ``n_cam = R @ n_world``) and where it came from, or None when neither source has the camera's orientation.
+
+    Sources, in order: the EXR header's standard ``worldToCamera`` (OpenEXR: row vectors, ``p' = p M``; its camera
+    space is x right, y up, z the viewing direction), then the sidecar's ``camera.matrix_world`` (Blender: the
+    camera's 4x4 camera-to-world, columns; the camera looks down its -Z with +Y up) or ``camera.location`` and
+    ``camera.look_at`` (with ``camera.up``, default Blender's world +Z)."""
+    flip_y = np.diag([1.0, -1.0, 1.0])
+    m = metadata.get("worldToCamera")
+    if m is not None:
+        m = np.asarray(m, np.float64).reshape(4, 4)
+        return flip_y @ m[:3, :3].T, "the EXR header's worldToCamera"
+    cam = side.get("camera") if isinstance(side.get("camera"), dict) else {}
+    if cam.get("matrix_world") is not None:
+        c2w = np.asarray(cam["matrix_world"], np.float64).reshape(4, 4)[:3, :3]
+        # columns: the camera's x (right), y (up), z (backwards) in world space
+        right, up, back = (c2w[:, k] / np.linalg.norm(c2w[:, k]) for k in range(3))
+        return np.stack([right, -up, -back]), "the sidecar's camera.matrix_world"
+    if cam.get("location") is not None and cam.get("look_at") is not None:
+        forward = np.asarray(cam["look_at"], np.float64) - np.asarray(cam["location"], np.float64)
+        world_up = np.asarray(cam.get("up", (0.0, 0.0, 1.0)), np.float64)
+        forward = forward / np.linalg.norm(forward)
+        right = np.cross(forward, world_up)
+        if not np.linalg.norm(right) > 1e-9:
+            return None
+        right = right / np.linalg.norm(right)
+        up = np.cross(right, forward)
+        return np.stack([right, -up, forward]), "the sidecar's camera.location and look_at"
+    return None
+
+
 def distance_to_planar(distance: np.ndarray, focal_px: float, principal_point: tuple[float, float] | None = None):
     """Planar depth from distance to the camera: ``z = dist / sqrt(1 + ((x-cx)^2 + (y-cy)^2) / f^2)`` at pixel centres
     ``(x + 0.5, y + 0.5)``; the principal point defaults to the image centre."""
@@ -420,6 +455,16 @@ def read_frame(
     normal = buffers.get("normal")
     if normal is not None:
         normal = np.nan_to_num(normal.astype(np.float32))
+        if layout == "blender":  # Blender's Normal pass is in world space; the techniques take camera space
+            rotation = world_to_camera_rotation(metadata, side)
+            if rotation is None:
+                warnings.warn(f"{path}: the Normal pass is in world space (Blender) and neither the header "
+                              f"(worldToCamera) nor a sidecar {path.with_suffix('.json').name} (camera.location and "
+                              "look_at, or matrix_world) gives the camera's orientation: the pass is not used "
+                              "(normals come from depth)", UserWarning, stacklevel=2)
+                normal = None
+            else:
+                normal = (normal.astype(np.float64) @ rotation[0].T).astype(np.float32)
     thickness = buffers.get("thickness")
     if thickness is not None:
         thickness = np.maximum(np.nan_to_num(thickness.astype(np.float32), nan=0.0, posinf=np.inf), 0.0)

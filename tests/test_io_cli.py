@@ -430,3 +430,47 @@ def test_report_refuses_a_frame_without_sss_pixels(tmp_path, capsys, as_users_ru
     err = capsys.readouterr().err
     assert rc == 2 and "no pixel" in err, err
     assert not (tmp_path / "rep" / "report.json").exists()
+
+
+def _front_camera_sources():
+    """One Blender camera three ways: at (0, -5, 0) looking at the origin, world +Z up (rotation_euler (90, 0, 0))."""
+    rx90 = np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]], float)  # Blender's matrix_world rotation for that camera
+    c2w = np.eye(4)
+    c2w[:3, :3], c2w[:3, 3] = rx90, (0, -5, 0)
+    # OpenEXR's worldToCamera: row vectors (p' = p M), camera x right, y up, z forward: M's columns are those axes
+    w2c = np.eye(4)
+    w2c[:3, :3] = np.array([[1, 0, 0], [0, 0, 1], [0, 1, 0]], float).T
+    return [({"worldToCamera": w2c.ravel().tolist()}, {}),
+            ({}, {"camera": {"matrix_world": c2w.tolist()}}),
+            ({}, {"camera": {"location": [0, -5, 0], "look_at": [0, 0, 0]}})]
+
+
+@pytest.mark.parametrize("header, side", _front_camera_sources())
+def test_world_to_camera_rotation_from_each_source(header, side):
+    rotation, source = _io.world_to_camera_rotation(header, side)
+    # sss_jax's camera space: x right, y down, z forward; facing the camera is -z
+    np.testing.assert_allclose(rotation @ [0, -1, 0], [0, 0, -1], atol=1e-12)  # a wall facing the camera
+    np.testing.assert_allclose(rotation @ [0, 0, 1], [0, -1, 0], atol=1e-12)  # world up is image up (y down)
+    np.testing.assert_allclose(rotation @ [1, 0, 0], [1, 0, 0], atol=1e-12)
+    assert source
+
+
+def test_blender_world_space_normals_are_converted_to_camera_space(shared_dir, tmp_path):
+    """Issue #30: Blender's Normal pass is world space; read as camera space it changed STA's light by 58%. The
+    converted normals must agree with the normals of the depth buffer (an independent camera-space estimate)."""
+    import jax.numpy as jnp
+
+    src = shared_dir / "reference" / "blender" / "irradiance_backlit.exr"
+    f = _io.read_frame(src)
+    cam = sj.Camera(f.focal_px, f.mm_per_unit)
+    from_depth = np.asarray(sj.normals_from_depth(jnp.asarray(f.depth), cam))
+    surface = (f.material_id > 0) & np.isfinite(f.depth)
+    agree = np.sum(from_depth * f.normal, axis=-1)[surface]
+    assert np.median(agree) > 0.99 and np.mean(agree > 0.9) > 0.9
+    assert np.mean(f.normal[surface][:, 2] < 0) > 0.95  # the surfaces the camera sees face it
+    # without the sidecar the camera's orientation is unknown: the pass is not used, with a warning saying so
+    bare = tmp_path / "bare.exr"
+    bare.write_bytes(src.read_bytes())
+    with pytest.warns(UserWarning, match="Normal pass is in world space"):
+        g = _io.read_frame(bare, focal_px=f.focal_px, mm_per_unit=f.mm_per_unit)
+    assert g.normal is None
