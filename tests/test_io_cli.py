@@ -474,3 +474,25 @@ def test_blender_world_space_normals_are_converted_to_camera_space(shared_dir, t
     with pytest.warns(UserWarning, match="Normal pass is in world space"):
         g = _io.read_frame(bare, focal_px=f.focal_px, mm_per_unit=f.mm_per_unit)
     assert g.normal is None
+
+
+def test_sta_thickness_far_outside_the_falloff_warns_with_what_it_does(tmp_path, capsys, as_users_run_it):
+    """Issue #30: the README's `--thickness 1.0` with a 1000 mm scene unit made exp(-1000): STA added exactly nothing,
+    silently."""
+    a = tmp_path / "a.exr"
+    synthetic_frame(a, focal=200.0)
+    base = ["apply", str(a), "--technique", "sta", "--light-dir", "-0.25,0.3,0.9", "--albedo", "0.8,0.6,0.5"]
+    assert main(base + ["-o", str(tmp_path / "thick.exr"), "--thickness", "1.0", "--mm-per-unit", "1000"]) == 0
+    err = capsys.readouterr().err
+    assert "STA adds nothing (the output is local shading)" in err and "1000 mm" in err, err
+    thick = _io.read_frame(tmp_path / "thick.exr", channel_map={"irradiance": ["R", "G", "B"], "depth": "R"})
+    src = _io.read_frame(a)
+    local = src.irradiance * np.asarray([0.8, 0.6, 0.5], np.float32)
+    inside = src.material_id > 0
+    np.testing.assert_allclose(thick.irradiance[inside], local[inside], rtol=1e-6)  # what the warning says
+    # in range (5 mm against a falloff of 4/2.5/1.5 mm): no warning, and the back light shows
+    assert main(base + ["-o", str(tmp_path / "ok.exr"), "--thickness", "0.5", "--mm-per-unit", "10",
+                        "--sta-thickness-mm", "4,2.5,1.5"]) == 0
+    assert "warning" not in capsys.readouterr().err
+    ok = _io.read_frame(tmp_path / "ok.exr", channel_map={"irradiance": ["R", "G", "B"], "depth": "R"})
+    assert np.mean(ok.irradiance[inside] > local[inside] * (1 + 1e-3)) > 0.1

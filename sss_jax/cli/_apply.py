@@ -7,13 +7,13 @@ import pathlib
 import sys
 
 from . import rgb_triple
-from ._options import WarningPrinter, add_technique_flags, technique_options
+from ._options import WarningPrinter, add_technique_flags, sta_thickness_warning, technique_options
 
 EPILOG = """examples:
   sss-jax apply frame.exr -o out.exr --technique burley --albedo 0.8,0.6,0.5 --d-mm 3,1.4,0.8 --focal-px 1200 --mm-per-unit 10
   sss-jax apply render.exr -o sss.exr --technique separable --albedo 0.85,0.75,0.55 --mfp-mm 400,250,150
   sss-jax apply 'shots/*.exr' --out-dir sss/ --technique burley --albedo 0.8,0.6,0.5 --d-mm 3,1.4,0.8 --png
-  sss-jax apply frame.exr -o sta.exr --technique sta --albedo 0.8,0.6,0.5 --light-dir 0.3,-0.4,0.9 --thickness 0.5
+  sss-jax apply frame.exr -o sta.exr --technique sta --albedo 0.8,0.6,0.5 --light-dir -0.25,0.3,0.9 --thickness 0.5 --mm-per-unit 10 --sta-thickness-mm 4,2.5,1.5
   sss-jax apply frame.exr -o skin.exr --technique separable --preset my_skin.json --focal-px 1200
   sss-jax apply 'shots/*/beauty.exr' --out-dir sss/ --technique burley --preset skin --resume
 
@@ -216,44 +216,54 @@ def _run_batch(process_frames, inputs, args, options, material, light, report):
         own = dict(counts, albedo=args.albedo, thickness=args.thickness)
         options = {**{k: v for k, v in own.items() if k in fields and v is not None}, **options}
         extra = {"light": light} if light is not None else {}
+        _check_frames(inputs, args, material, light, counts, technique_checks=False)
         return process_frames(inputs, technique(args.technique, **extra, **options), material,
                               **{k: v for k, v in common.items() if k in accepted})
     if options:
         raise ValueError(f"{', '.join('--' + k.replace('_', '-') for k in options)}: this version's batch takes a "
                          "technique's name and its counts only, not its other options")
     technique = args.technique
-    _check_frames(inputs, args, material, light, counts)
+    _check_frames(inputs, args, material, light, counts, technique_checks=True)
     return process_frames(inputs, technique, material if light is None else (material, light),
                           sta_albedo=args.albedo, sta_thickness=args.thickness, **counts,
                           **{k: v for k, v in common.items() if k in accepted})
 
 
-def _check_frames(inputs, args, material, light, counts) -> None:
-    """The technique's own warnings (sampling, window) for each readable frame, for a batch that does not compute
-    them (it runs the frames traced): ``check`` of the technique object on the frame's buffers."""
+def _check_frames(inputs, args, material, light, counts, *, technique_checks: bool) -> None:
+    """Warnings about each readable frame before the batch runs: STA's thickness where it makes the back light
+    vanish (or not matter), and, for a batch that does not compute them (it runs the frames traced), the technique's
+    own sampling and window warnings (``check`` of the technique object on the frame's buffers)."""
     import warnings
 
     from .._io import read_frame
+    from .._materials import STAParams
     from .._scene import Camera
     from .._techniques import TECHNIQUES, technique
 
     cls = TECHNIQUES[args.technique]
-    if not hasattr(cls, "check"):
+    technique_checks = technique_checks and hasattr(cls, "check")
+    thickness_check = isinstance(material, STAParams)
+    if not (technique_checks or thickness_check):
         return
-    fields = {f.name for f in cls.option_fields()}
-    tech = technique(args.technique, **({"light": light} if light is not None else {}),
-                     **{k: v for k, v in counts.items() if k in fields and v is not None})
+    tech = None
+    if technique_checks:
+        fields = {f.name for f in cls.option_fields()}
+        tech = technique(args.technique, **({"light": light} if light is not None else {}),
+                         **{k: v for k, v in counts.items() if k in fields and v is not None})
     for path in inputs:
         try:
             f = read_frame(path, channel_map=args.channel_map, focal_px=args.focal_px, mm_per_unit=args.mm_per_unit,
                            depth_kind=args.depth_kind)
         except (OSError, ValueError):
             continue  # reported when the batch reaches it
-        if f.focal_px is None:
-            continue
-        cam = Camera(f.focal_px, f.mm_per_unit or 1.0)
-        for w in tech.check(f.to_buffers(use_albedo=args.albedo is None), material, cam):
-            warnings.warn(f"{path}: {w}", type(w), stacklevel=2)
+        if thickness_check:
+            message = sta_thickness_warning(f, material, args.thickness)
+            if message:
+                warnings.warn(f"{path}: {message}", UserWarning, stacklevel=2)
+        if tech is not None and f.focal_px is not None:
+            cam = Camera(f.focal_px, f.mm_per_unit or 1.0)
+            for w in tech.check(f.to_buffers(use_albedo=args.albedo is None), material, cam):
+                warnings.warn(f"{path}: {w}", type(w), stacklevel=2)
 
 
 def _reference_radius(inputs, args, material) -> int:

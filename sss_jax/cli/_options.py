@@ -200,3 +200,46 @@ def technique_options(args: argparse.Namespace, technique: str, *, others: Itera
             raise ValueError(f"{_flag(name)} {_show(value)}: {technique} takes one of "
                              f"{', '.join(_show(c) for c in spec.choices)}")
     return {n: v for n, v in given.items() if n in mine}
+
+
+# STA's back light through thickness t is exp(-t / thickness_mm) per channel: below this on every SSS pixel and
+# channel it adds nothing visible (an 8-bit display step is 1/255), above 1 - this the thickness changes nothing
+_STA_FAINT = 1e-3
+
+
+def sta_thickness_warning(frame, params, thickness: float | None) -> str | None:
+    """What to tell the user when the frame's thickness (its thickness channel, else ``--thickness``, in scene units,
+    times the scene unit in mm) is far outside the STA material's falloff ``thickness_mm``: the back light it lets
+    through (``exp(-t / thickness_mm)``) is nil on every pixel, or is 1 on every pixel (the thickness makes no
+    difference). None where it is in range."""
+    import numpy as np
+
+    mm_per_unit = frame.mm_per_unit or 1.0
+    falloff = np.asarray(params.thickness_mm, np.float64).reshape(-1)
+    mask = np.isfinite(frame.depth) & ((frame.material_id > 0) if frame.material_id is not None else True)
+    if frame.thickness is not None:
+        units = np.asarray(frame.thickness, np.float64)[mask]
+        source = "the thickness channel"
+    elif thickness is not None:
+        units = np.full(1, float(thickness))
+        source = f"--thickness {thickness:g}"
+    else:
+        return None  # paper-thin by design: exp(0) = 1
+    units = units[np.isfinite(units)]
+    if units.size == 0:
+        return None
+    thin_mm, thick_mm = float(units.min()) * mm_per_unit, float(units.max()) * mm_per_unit
+    most = float(np.exp(-thin_mm / falloff.max()))
+    least = float(np.exp(-thick_mm / falloff.min()))
+    unit = f"scene units of {mm_per_unit:g} mm"
+    falloffs = ",".join(f"{v:g}" for v in falloff)
+    if most < _STA_FAINT:
+        hint = thin_mm / falloff.max() / 3  # a thickness the falloff passes ~exp(-3) = 5% of
+        return (f"STA: {source} ({unit}) is {thin_mm:g} mm or more against a falloff of {falloffs} mm: the back "
+                f"light passes exp(-{thin_mm / falloff.max():.3g}) = {most:.2g} of itself at most, so STA adds "
+                f"nothing (the output is local shading); thickness is in scene units (e.g. --thickness "
+                f"{float(units.min()) / hint:.3g} for {thin_mm / hint:.3g} mm), or raise --sta-thickness-mm")
+    if least > 1 - _STA_FAINT and thick_mm > 0:
+        return (f"STA: {source} ({unit}) is at most {thick_mm:g} mm against a falloff of {falloffs} mm: the back "
+                f"light passes {least:.4f} of itself everywhere, so the thickness makes no difference (as paper-thin)")
+    return None

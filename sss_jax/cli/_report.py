@@ -11,7 +11,7 @@ import sys
 import tempfile
 
 from . import rgb_triple
-from ._options import WarningPrinter, add_technique_flags, technique_options
+from ._options import WarningPrinter, add_technique_flags, sta_thickness_warning, technique_options
 
 EPILOG = """examples:
   sss-jax report frame.exr --out rep --albedo 0.85,0.75,0.55 --d-mm 31.8,19.9,11.9
@@ -152,6 +152,27 @@ def _option_arguments(evaluate_frames, options: dict[str, dict]) -> dict:
     return {"burley_options": given["burley"]} if "burley" in given else {}
 
 
+def _warn_sta_thickness(args, params) -> None:
+    """STA's thickness far outside its falloff on a frame (it would add nothing, or not depend on the thickness)."""
+    import warnings
+
+    from .._batch import expand_inputs
+    from .._io import read_frame
+    from .._materials import STAParams
+
+    if not isinstance(params, STAParams):
+        return
+    for path in expand_inputs(args.inputs):
+        try:
+            frame = read_frame(path, channel_map=args.channel_map, focal_px=args.focal_px,
+                               mm_per_unit=args.mm_per_unit, depth_kind=args.depth_kind)
+        except (OSError, ValueError):
+            continue  # evaluate_frames names it
+        message = sta_thickness_warning(frame, params, args.thickness)
+        if message:
+            warnings.warn(f"{path}: {message}", UserWarning, stacklevel=2)
+
+
 def run(args) -> int:
     from .._evaluate import REPORT_TECHNIQUES, evaluate_frames
     from .._report import report
@@ -183,6 +204,8 @@ def run(args) -> int:
         scratch = None if cache.is_dir() else pathlib.Path(tempfile.mkdtemp(prefix="sss-jax-report-"))
         try:
             with shown:
+                if sta is not None and "sta" in techniques:
+                    _warn_sta_thickness(args, sta[0])
                 data = evaluate_frames(
                     args.inputs, mat, truth=args.truth, truth_channels=args.truth_channels, techniques=techniques,
                     taps=args.taps, samples=args.samples, separable_material=sep, sta=sta, sta_thickness=args.thickness,
