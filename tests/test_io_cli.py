@@ -374,7 +374,7 @@ def test_an_option_added_to_a_technique_appears_on_every_command(capsys, monkeyp
         blur_factor: float = option(1.5, "how much wider the test technique draws its kernel")
 
     monkeypatch.setitem(TECHNIQUES, "burley", Wider)
-    for command in ("apply", "report"):
+    for command in ("apply", "report", "fit", "bench", "advise"):
         text = _help_of(capsys, command)
         assert "--blur-factor" in text and "how much wider the test technique draws its kernel" in text, command
 
@@ -496,3 +496,36 @@ def test_sta_thickness_far_outside_the_falloff_warns_with_what_it_does(tmp_path,
     assert "warning" not in capsys.readouterr().err
     ok = _io.read_frame(tmp_path / "ok.exr", channel_map={"irradiance": ["R", "G", "B"], "depth": "R"})
     assert np.mean(ok.irradiance[inside] > local[inside] * (1 + 1e-3)) > 0.1
+
+
+class _Stop(Exception):
+    pass
+
+
+def test_technique_flags_reach_the_library_or_are_refused(monkeypatch, capsys, as_users_run_it):
+    """A technique flag is passed on as {technique: {option: value}} where the library function takes
+    technique_options, and is an error where it does not: never silently dropped."""
+    import sys
+    import types
+
+    seen = {}
+    _bench = types.ModuleType("sss_jax._bench")  # a stand-in: the test is about the flags, not the bench
+    _bench.plot_pareto = None
+    monkeypatch.setitem(sys.modules, "sss_jax._bench", _bench)
+
+    def fake_run_bench(*, quick=False, repeats=3, progress=None, technique_options=None):
+        seen.update(technique_options)
+        raise _Stop
+
+    _bench.run_bench = fake_run_bench
+    with pytest.raises(_Stop):
+        main(["bench", "--quick", "--border", "renormalise", "--pattern", "fixed", "--compact", "false"])
+    assert seen == {"burley": {"border": "renormalise", "pattern": "fixed", "compact": False},
+                    "separable": {"border": "renormalise"}, "reference": {"border": "renormalise"}}
+
+    def old_run_bench(*, quick=False, repeats=3, progress=None):
+        raise _Stop
+
+    _bench.run_bench = old_run_bench
+    assert main(["bench", "--quick", "--border", "renormalise"]) == 2
+    assert "--border: this version's bench cannot pass options to" in capsys.readouterr().err

@@ -158,10 +158,12 @@ def _metavar(name: str, specs: list[OptionSpec]) -> str:
 
 
 def add_technique_flags(parser: argparse.ArgumentParser, *, techniques: Iterable[str] | None = None,
-                        exclude: Iterable[str] = (), title: str = "technique options") -> list[str]:
+                        exclude: Iterable[str] = (), rename: dict[str, str] | None = None,
+                        title: str = "technique options") -> list[str]:
     """Add one ``--<option>`` flag per technique option (of ``techniques``, default every registered one), built from
     the techniques' own declarations: its help, default and choices in the help, its values parsed to the option's
-    type. Options the command sets through flags of its own are ``exclude``d. A flag left out keeps the technique's
+    type. Options the command sets through flags of its own are ``exclude``d; ``rename`` gives an option another flag
+    where the command's own flag has its name (``{"seed": "burley-seed"}``). A flag left out keeps the technique's
     default. Returns the option names added."""
     specs = technique_option_specs(techniques)
     group = parser.add_argument_group(title, "the techniques' own options; a flag left out keeps the technique's "
@@ -170,10 +172,10 @@ def add_technique_flags(parser: argparse.ArgumentParser, *, techniques: Iterable
     for name, per_technique in specs.items():
         if name in set(exclude):
             continue
-        group.add_argument(_flag(name), dest=_dest(name), default=_UNSET, metavar=_metavar(name, per_technique),
+        group.add_argument(_flag((rename or {}).get(name, name)), dest=_dest(name), default=_UNSET, metavar=_metavar(name, per_technique),
                            type=lambda text, s=per_technique: _parse_value(text, s), help=_help(per_technique))
         added.append(name)
-    parser.set_defaults(technique_flags=tuple(added))
+    parser.set_defaults(technique_flags=tuple(added), technique_flag_names=dict(rename or {}))
     return added
 
 
@@ -191,6 +193,8 @@ def technique_options(args: argparse.Namespace, technique: str, *, others: Itera
     given = given_technique_options(args)
     mine = {s.name: s for ss in specs.values() for s in ss if s.technique == technique}
     running = {technique, *others}
+    names = getattr(args, "technique_flag_names", {})
+    _flag = lambda n: "--" + names.get(n, n).replace("_", "-")  # noqa: E731 - the flag as this command spells it
     for name, value in given.items():
         owners = [s.technique for s in specs.get(name, ())]
         if not running & set(owners):
@@ -243,3 +247,20 @@ def sta_thickness_warning(frame, params, thickness: float | None) -> str | None:
         return (f"STA: {source} ({unit}) is at most {thick_mm:g} mm against a falloff of {falloffs} mm: the back "
                 f"light passes {least:.4f} of itself everywhere, so the thickness makes no difference (as paper-thin)")
     return None
+
+
+def option_arguments(function, options: dict[str, dict[str, Any]], command: str) -> dict[str, Any]:
+    """The technique options (``{technique: {option: value}}``, only the given ones) as ``function`` takes them:
+    ``technique_options=`` where it has that parameter, Burley's as ``burley_options=`` where it has that one; an
+    option it cannot take is an error naming the flags (a caller that does not pass them on would drop them)."""
+    accepted = inspect.signature(function).parameters
+    given = {t: o for t, o in options.items() if o}
+    if "technique_options" in accepted:
+        return {"technique_options": given}
+    passed = {"burley_options": given["burley"]} if "burley" in given and "burley_options" in accepted else {}
+    left = {t: o for t, o in given.items() if not (t == "burley" and passed)}
+    if left:
+        flags = sorted({"--" + k.replace("_", "-") for o in left.values() for k in o})
+        raise ValueError(f"{', '.join(flags)}: this version's {command} cannot pass options to "
+                         f"{', '.join(left)} yet")
+    return passed

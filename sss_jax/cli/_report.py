@@ -12,6 +12,7 @@ import tempfile
 
 from . import rgb_triple
 from ._options import WarningPrinter, add_technique_flags, sta_thickness_warning, technique_options
+from ._options import option_arguments as option_arguments_for
 
 EPILOG = """examples:
   sss-jax report frame.exr --out rep --albedo 0.85,0.75,0.55 --d-mm 31.8,19.9,11.9
@@ -135,23 +136,6 @@ def materials(args):
     return mat, sep, sta, info
 
 
-def _option_arguments(evaluate_frames, options: dict[str, dict]) -> dict:
-    """The technique options as ``evaluate_frames`` takes them: per technique where it has ``technique_options``,
-    else Burley's as ``burley_options`` (others refused: that version cannot pass them on)."""
-    import inspect
-
-    accepted = inspect.signature(evaluate_frames).parameters
-    given = {t: o for t, o in options.items() if o}
-    if "technique_options" in accepted:
-        return {"technique_options": given}
-    unsupported = {t: o for t, o in given.items() if "burley_options" not in accepted or t != "burley"}
-    if unsupported:
-        flags = sorted({"--" + k.replace("_", "-") for o in unsupported.values() for k in o})
-        raise ValueError(f"{', '.join(flags)}: this version's report passes options to burley only "
-                         f"(given for {', '.join(unsupported)})")
-    return {"burley_options": given["burley"]} if "burley" in given else {}
-
-
 def _warn_sta_thickness(args, params) -> None:
     """STA's thickness far outside its falloff on a frame (it would add nothing, or not depend on the thickness)."""
     import warnings
@@ -197,7 +181,7 @@ def run(args) -> int:
             techniques.remove("sta")
             notes.append("STA left out: it needs the back light's direction (--light-dir X,Y,Z).")
         options = {t: technique_options(args, t, others=techniques) for t in techniques}
-        option_arguments = _option_arguments(evaluate_frames, options)
+        option_arguments = option_arguments_for(evaluate_frames, options, "report")
         # the reference cache lives in OUT/cache; on a first run it is built in a scratch folder and moved in only
         # when the report is complete, so bad input or an interruption leaves nothing in OUT
         cache = args.out / "cache"
