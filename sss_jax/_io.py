@@ -41,12 +41,8 @@ BUFFER_NAMES = ("irradiance", "depth", "albedo", "normal", "thickness", "id")
 _BACKGROUND_DEPTH = 1e9  # Blender writes 1e10 where there is no surface
 
 
+from ._errors import NoSSSPixelsWarning as NoSSSPixelsWarning  # noqa: E402
 from ._errors import SSSInputError as SSSInputError  # noqa: E402  (the one definition is in _errors)
-
-
-class NoSSSPixelsWarning(UserWarning):
-    """A frame has no pixel a technique scatters (no surface, or every surface's id is 0): its output is its input,
-    not a result."""
 
 
 def _oiio():
