@@ -328,6 +328,20 @@ def test_uint32_id_channel_reads_as_integers_and_apply_scatters_the_object(tmp_p
     assert "no pixel to scatter" not in capsys.readouterr().err
 
 
+def test_uint16_channels_keep_their_values(tmp_path):
+    """A 16-bit id (a TIFF, as some G-buffer dumps write it): the stored integers, not value / 65535."""
+    ids = np.array([[0, 1, 2], [3, 65535, 1]], np.uint16)
+    path = tmp_path / "ids.tif"
+    spec = oiio.ImageSpec(3, 2, 1, oiio.UINT16)
+    spec.channelnames = ("id",)
+    out = oiio.ImageOutput.create(str(path))
+    assert out.open(str(path), spec) and out.write_image(ids[..., None])
+    out.close()
+    floats, integers, _, _ = _io._read_image(path)
+    np.testing.assert_array_equal(integers["id"], ids.astype(np.int64))
+    np.testing.assert_allclose(floats["id"], ids / 65535.0, rtol=1e-6)  # OpenImageIO's normalised view, for colour
+
+
 def test_a_frame_without_sss_pixels_warns(tmp_path, capsys, as_users_run_it):
     src = tmp_path / "zero.exr"
     renderer_frame(src, np.zeros((12, 16)))
