@@ -7,7 +7,8 @@ import pathlib
 import sys
 
 from . import rgb_triple
-from ._options import WarningPrinter, add_technique_flags, sta_thickness_warning, technique_options
+from ._options import WarningPrinter, add_technique_flags, given_technique_options, sta_thickness_warning
+from ._options import technique_options
 
 EPILOG = """examples:
   sss-jax apply frame.exr -o out.exr --technique burley --albedo 0.8,0.6,0.5 --d-mm 3,1.4,0.8 --focal-px 1200 --mm-per-unit 10
@@ -77,6 +78,8 @@ def register(subparsers) -> None:
     sta.add_argument("--thickness", type=float, help="constant thickness in scene units where there is no thickness channel")
     # every other option of the techniques, with the techniques' own help (--border, --pattern, --frames, ...)
     add_technique_flags(p, exclude=OWN_FLAGS)
+    p.add_argument("--tile-pixels", type=int, help="pixels per tile at most: a larger frame runs in tiles overlapping "
+                   "by the technique's reach (default: the batch's budget)")
     p.add_argument("--half", action="store_true", help="write half-float EXR")
     p.add_argument("--png", action="store_true", help="also write an sRGB PNG preview beside each output")
     p.add_argument("--resume", action="store_true", help="skip frames whose output is complete and was made from the "
@@ -102,6 +105,16 @@ def _material(args):
         if args.light_dir is None:
             raise ValueError("--technique sta needs --light-dir X,Y,Z")
         light = DirectionalLight(jnp.asarray(args.light_dir, jnp.float32), args.light_colour)
+        model = given_technique_options(args).get("model", "sta")
+        if model != "sta":  # the physically based back-light models take the medium's scattering distance
+            if preset is not None:
+                return material_for("burley", preset, albedo=args.albedo), light
+            if args.d_mm is not None:
+                return BurleyMaterial(albedo, args.d_mm), light
+            if args.mfp_mm is not None:
+                return BurleyMaterial.from_mfp(albedo, args.mfp_mm), light
+            raise ValueError(f"--technique sta --model {model} needs the medium: --d-mm R,G,B, --mfp-mm R,G,B or "
+                             "--preset")
         if preset is not None:
             return material_for("sta", preset), light
         params = STAParams(distortion=args.sta_distortion, power=args.sta_power, scale=args.sta_scale,
@@ -145,6 +158,8 @@ def run(args) -> int:
             raise ValueError(f"--albedo must be 3 values in [0, 1], got {','.join(map(str, args.albedo))}")
         if args.thickness is not None and not (args.thickness >= 0):
             raise ValueError(f"--thickness must be >= 0 scene units, got {args.thickness}")
+        if args.tile_pixels is not None and args.tile_pixels < 1:
+            raise ValueError(f"--tile-pixels must be >= 1, got {args.tile_pixels}")
         if args.radius_px is not None and args.radius_px < 0:
             raise ValueError(f"--radius-px must be >= 0, got {args.radius_px}")
         material, light = _material(args)
@@ -208,6 +223,8 @@ def _run_batch(process_frames, inputs, args, options, material, light, report):
         focal_px=args.focal_px, mm_per_unit=args.mm_per_unit, channel_map=args.channel_map,
         depth_kind=args.depth_kind, use_albedo_pass=args.albedo is None, half=args.half, resume=args.resume,
         overwrite=args.overwrite, progress=len(inputs) > 1 or sys.stderr.isatty(), on_frame_done=report)
+    if args.tile_pixels is not None:
+        common["tile_pixels"] = args.tile_pixels
     cls = TECHNIQUES[args.technique]
     fields = {f.name for f in cls.option_fields()} if hasattr(cls, "option_fields") else set()
     if takes_object:
