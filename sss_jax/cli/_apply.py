@@ -208,15 +208,15 @@ def run(args) -> int:
 
 
 def _run_batch(process_frames, inputs, args, options, material, light, report):
-    """``process_frames`` with the technique as it takes it: an object built from the registry with every option
-    given (``technique(name, **options)``), or, where the batch still takes a technique's name, the name and the
-    counts (other options refused: that batch cannot pass them on)."""
+    """``process_frames`` with the technique as it takes it: the name, the counts and every other option given
+    (``technique_options``); a technique object built from the registry (``technique(name, **options)``) for a batch
+    that takes only objects; for a batch that takes only a name and its counts, the other options are refused (it
+    cannot pass them on) and the technique's own warnings are computed here (it runs the frames traced)."""
     import inspect
 
     from .._techniques import TECHNIQUES
 
     accepted = inspect.signature(process_frames).parameters
-    takes_object = "Technique" in str(accepted["technique"].annotation)
     counts = {"samples": args.samples, "taps": args.taps, "radius_px": args.radius_px}
     common = dict(
         out_dir=args.out_dir, outputs=None if args.output is None else [args.output], png=args.png,
@@ -225,25 +225,28 @@ def _run_batch(process_frames, inputs, args, options, material, light, report):
         overwrite=args.overwrite, progress=len(inputs) > 1 or sys.stderr.isatty(), on_frame_done=report)
     if args.tile_pixels is not None:
         common["tile_pixels"] = args.tile_pixels
-    cls = TECHNIQUES[args.technique]
-    fields = {f.name for f in cls.option_fields()} if hasattr(cls, "option_fields") else set()
-    if takes_object:
+    common = {k: v for k, v in common.items() if k in accepted}
+    named = material if light is None else (material, light)
+    if "technique_options" in accepted:  # it computes the technique's warnings for every frame itself
+        _check_frames(inputs, args, material, light, counts, technique_checks=False)
+        return process_frames(inputs, args.technique, named, sta_albedo=args.albedo, sta_thickness=args.thickness,
+                              technique_options=options, **counts, **common)
+    if "Technique" in str(accepted["technique"].annotation):
         from .._techniques import technique
 
+        cls = TECHNIQUES[args.technique]
+        fields = {f.name for f in cls.option_fields()}
         own = dict(counts, albedo=args.albedo, thickness=args.thickness)
         options = {**{k: v for k, v in own.items() if k in fields and v is not None}, **options}
-        extra = {"light": light} if light is not None else {}
         _check_frames(inputs, args, material, light, counts, technique_checks=False)
-        return process_frames(inputs, technique(args.technique, **extra, **options), material,
-                              **{k: v for k, v in common.items() if k in accepted})
+        return process_frames(inputs, technique(args.technique, **({"light": light} if light is not None else {}),
+                                                **options), material, **common)
     if options:
         raise ValueError(f"{', '.join('--' + k.replace('_', '-') for k in options)}: this version's batch takes a "
                          "technique's name and its counts only, not its other options")
-    technique = args.technique
     _check_frames(inputs, args, material, light, counts, technique_checks=True)
-    return process_frames(inputs, technique, material if light is None else (material, light),
-                          sta_albedo=args.albedo, sta_thickness=args.thickness, **counts,
-                          **{k: v for k, v in common.items() if k in accepted})
+    return process_frames(inputs, args.technique, named, sta_albedo=args.albedo, sta_thickness=args.thickness,
+                          **counts, **common)
 
 
 def _check_frames(inputs, args, material, light, counts, *, technique_checks: bool) -> None:
