@@ -258,15 +258,17 @@ def _check_frames(inputs, args, material, light, counts, *, technique_checks: bo
     from .._io import read_frame
     from .._materials import STAParams
     from .._scene import Camera
-    from .._techniques import TECHNIQUES, technique
+    from .._techniques import TECHNIQUES
 
     cls = TECHNIQUES[args.technique]
-    technique_checks = technique_checks and hasattr(cls, "check")
+    technique_checks = technique_checks and hasattr(cls, "check") and hasattr(cls, "option_fields")
     thickness_check = isinstance(material, STAParams)
     if not (technique_checks or thickness_check):
         return
     tech = None
     if technique_checks:
+        from .._techniques import technique
+
         fields = {f.name for f in cls.option_fields()}
         tech = technique(args.technique, **({"light": light} if light is not None else {}),
                          **{k: v for k, v in counts.items() if k in fields and v is not None})
