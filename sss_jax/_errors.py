@@ -16,3 +16,8 @@ class SamplingWarning(UserWarning):
 
 class ReferenceWindowWarning(UserWarning):
     """``reference``'s window holds less than 99.9% of the profile's energy: the result is not ground truth there."""
+
+
+class NoSSSPixelsWarning(UserWarning):
+    """A frame has no pixel a technique scatters (no surface, or every surface's id is 0): its output is its input,
+    not a result."""

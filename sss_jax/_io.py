@@ -5,11 +5,14 @@ Reading understands three namings of the channels a screen-space pass needs:
   ``thickness``, ``id``;
 - Blender multi-layer: ``<ViewLayer>.<pass>.<channel>``: irradiance = ``DiffDir + DiffInd`` (Blender stores diffuse
   light divided by the diffuse colour), albedo = ``DiffCol``, depth = ``Depth.Z`` (background 1e10 -> inf),
-  normal = ``Normal``, material id = ``IndexOB`` (or ``IndexMA``);
+  normal = ``Normal`` (world space in Blender: turned into camera space with the camera's orientation from the
+  header's ``worldToCamera`` or the sidecar's camera, else not used, with a warning), material id = ``IndexOB`` (or
+  ``IndexMA``);
 - a user channel map (dict, or a JSON/TOML file) from our buffer names to channel names.
 
 Depth is planar view depth in scene units; ``depth_kind="distance"`` converts distance-to-camera to planar with the
-focal length. Camera intrinsics come from explicit arguments, else the EXR header (``sss_jax:focal_px``,
+focal length. Channels stored as integers (an id pass as uint32) keep their values (OpenImageIO's float conversion
+would normalise them). Camera intrinsics come from explicit arguments, else the EXR header (``sss_jax:focal_px``,
 ``sss_jax:mm_per_unit``), else a sidecar ``<stem>.json`` (``camera.focal_px``, ``scene_unit_mm``).
 
 Every write goes to a temporary file in the target directory and is renamed into place: an interrupted run never
@@ -25,11 +28,12 @@ import json
 import os
 import pathlib
 import tempfile
+import warnings
 from typing import Any, Iterator, Mapping
 
 import numpy as np
 
-__all__ = ["Frame", "SSSInputError", "read_frame", "read_channels", "read_header", "exr_is_complete", "write_exr",
+__all__ = ["Frame", "SSSInputError", "NoSSSPixelsWarning", "read_frame", "read_channels", "read_header", "exr_is_complete", "write_exr",
            "write_png_preview", "write_json_atomic", "write_bytes_atomic", "atomic_path", "check_writable",
            "display_transform", "load_channel_map"]
 
@@ -37,6 +41,7 @@ BUFFER_NAMES = ("irradiance", "depth", "albedo", "normal", "thickness", "id")
 _BACKGROUND_DEPTH = 1e9  # Blender writes 1e10 where there is no surface
 
 
+from ._errors import NoSSSPixelsWarning as NoSSSPixelsWarning  # noqa: E402
 from ._errors import SSSInputError as SSSInputError  # noqa: E402  (the one definition is in _errors)
 
 
@@ -68,6 +73,14 @@ class Frame:
     def shape(self) -> tuple[int, int]:
         return self.depth.shape
 
+    @property
+    def sss_pixels(self) -> int:
+        """How many pixels a technique scatters: a surface (finite depth) whose id, where there is an id, is >= 1."""
+        mask = np.isfinite(self.depth)
+        if self.material_id is not None:
+            mask &= self.material_id > 0
+        return int(np.count_nonzero(mask))
+
     def to_buffers(self, *, use_albedo: bool = True):
         """The frame as ``sss_jax.Buffers`` (``use_albedo=False`` drops the albedo buffer so materials decide)."""
         import jax.numpy as jnp
@@ -91,7 +104,29 @@ class Frame:
 
 
 def read_channels(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, Any], tuple[int, int]]:
-    """All channels of every subimage as float32 ``(H, W)`` arrays, the header attributes, and ``(H, W)``."""
+    """All channels of every subimage as float32 ``(H, W)`` arrays, the header attributes, and ``(H, W)``.
+
+    Channels stored as integers come through OpenImageIO's normalising conversion here (a uint8 PNG's 255 -> 1.0);
+    ``read_frame`` reads an id channel's integers themselves (``_read_image``)."""
+    channels, _, metadata, shape = _read_image(path)
+    return channels, metadata, shape
+
+
+# OpenImageIO's base types have aliases (UINT is UINT32, UCHAR is UINT8) that its Python enum does not equate
+_INTEGER_TYPES = ("UINT8", "INT8", "UINT16", "INT16", "UINT32", "INT32", "UINT64", "INT64", "UINT", "INT", "UCHAR",
+                  "CHAR", "USHORT", "SHORT")
+
+
+def _is_integer(oiio, typedesc) -> bool:
+    return any(typedesc.basetype == getattr(oiio, n) for n in _INTEGER_TYPES if hasattr(oiio, n))
+
+
+def _read_image(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, Any],
+                                                  tuple[int, int]]:
+    """``(floats, integers, header, (H, W))``: every channel as float32, and the channels stored as integers (an
+    EXR's ``uint`` id channel, a 16-bit TIFF's) a second time with their stored values, as int64. OpenImageIO's
+    float conversion normalises integers by the type's maximum (uint32 1 -> 2.3e-10): right for an 8-bit colour,
+    wrong for an object or material id, which must keep its value."""
     oiio = _oiio()
     path = pathlib.Path(path)
     if not path.exists():
@@ -104,6 +139,7 @@ def read_channels(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[
     if inp is None:
         raise SSSInputError(f"{path}: not a readable image ({oiio.geterror() or 'unknown format'})")
     channels: dict[str, np.ndarray] = {}
+    integers: dict[str, np.ndarray] = {}
     metadata: dict[str, Any] = {}
     shape = None
     try:
@@ -126,12 +162,19 @@ def read_channels(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[
             for c, name in enumerate(spec.channelnames):
                 key = f"{part}.{name}" if part and name in channels else name
                 channels[key] = pixels[..., c]
+                stored = spec.channelformat(c)
+                if _is_integer(oiio, stored):
+                    raw = inp.read_image(sub, 0, c, c + 1, stored)
+                    if raw is None:
+                        raise SSSInputError(f"{path}: could not read channel {name!r} of subimage {sub} "
+                                            f"({inp.geterror()})")
+                    integers[key] = np.asarray(raw).reshape(spec.height, spec.width).astype(np.int64)
             sub += 1
     finally:
         inp.close()
     if not channels:
         raise SSSInputError(f"{path}: no channels")
-    return channels, metadata, shape
+    return channels, integers, metadata, shape
 
 
 def read_header(path: str | os.PathLike) -> tuple[dict[str, Any], tuple[int, int]]:
@@ -294,6 +337,38 @@ def _sidecar(path: pathlib.Path) -> dict[str, Any]:
     return data if isinstance(data, dict) else {}
 
 
+def world_to_camera_rotation(metadata: Mapping[str, Any], side: Mapping[str, Any]) -> tuple[np.ndarray, str] | None:
+    """The rotation ``R (3, 3)`` taking world-space directions to sss_jax's camera space (x right, y down, z forward:
+    ``n_cam = R @ n_world``) and where it came from, or None when neither source has the camera's orientation.
+
+    Sources, in order: the EXR header's standard ``worldToCamera`` (OpenEXR: row vectors, ``p' = p M``; its camera
+    space is x right, y up, z the viewing direction), then the sidecar's ``camera.matrix_world`` (Blender: the
+    camera's 4x4 camera-to-world, columns; the camera looks down its -Z with +Y up) or ``camera.location`` and
+    ``camera.look_at`` (with ``camera.up``, default Blender's world +Z)."""
+    flip_y = np.diag([1.0, -1.0, 1.0])
+    m = metadata.get("worldToCamera")
+    if m is not None:
+        m = np.asarray(m, np.float64).reshape(4, 4)
+        return flip_y @ m[:3, :3].T, "the EXR header's worldToCamera"
+    cam = side.get("camera") if isinstance(side.get("camera"), dict) else {}
+    if cam.get("matrix_world") is not None:
+        c2w = np.asarray(cam["matrix_world"], np.float64).reshape(4, 4)[:3, :3]
+        # columns: the camera's x (right), y (up), z (backwards) in world space
+        right, up, back = (c2w[:, k] / np.linalg.norm(c2w[:, k]) for k in range(3))
+        return np.stack([right, -up, -back]), "the sidecar's camera.matrix_world"
+    if cam.get("location") is not None and cam.get("look_at") is not None:
+        forward = np.asarray(cam["look_at"], np.float64) - np.asarray(cam["location"], np.float64)
+        world_up = np.asarray(cam.get("up", (0.0, 0.0, 1.0)), np.float64)
+        forward = forward / np.linalg.norm(forward)
+        right = np.cross(forward, world_up)
+        if not np.linalg.norm(right) > 1e-9:
+            return None
+        right = right / np.linalg.norm(right)
+        up = np.cross(right, forward)
+        return np.stack([right, -up, forward]), "the sidecar's camera.location and look_at"
+    return None
+
+
 def distance_to_planar(distance: np.ndarray, focal_px: float, principal_point: tuple[float, float] | None = None):
     """Planar depth from distance to the camera: ``z = dist / sqrt(1 + ((x-cx)^2 + (y-cy)^2) / f^2)`` at pixel centres
     ``(x + 0.5, y + 0.5)``; the principal point defaults to the image centre."""
@@ -322,7 +397,7 @@ def read_frame(
     if depth_kind not in ("planar", "distance"):
         raise SSSInputError(f"depth_kind={depth_kind!r} is not one of ('planar', 'distance')")
     path = pathlib.Path(path)
-    channels, metadata, shape = read_channels(path)
+    channels, integers, metadata, shape = _read_image(path)
     cmap = load_channel_map(channel_map) if channel_map is not None else None
     if depth_path is not None:
         d_channels, _, d_shape = read_channels(depth_path)
@@ -356,23 +431,51 @@ def read_frame(
     irradiance = np.maximum(irradiance, 0.0)
     ids = buffers.get("id")
     if ids is not None:
-        if not np.all(np.isfinite(ids)):
+        (id_channel,) = plan["id"]
+        if id_channel in integers:  # stored as integers: their values, not OpenImageIO's normalised floats
+            ids = integers[id_channel]
+        elif not np.all(np.isfinite(ids)):
             raise SSSInputError(f"{path}: id channel has non-finite values")
-        ids = np.rint(ids).astype(np.int32)
+        else:
+            ids = np.rint(ids)
         if np.any(ids < 0):
             raise SSSInputError(f"{path}: id channel has negative ids (min {int(ids.min())})")
+        if np.any(ids > np.iinfo(np.int32).max):
+            raise SSSInputError(f"{path}: id channel {id_channel!r} has ids up to {int(ids.max())}; ids select "
+                                f"materials 1, 2, ... and must be below 2^31 (a hashed id such as Cryptomatte's "
+                                "needs a channel map to a small-integer id pass)")
+        ids = ids.astype(np.int32)
     albedo = buffers.get("albedo")
     if albedo is not None:
         albedo = np.clip(np.nan_to_num(albedo.astype(np.float32)), 0.0, 1.0)
     normal = buffers.get("normal")
     if normal is not None:
         normal = np.nan_to_num(normal.astype(np.float32))
+        if layout == "blender":  # Blender's Normal pass is in world space; the techniques take camera space
+            rotation = world_to_camera_rotation(metadata, side)
+            if rotation is None:
+                warnings.warn(f"{path}: the Normal pass is in world space (Blender) and neither the header "
+                              f"(worldToCamera) nor a sidecar {path.with_suffix('.json').name} (camera.location and "
+                              "look_at, or matrix_world) gives the camera's orientation: the pass is not used "
+                              "(normals come from depth)", UserWarning, stacklevel=2)
+                normal = None
+            else:
+                normal = (normal.astype(np.float64) @ rotation[0].T).astype(np.float32)
     thickness = buffers.get("thickness")
     if thickness is not None:
         thickness = np.maximum(np.nan_to_num(thickness.astype(np.float32), nan=0.0, posinf=np.inf), 0.0)
-    return Frame(irradiance=irradiance, depth=depth, albedo=albedo, normal=normal, thickness=thickness,
-                 material_id=ids, focal_px=focal_px, mm_per_unit=mm_per_unit, path=str(path), layout=layout,
-                 metadata=metadata)
+    frame = Frame(irradiance=irradiance, depth=depth, albedo=albedo, normal=normal, thickness=thickness,
+                  material_id=ids, focal_px=focal_px, mm_per_unit=mm_per_unit, path=str(path), layout=layout,
+                  metadata=metadata)
+    if frame.sss_pixels == 0:
+        if not np.any(np.isfinite(depth)):
+            why = f"depth channel {plan['depth'][0]!r} has no surface (every value is inf, 0 or background)"
+        else:
+            why = (f"id channel {plan['id'][0]!r} is 0 on every surface pixel (0 = no SSS); ids stored as floats "
+                   "must hold the integer values 1, 2, ...")
+        warnings.warn(f"{path}: no pixel to scatter: {why}; the output is the input", NoSSSPixelsWarning,
+                      stacklevel=2)
+    return frame
 
 
 # ------------------------------------------------------------------------------------------------------------------

@@ -97,6 +97,14 @@ ARG_CASES = [
     (["--technique", "burley", "--mfp-mm=-2,1,1"], r"mfp_mm must lie in"),
     (["--technique", "sta", "--light-dir", "0,0,0"], "light direction must be a finite non-zero vector"),
     (["--technique", "sta", "--light-dir", "0,0,1", "--sta-thickness-mm", "0,1,1"], r"thickness_mm must lie in"),
+    # a leading minus as its own word (issue #27/#30): the value reaches the command's own check, not argparse's
+    # "expected one argument"
+    (["--technique", "burley", "--d-mm", "-1,1,1"], r"d_mm must lie in \[0.0, inf\]"),
+    (["--technique", "burley", "--mfp-mm", "-2,1,1"], r"mfp_mm must lie in"),
+    (MATERIAL + ["--focal-px", "-3"], "--focal-px must be a finite positive number"),
+    (MATERIAL + ["--mm-per-unit", "-1e-3"], "--mm-per-unit must be a finite positive number"),
+    (MATERIAL + ["--focal-px", "-inf"], "--focal-px must be a finite positive number"),
+    (["--technique", "sta", "--light-dir", "0,0,1", "--sta-power", "-1"], r"power must lie in \[0.0, inf\]"),
 ]
 
 
@@ -108,6 +116,64 @@ def test_bad_arguments(tmp_path, capsys, argv, message):
     assert run_cli(["apply", str(inp), "-o", str(out)] + argv) == 2
     assert re.search(message, capsys.readouterr().err)
     assert list(out.parent.iterdir()) == []
+
+
+def test_negative_light_direction_is_a_value(tmp_path, capsys):
+    """``--light-dir -0.25,0.3,0.9`` (issue #27): argparse read the minus as a flag ("expected one argument")."""
+    inp = good_exr(tmp_path / "good.exr")
+    out = tmp_path / "o.exr"
+    rc = run_cli(["apply", str(inp), "-o", str(out), "--technique", "sta", "--light-dir", "-0.25,0.3,0.9",
+                  "--focal-px", "100", "--thickness", "0.001"])
+    err = capsys.readouterr().err
+    assert rc == 0, err
+    assert "expected one argument" not in err and out.exists()
+
+
+def test_a_word_that_is_not_a_number_is_still_a_flag(capsys):
+    # only numbers are taken for values: a misspelt flag after a flag that wants a value is still argparse's error
+    assert run_cli(["apply", "x.exr", "-o", "y.exr", "--technique", "burley", "--d-mm", "--albedo", "1,1,1"]) == 2
+    assert "expected one argument" in capsys.readouterr().err
+
+
+def test_demo_out_onto_an_existing_file(tmp_path, capsys):
+    """Issue #30: `demo --out README.md` said "[Errno 17] File exists"."""
+    target = tmp_path / "README.md"
+    target.write_text("mine")
+    assert run_cli(["demo", "--out", str(target), "--size", "8x8"]) == 2
+    err = capsys.readouterr().err
+    assert f"--out {target} is an existing file, not a folder" in err and "Errno" not in err
+    assert target.read_text() == "mine"
+
+
+def test_demo_out_into_a_folder_of_the_users_own_files(tmp_path, capsys):
+    """Issue #30: a folder holding the user's own reference.exr and summary.json was silently overwritten."""
+    folder = tmp_path / "mine"
+    folder.mkdir()
+    good_exr(folder / "reference.exr")
+    (folder / "summary.json").write_text('{"my": "notes"}')
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    assert run_cli(["demo", "--out", str(folder), "--size", "8x8"]) == 2
+    err = capsys.readouterr().err
+    assert "holds files a demo did not make (reference.exr, summary.json)" in err and "--overwrite" in err
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
+
+
+def test_demo_out_into_its_own_earlier_output_or_with_overwrite_is_allowed(tmp_path):
+    from sss_jax.cli._demo import _check_out
+
+    folder = tmp_path / "demo"
+    folder.mkdir()
+    good_exr(folder / "reference.exr")
+    (folder / "summary.json").write_text(json.dumps({"made_by": "sss-jax demo", "width": 8, "height": 8, "rows": []}))
+    _check_out(folder, overwrite=False)  # a demo's folder: no error
+    (folder / "summary.json").write_text('{"my": "notes"}')
+    with pytest.raises(ValueError, match="holds files a demo did not make"):
+        _check_out(folder, overwrite=False)
+    _check_out(folder, overwrite=True)
+    (folder / "notes.txt").write_text("")  # files the demo never writes do not count
+    (folder / "summary.json").unlink()
+    (folder / "reference.exr").unlink()
+    _check_out(folder, overwrite=False)
 
 
 def test_missing_focal_length(tmp_path, capsys):

@@ -284,8 +284,262 @@ def test_cli_apply_missing_focal_length(tmp_path, capsys):
     assert not (tmp_path / "o.exr").exists()
 
 
+def write_renderer_exr(path, channels: dict, attrs=None):
+    """An EXR as renderers write it, through the OpenEXR library itself (neither sss_jax's writer nor OpenImageIO):
+    each channel in its own type, half colour, float depth, uint32 ids."""
+    import OpenEXR
+
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage, **(attrs or {})}
+    with OpenEXR.File(header, {k: np.ascontiguousarray(v) for k, v in channels.items()}) as f:
+        f.write(str(path))
+
+
+def renderer_frame(path, ids, h=12, w=16):
+    rng = np.random.default_rng(3)
+    ch = {c: rng.uniform(0.2, 1, (h, w)).astype(np.float16) for c in "RGB"}
+    ch["Z"] = np.full((h, w), 30.0, np.float32)
+    ch["id"] = ids.astype(np.uint32)
+    write_renderer_exr(path, ch, {"sss_jax:focal_px": 200.0, "sss_jax:mm_per_unit": 10.0})
+    return ch
+
+
+def test_uint32_id_channel_reads_as_integers_and_apply_scatters_the_object(tmp_path, capsys, as_users_run_it):
+    """Issue #30: a uint32 id (0 background, 1 object) came through OpenImageIO's normalising float conversion as
+    2.3e-10 = 1/(2^32-1), every pixel id 0, nothing scattered."""
+    h, w = 12, 16
+    ids = np.ones((h, w), np.uint32)
+    ids[:, :5] = 0
+    src = tmp_path / "ids.exr"
+    ch = renderer_frame(src, ids)
+    inp = oiio.ImageInput.open(str(src))
+    assert str(inp.spec().channelformat(inp.spec().channelnames.index("id"))) == "uint"  # as a renderer stores it
+    inp.close()
+    f = _io.read_frame(src)
+    np.testing.assert_array_equal(f.material_id, ids.astype(np.int32))
+    assert f.sss_pixels == h * (w - 5)
+    out = tmp_path / "o.exr"
+    assert main(["apply", str(src), "-o", str(out), "--technique", "burley", "--d-mm", "2,1,0.5",
+                 "--albedo", "0.8,0.6,0.5"]) == 0, capsys.readouterr().err
+    got = _io.read_frame(out, channel_map={"irradiance": ["R", "G", "B"], "depth": "R"}).irradiance
+    rgb = np.stack([ch[c].astype(np.float32) for c in "RGB"], -1)
+    np.testing.assert_array_equal(got[:, :5], rgb[:, :5])  # id 0 passes through untouched
+    changed = np.abs(got[:, 5:] - 0.8 * rgb[:, 5:]).max(axis=-1) > 1e-3  # scattered, not albedo x irradiance
+    assert changed.mean() > 0.9
+    assert "no pixel to scatter" not in capsys.readouterr().err
+
+
+def test_uint16_channels_keep_their_values(tmp_path):
+    """A 16-bit id (a TIFF, as some G-buffer dumps write it): the stored integers, not value / 65535."""
+    ids = np.array([[0, 1, 2], [3, 65535, 1]], np.uint16)
+    path = tmp_path / "ids.tif"
+    spec = oiio.ImageSpec(3, 2, 1, oiio.UINT16)
+    spec.channelnames = ("id",)
+    out = oiio.ImageOutput.create(str(path))
+    assert out.open(str(path), spec) and out.write_image(ids[..., None])
+    out.close()
+    floats, integers, _, _ = _io._read_image(path)
+    np.testing.assert_array_equal(integers["id"], ids.astype(np.int64))
+    np.testing.assert_allclose(floats["id"], ids / 65535.0, rtol=1e-6)  # OpenImageIO's normalised view, for colour
+
+
+def test_a_frame_without_sss_pixels_warns(tmp_path, capsys, as_users_run_it):
+    src = tmp_path / "zero.exr"
+    renderer_frame(src, np.zeros((12, 16)))
+    with pytest.warns(_io.NoSSSPixelsWarning, match="id channel 'id' is 0 on every surface pixel"):
+        _io.read_frame(src)
+    out = tmp_path / "o.exr"
+    assert main(["apply", str(src), "-o", str(out), "--technique", "burley", "--d-mm", "2,1,0.5"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("warning: ") >= 1 and err.count("no pixel to scatter") == 1, err
+
+
 def test_cli_help_shows_examples(capsys):
     for cmd in ("apply", "demo"):
         with pytest.raises(SystemExit):
             main([cmd, "--help"])
         assert "example" in capsys.readouterr().out
+
+
+def _help_of(capsys, command):
+    with pytest.raises(SystemExit):
+        main([command, "--help"])
+    return " ".join(capsys.readouterr().out.split())
+
+
+def test_every_technique_option_is_a_flag_with_its_own_help(capsys):
+    """Issue #26: the technique flags come from the technique classes' option fields, with their help and choices."""
+    from sss_jax._techniques import TECHNIQUES
+
+    apply_help = _help_of(capsys, "apply")
+    for flag in ("--border", "--pattern", "--frames", "--seed", "--interpolation", "--model", "--impl"):
+        assert flag in apply_help, flag
+    pattern = next(f for f in TECHNIQUES["burley"].option_fields() if f.name == "pattern")
+    assert " ".join(pattern.metadata["help"].split()) in apply_help
+    assert "{rotated,fixed}" in apply_help
+    report_help = _help_of(capsys, "report")
+    assert "--border" in report_help and "--pattern" in report_help
+
+
+def test_an_option_added_to_a_technique_appears_on_every_command(capsys, monkeypatch):
+    from sss_jax._techniques import TECHNIQUES
+    from sss_jax._techniques._base import option
+
+    class Wider(TECHNIQUES["burley"]):
+        blur_factor: float = option(1.5, "how much wider the test technique draws its kernel")
+
+    monkeypatch.setitem(TECHNIQUES, "burley", Wider)
+    for command in ("apply", "report", "fit", "bench", "advise"):
+        text = _help_of(capsys, command)
+        assert "--blur-factor" in text and "how much wider the test technique draws its kernel" in text, command
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--technique", "burley", "--border", "sideways"], "--border: expected one of leaves, renormalise"),
+    (["--technique", "separable", "--pattern", "fixed"], "--pattern is an option of burley, not of separable"),
+    (["--technique", "separable", "--interpolation", "bilinear"],
+     "--interpolation bilinear: separable takes one of linear, nearest"),
+    (["--technique", "burley", "--frames", "1.5"], "--frames: expected an integer"),
+])
+def test_technique_flags_bad_values(tmp_path, capsys, as_users_run_it, argv, message):
+    a = tmp_path / "a.exr"
+    synthetic_frame(a, focal=200.0)
+    try:
+        rc = main(["apply", str(a), "-o", str(tmp_path / "o.exr"), "--d-mm", "1,1,1"] + argv)
+    except SystemExit as exc:
+        rc = exc.code
+    assert rc == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "o.exr").exists()
+
+
+def test_apply_prints_the_techniques_sampling_warning(tmp_path, capsys, as_users_run_it):
+    """5 taps for a kernel far wider than the frame: the separable's SamplingWarning reached nobody (issue #26)."""
+    a = tmp_path / "a.exr"
+    synthetic_frame(a, h=24, w=32, focal=200.0)
+    rc = main(["apply", str(a), "-o", str(tmp_path / "o.exr"), "--technique", "separable", "--taps", "5",
+               "--d-mm", "20,10,5", "--mm-per-unit", "10"])
+    err = capsys.readouterr().err
+    assert rc == 0, err
+    assert err.count("warning: ") == 1 and "separable: 5 taps at a reach of" in err, err
+
+
+def test_report_without_a_light_says_sta_was_left_out(tmp_path, capsys, as_users_run_it):
+    """Issue #27: without --light-dir the report left STA out without a word."""
+    a = tmp_path / "a.exr"
+    synthetic_frame(a, focal=200.0)
+    rc = main(["report", str(a), "--out", str(tmp_path / "rep"), "--d-mm", "1,0.5,0.25", "--mm-per-unit", "10",
+               "--taps", "9", "--samples", "8", "--repeats", "0", "--no-images", "--no-progress"])
+    err = capsys.readouterr().err
+    assert rc == 0, err
+    assert "STA left out" in err
+    notes = json.loads((tmp_path / "rep" / "report.json").read_text())["notes"]
+    assert any("STA left out" in n and "--light-dir" in n for n in notes)
+
+
+def test_report_refuses_a_frame_without_sss_pixels(tmp_path, capsys, as_users_run_it):
+    src = tmp_path / "zero.exr"
+    renderer_frame(src, np.zeros((12, 16)))
+    rc = main(["report", str(src), "--out", str(tmp_path / "rep"), "--d-mm", "1,0.5,0.25", "--techniques",
+               "burley", "--samples", "8", "--repeats", "0", "--no-progress"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "no pixel" in err, err
+    assert not (tmp_path / "rep" / "report.json").exists()
+
+
+def _front_camera_sources():
+    """One Blender camera three ways: at (0, -5, 0) looking at the origin, world +Z up (rotation_euler (90, 0, 0))."""
+    rx90 = np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]], float)  # Blender's matrix_world rotation for that camera
+    c2w = np.eye(4)
+    c2w[:3, :3], c2w[:3, 3] = rx90, (0, -5, 0)
+    # OpenEXR's worldToCamera: row vectors (p' = p M), camera x right, y up, z forward: M's columns are those axes
+    w2c = np.eye(4)
+    w2c[:3, :3] = np.array([[1, 0, 0], [0, 0, 1], [0, 1, 0]], float).T
+    return [({"worldToCamera": w2c.ravel().tolist()}, {}),
+            ({}, {"camera": {"matrix_world": c2w.tolist()}}),
+            ({}, {"camera": {"location": [0, -5, 0], "look_at": [0, 0, 0]}})]
+
+
+@pytest.mark.parametrize("header, side", _front_camera_sources())
+def test_world_to_camera_rotation_from_each_source(header, side):
+    rotation, source = _io.world_to_camera_rotation(header, side)
+    # sss_jax's camera space: x right, y down, z forward; facing the camera is -z
+    np.testing.assert_allclose(rotation @ [0, -1, 0], [0, 0, -1], atol=1e-12)  # a wall facing the camera
+    np.testing.assert_allclose(rotation @ [0, 0, 1], [0, -1, 0], atol=1e-12)  # world up is image up (y down)
+    np.testing.assert_allclose(rotation @ [1, 0, 0], [1, 0, 0], atol=1e-12)
+    assert source
+
+
+def test_blender_world_space_normals_are_converted_to_camera_space(shared_dir, tmp_path):
+    """Issue #30: Blender's Normal pass is world space; read as camera space it changed STA's light by 58%. The
+    converted normals must agree with the normals of the depth buffer (an independent camera-space estimate)."""
+    import jax.numpy as jnp
+
+    src = shared_dir / "reference" / "blender" / "irradiance_backlit.exr"
+    f = _io.read_frame(src)
+    cam = sj.Camera(f.focal_px, f.mm_per_unit)
+    from_depth = np.asarray(sj.normals_from_depth(jnp.asarray(f.depth), cam))
+    surface = (f.material_id > 0) & np.isfinite(f.depth)
+    agree = np.sum(from_depth * f.normal, axis=-1)[surface]
+    assert np.median(agree) > 0.99 and np.mean(agree > 0.9) > 0.9
+    assert np.mean(f.normal[surface][:, 2] < 0) > 0.95  # the surfaces the camera sees face it
+    # without the sidecar the camera's orientation is unknown: the pass is not used, with a warning saying so
+    bare = tmp_path / "bare.exr"
+    bare.write_bytes(src.read_bytes())
+    with pytest.warns(UserWarning, match="Normal pass is in world space"):
+        g = _io.read_frame(bare, focal_px=f.focal_px, mm_per_unit=f.mm_per_unit)
+    assert g.normal is None
+
+
+def test_sta_thickness_far_outside_the_falloff_warns_with_what_it_does(tmp_path, capsys, as_users_run_it):
+    """Issue #30: the README's `--thickness 1.0` with a 1000 mm scene unit made exp(-1000): STA added exactly nothing,
+    silently."""
+    a = tmp_path / "a.exr"
+    synthetic_frame(a, focal=200.0)
+    base = ["apply", str(a), "--technique", "sta", "--light-dir", "-0.25,0.3,0.9", "--albedo", "0.8,0.6,0.5"]
+    assert main(base + ["-o", str(tmp_path / "thick.exr"), "--thickness", "1.0", "--mm-per-unit", "1000"]) == 0
+    err = capsys.readouterr().err
+    assert "STA adds nothing (the output is local shading)" in err and "1000 mm" in err, err
+    thick = _io.read_frame(tmp_path / "thick.exr", channel_map={"irradiance": ["R", "G", "B"], "depth": "R"})
+    src = _io.read_frame(a)
+    local = src.irradiance * np.asarray([0.8, 0.6, 0.5], np.float32)
+    inside = src.material_id > 0
+    np.testing.assert_allclose(thick.irradiance[inside], local[inside], rtol=1e-6)  # what the warning says
+    # in range (5 mm against a falloff of 4/2.5/1.5 mm): no warning, and the back light shows
+    assert main(base + ["-o", str(tmp_path / "ok.exr"), "--thickness", "0.5", "--mm-per-unit", "10",
+                        "--sta-thickness-mm", "4,2.5,1.5"]) == 0
+    assert "warning" not in capsys.readouterr().err
+    ok = _io.read_frame(tmp_path / "ok.exr", channel_map={"irradiance": ["R", "G", "B"], "depth": "R"})
+    assert np.mean(ok.irradiance[inside] > local[inside] * (1 + 1e-3)) > 0.1
+
+
+class _Stop(Exception):
+    pass
+
+
+def test_technique_flags_reach_the_library_or_are_refused(monkeypatch, capsys, as_users_run_it):
+    """A technique flag is passed on as {technique: {option: value}} where the library function takes
+    technique_options, and is an error where it does not: never silently dropped."""
+    import sys
+    import types
+
+    seen = {}
+    _bench = types.ModuleType("sss_jax._bench")  # a stand-in: the test is about the flags, not the bench
+    _bench.plot_pareto = None
+    monkeypatch.setitem(sys.modules, "sss_jax._bench", _bench)
+
+    def fake_run_bench(*, quick=False, repeats=3, progress=None, technique_options=None):
+        seen.update(technique_options)
+        raise _Stop
+
+    _bench.run_bench = fake_run_bench
+    with pytest.raises(_Stop):
+        main(["bench", "--quick", "--border", "renormalise", "--pattern", "fixed", "--compact", "false"])
+    assert seen == {"burley": {"border": "renormalise", "pattern": "fixed", "compact": False},
+                    "separable": {"border": "renormalise"}, "reference": {"border": "renormalise"}}
+
+    def old_run_bench(*, quick=False, repeats=3, progress=None):
+        raise _Stop
+
+    _bench.run_bench = old_run_bench
+    assert main(["bench", "--quick", "--border", "renormalise"]) == 2
+    assert "--border: this version's bench cannot pass options to" in capsys.readouterr().err

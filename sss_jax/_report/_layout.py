@@ -259,6 +259,7 @@ def report(data: ReportData, out_dir: str | pathlib.Path, *,
     page.table(sec, [{"what": k, "value": v} for k, v in data.machine.items()], "machine", key="machine")
 
     doc: dict[str, Any] = {"inputs": data.inputs, "material": data.material, "machine": data.machine,
+                           "notes": list(data.notes),  # what was left out and why (issue #27)
                            "techniques": [{k: e[k] for k in ("technique", "count", "ms_per_frame", "vs_reference",
                                                              "vs_truth")} for e in entries]}
     extra_data = {t: d for t, _, d in extras if d}

@@ -5,7 +5,23 @@ from __future__ import annotations
 import argparse
 import importlib
 import pkgutil
+import re
 import sys
+
+_NUMBER = r"(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|inf|nan"
+# a value that starts with a minus and is a number or a comma-separated list of numbers ("-0.25,0.3,0.9", "-1e-3")
+_NEGATIVE_VALUE = re.compile(rf"^-(?:{_NUMBER})(?:\s*,\s*[-+]?(?:{_NUMBER}))*$", re.IGNORECASE)
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with one change for every flag of every sub-command: a value that starts with a minus and reads as
+    a number or a list of numbers (``--light-dir -0.25,0.3,0.9``, ``--d-mm -1,1,1``) is the flag's value, judged on
+    its merits by the command, not taken for an unknown option. Stock argparse knows only ``-1`` and ``-.5``.
+    Sub-command parsers are made of this class too (``add_subparsers`` uses the parent's class)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = _NEGATIVE_VALUE
 
 
 def rgb_triple(text: str) -> tuple[float, float, float]:
@@ -23,7 +39,7 @@ def rgb_triple(text: str) -> tuple[float, float, float]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="sss-jax",
         description="Real-time subsurface scattering in image space: apply, fit, measure.",
         epilog="Start with:  sss-jax demo --out demo_out",

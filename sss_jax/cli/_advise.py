@@ -6,6 +6,11 @@ import argparse
 import pathlib
 import sys
 
+from ._options import add_technique_flags, option_arguments, technique_options
+
+# the techniques whose counts the advisor weighs (beside local shading)
+ADVISED = ("separable", "burley")
+
 EPILOG = """examples:
   sss-jax advise --material skin --max-delta-e 1.0
   sss-jax advise --material marble --scene demo --scene-scale 4 --size 128x96 --max-delta-e 0.5 --json advice.json
@@ -46,6 +51,8 @@ def register(subparsers) -> None:
                    help="timed runs per candidate: median and interquartile range; candidates whose ranges overlap "
                    "are within the noise and the more accurate one is preferred (default 5)")
     p.add_argument("--json", type=pathlib.Path, help="write the table and the choice as JSON")
+    # the candidates' own options (their counts are the advisor's candidates)
+    add_technique_flags(p, techniques=ADVISED, exclude=("samples", "taps", "radius_px", "albedo", "thickness"))
     p.set_defaults(func=run)
 
 
@@ -62,11 +69,13 @@ def run(args) -> int:
         if args.json is not None and not args.json.parent.exists():
             raise ValueError(f"directory {args.json.parent} does not exist")
         resolve_material(args.material)
+        options = {t: technique_options(args, t, others=ADVISED) for t in ADVISED}
+        extra = option_arguments(advise, options, "advise")
     except ValueError as exc:
         print(f"sss-jax advise: {exc}", file=sys.stderr)
         return 2
     advice = advise(args.material, max_delta_e=args.max_delta_e, size=args.size, scene_scale=args.scene_scale,
-                    repeats=args.repeats, progress=lambda m: print(m, file=sys.stderr, flush=True))
+                    repeats=args.repeats, progress=lambda m: print(m, file=sys.stderr, flush=True), **extra)
     h, w = args.size
     print(f"material {advice.material}, scene {args.scene} {w}x{h} x{args.scene_scale:g}, "
           f"budget mean dE2000 <= {args.max_delta_e:g}")

@@ -7,12 +7,14 @@ import pathlib
 import sys
 
 from . import rgb_triple
+from ._options import WarningPrinter, add_technique_flags, given_technique_options, sta_thickness_warning
+from ._options import technique_options
 
 EPILOG = """examples:
   sss-jax apply frame.exr -o out.exr --technique burley --albedo 0.8,0.6,0.5 --d-mm 3,1.4,0.8 --focal-px 1200 --mm-per-unit 10
   sss-jax apply render.exr -o sss.exr --technique separable --albedo 0.85,0.75,0.55 --mfp-mm 400,250,150
   sss-jax apply 'shots/*.exr' --out-dir sss/ --technique burley --albedo 0.8,0.6,0.5 --d-mm 3,1.4,0.8 --png
-  sss-jax apply frame.exr -o sta.exr --technique sta --albedo 0.8,0.6,0.5 --light-dir 0.3,-0.4,0.9 --thickness 0.5
+  sss-jax apply frame.exr -o sta.exr --technique sta --albedo 0.8,0.6,0.5 --light-dir -0.25,0.3,0.9 --thickness 0.5 --mm-per-unit 10 --sta-thickness-mm 4,2.5,1.5
   sss-jax apply frame.exr -o skin.exr --technique separable --preset my_skin.json --focal-px 1200
   sss-jax apply 'shots/*/beauty.exr' --out-dir sss/ --technique burley --preset skin --resume
 
@@ -31,6 +33,11 @@ thickness, id (0 = no SSS: passes through untouched). A Blender multi-layer EXR 
 Depth, DiffCol, IndexOB); --albedo overrides the albedo pass. The focal length and scene unit come from the flags,
 the EXR header (sss_jax:focal_px, sss_jax:mm_per_unit) or a sidecar <name>.json (camera.focal_px, scene_unit_mm).
 """
+
+
+# technique options that apply sets through flags of its own (--samples, --taps, --radius-px; STA's --albedo and
+# --thickness, which also stand for the frame's albedo and thickness)
+OWN_FLAGS = ("samples", "taps", "radius_px", "albedo", "thickness")
 
 
 def register(subparsers) -> None:
@@ -69,6 +76,10 @@ def register(subparsers) -> None:
     sta.add_argument("--sta-thickness-mm", type=rgb_triple, default=(1.0, 1.0, 1.0),
                      help="thickness falloff per channel, mm: t = exp(-thickness / this)")
     sta.add_argument("--thickness", type=float, help="constant thickness in scene units where there is no thickness channel")
+    # every other option of the techniques, with the techniques' own help (--border, --pattern, --frames, ...)
+    add_technique_flags(p, exclude=OWN_FLAGS)
+    p.add_argument("--tile-pixels", type=int, help="pixels per tile at most: a larger frame runs in tiles overlapping "
+                   "by the technique's reach (default: the batch's budget)")
     p.add_argument("--half", action="store_true", help="write half-float EXR")
     p.add_argument("--png", action="store_true", help="also write an sRGB PNG preview beside each output")
     p.add_argument("--resume", action="store_true", help="skip frames whose output is complete and was made from the "
@@ -94,6 +105,16 @@ def _material(args):
         if args.light_dir is None:
             raise ValueError("--technique sta needs --light-dir X,Y,Z")
         light = DirectionalLight(jnp.asarray(args.light_dir, jnp.float32), args.light_colour)
+        model = given_technique_options(args).get("model", "sta")
+        if model != "sta":  # the physically based back-light models take the medium's scattering distance
+            if preset is not None:
+                return material_for("burley", preset, albedo=args.albedo), light
+            if args.d_mm is not None:
+                return BurleyMaterial(albedo, args.d_mm), light
+            if args.mfp_mm is not None:
+                return BurleyMaterial.from_mfp(albedo, args.mfp_mm), light
+            raise ValueError(f"--technique sta --model {model} needs the medium: --d-mm R,G,B, --mfp-mm R,G,B or "
+                             "--preset")
         if preset is not None:
             return material_for("sta", preset), light
         params = STAParams(distortion=args.sta_distortion, power=args.sta_power, scale=args.sta_scale,
@@ -137,20 +158,19 @@ def run(args) -> int:
             raise ValueError(f"--albedo must be 3 values in [0, 1], got {','.join(map(str, args.albedo))}")
         if args.thickness is not None and not (args.thickness >= 0):
             raise ValueError(f"--thickness must be >= 0 scene units, got {args.thickness}")
+        if args.tile_pixels is not None and args.tile_pixels < 1:
+            raise ValueError(f"--tile-pixels must be >= 1, got {args.tile_pixels}")
         if args.radius_px is not None and args.radius_px < 0:
             raise ValueError(f"--radius-px must be >= 0, got {args.radius_px}")
         material, light = _material(args)
+        options = technique_options(args, args.technique)
     except (ValueError, OSError) as exc:
         print(f"sss-jax apply: {exc}", file=sys.stderr)
         return 2
 
-    import warnings
-
     from .._batch import process_frames
 
-    if args.technique == "reference" and args.radius_px is None:
-        args.radius_px = _reference_radius(inputs, args, material)
-    sta = args.technique == "sta"
+    shown = WarningPrinter("sss-jax apply")
 
     def report(r):
         if r.status == "failed":
@@ -158,21 +178,16 @@ def run(args) -> int:
         elif r.status == "skipped":
             line = f"{r.input} -> {r.output} (skipped: {r.message})"
         else:
-            line = f"{r.input} -> {r.output} ({r.seconds:.2f} s)" + (f"; {r.message}" if r.message else "")
+            said = r.message and (r.message in shown or f"{r.input}: {r.message}" in shown)
+            line = f"{r.input} -> {r.output} ({r.seconds:.2f} s)" + (f"; {r.message}" if r.message and not said
+                                                                    else "")
         print(line, file=sys.stderr)
 
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", UserWarning)  # each frame's clamp warning is in its report line
-            result = process_frames(
-                inputs, args.technique, material if not sta else (material, light),
-                out_dir=args.out_dir, outputs=None if args.output is None else [args.output], png=args.png,
-                focal_px=args.focal_px, mm_per_unit=args.mm_per_unit, channel_map=args.channel_map,
-                depth_kind=args.depth_kind, use_albedo_pass=args.albedo is None, samples=args.samples, taps=args.taps,
-                radius_px=args.radius_px, half=args.half, resume=args.resume, overwrite=args.overwrite,
-                progress=len(inputs) > 1 or sys.stderr.isatty(), sta_albedo=args.albedo, sta_thickness=args.thickness,
-                on_frame_done=report,
-            )
+        with shown:
+            if args.technique == "reference" and args.radius_px is None:
+                args.radius_px = _reference_radius(inputs, args, material)
+            result = _run_batch(process_frames, inputs, args, options, material, light, report)
     except KeyboardInterrupt as exc:
         code = 128 + getattr(exc, "signum", 2)
         where = f"; {args.out_dir / 'sss_jax_manifest.json'} lists the finished frames" if args.out_dir else ""
@@ -190,6 +205,87 @@ def run(args) -> int:
         print(f"sss-jax apply: {skipped} of {len(result.frames)} frame(s) skipped (--resume: already complete)",
               file=sys.stderr)
     return 0
+
+
+def _run_batch(process_frames, inputs, args, options, material, light, report):
+    """``process_frames`` with the technique as it takes it: the name, the counts and every other option given
+    (``technique_options``); a technique object built from the registry (``technique(name, **options)``) for a batch
+    that takes only objects; for a batch that takes only a name and its counts, the other options are refused (it
+    cannot pass them on) and the technique's own warnings are computed here (it runs the frames traced)."""
+    import inspect
+
+    from .._techniques import TECHNIQUES
+
+    accepted = inspect.signature(process_frames).parameters
+    counts = {"samples": args.samples, "taps": args.taps, "radius_px": args.radius_px}
+    common = dict(
+        out_dir=args.out_dir, outputs=None if args.output is None else [args.output], png=args.png,
+        focal_px=args.focal_px, mm_per_unit=args.mm_per_unit, channel_map=args.channel_map,
+        depth_kind=args.depth_kind, use_albedo_pass=args.albedo is None, half=args.half, resume=args.resume,
+        overwrite=args.overwrite, progress=len(inputs) > 1 or sys.stderr.isatty(), on_frame_done=report)
+    if args.tile_pixels is not None:
+        common["tile_pixels"] = args.tile_pixels
+    common = {k: v for k, v in common.items() if k in accepted}
+    named = material if light is None else (material, light)
+    if "technique_options" in accepted:  # it computes the technique's warnings for every frame itself
+        _check_frames(inputs, args, material, light, counts, technique_checks=False)
+        return process_frames(inputs, args.technique, named, sta_albedo=args.albedo, sta_thickness=args.thickness,
+                              technique_options=options, **counts, **common)
+    if "Technique" in str(accepted["technique"].annotation):
+        from .._techniques import technique
+
+        cls = TECHNIQUES[args.technique]
+        fields = {f.name for f in cls.option_fields()}
+        own = dict(counts, albedo=args.albedo, thickness=args.thickness)
+        options = {**{k: v for k, v in own.items() if k in fields and v is not None}, **options}
+        _check_frames(inputs, args, material, light, counts, technique_checks=False)
+        return process_frames(inputs, technique(args.technique, **({"light": light} if light is not None else {}),
+                                                **options), material, **common)
+    if options:
+        raise ValueError(f"{', '.join('--' + k.replace('_', '-') for k in options)}: this version's batch takes a "
+                         "technique's name and its counts only, not its other options")
+    _check_frames(inputs, args, material, light, counts, technique_checks=True)
+    return process_frames(inputs, args.technique, named, sta_albedo=args.albedo, sta_thickness=args.thickness,
+                          **counts, **common)
+
+
+def _check_frames(inputs, args, material, light, counts, *, technique_checks: bool) -> None:
+    """Warnings about each readable frame before the batch runs: STA's thickness where it makes the back light
+    vanish (or not matter), and, for a batch that does not compute them (it runs the frames traced), the technique's
+    own sampling and window warnings (``check`` of the technique object on the frame's buffers)."""
+    import warnings
+
+    from .._io import read_frame
+    from .._materials import STAParams
+    from .._scene import Camera
+    from .._techniques import TECHNIQUES
+
+    cls = TECHNIQUES[args.technique]
+    technique_checks = technique_checks and hasattr(cls, "check") and hasattr(cls, "option_fields")
+    thickness_check = isinstance(material, STAParams)
+    if not (technique_checks or thickness_check):
+        return
+    tech = None
+    if technique_checks:
+        from .._techniques import technique
+
+        fields = {f.name for f in cls.option_fields()}
+        tech = technique(args.technique, **({"light": light} if light is not None else {}),
+                         **{k: v for k, v in counts.items() if k in fields and v is not None})
+    for path in inputs:
+        try:
+            f = read_frame(path, channel_map=args.channel_map, focal_px=args.focal_px, mm_per_unit=args.mm_per_unit,
+                           depth_kind=args.depth_kind)
+        except (OSError, ValueError):
+            continue  # reported when the batch reaches it
+        if thickness_check:
+            message = sta_thickness_warning(f, material, args.thickness)
+            if message:
+                warnings.warn(f"{path}: {message}", UserWarning, stacklevel=2)
+        if tech is not None and f.focal_px is not None:
+            cam = Camera(f.focal_px, f.mm_per_unit or 1.0)
+            for w in tech.check(f.to_buffers(use_albedo=args.albedo is None), material, cam):
+                warnings.warn(f"{path}: {w}", type(w), stacklevel=2)
 
 
 def _reference_radius(inputs, args, material) -> int:

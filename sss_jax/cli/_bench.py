@@ -8,6 +8,8 @@ import io
 import pathlib
 import sys
 
+from ._options import add_technique_flags, option_arguments, technique_options
+
 EPILOG = """examples:
   sss-jax bench --quick                       # reduced grid, under two minutes on a 2-core CPU
                                               # (on a GPU: 256x256, 1920x1080 and 3840x2160, ratios at 1920x1080)
@@ -29,6 +31,8 @@ def register(subparsers) -> None:
     p.add_argument("--json", type=pathlib.Path, help="write the whole result as JSON")
     p.add_argument("--out-dir", type=pathlib.Path, help="write table.csv and pareto.png here")
     p.add_argument("--repeats", type=int, help="timed runs per configuration, median (default 3; 2 with --quick)")
+    # the techniques' own options (the counts are the bench's grid)
+    add_technique_flags(p, exclude=("samples", "taps", "radius_px", "albedo", "thickness"))
     p.set_defaults(func=run)
 
 
@@ -45,7 +49,16 @@ def run(args) -> int:
     if args.repeats < 1:
         print("sss-jax bench: --repeats must be >= 1", file=sys.stderr)
         return 2
-    result = run_bench(quick=args.quick, repeats=args.repeats, progress=lambda m: print(m, file=sys.stderr, flush=True))
+    from .._techniques import TECHNIQUES
+
+    try:
+        options = {t: technique_options(args, t, others=TECHNIQUES) for t in TECHNIQUES}
+        extra = option_arguments(run_bench, options, "bench")
+    except ValueError as exc:
+        print(f"sss-jax bench: {exc}", file=sys.stderr)
+        return 2
+    result = run_bench(quick=args.quick, repeats=args.repeats, progress=lambda m: print(m, file=sys.stderr, flush=True),
+                       **extra)
     m = result["machine"]
     print(f"\nmachine: backend {m['backend']}, device {m['device']}, formulation {m['impl']}, jax {m['jax']}")
     print("cost per pixel as a shader runs it (texel fetches, flops: counted from the formulation, the same on any "

@@ -30,7 +30,44 @@ def register(subparsers) -> None:
     p.add_argument("--samples", type=int, default=32, help="Burley spiral samples (default 32)")
     p.add_argument("--taps", type=int, default=25, help="separable taps per pass (default 25)")
     p.add_argument("--no-report", action="store_true", help="skip the HTML report")
+    p.add_argument("--overwrite", action="store_true", help="write into a folder that holds images, JSON or HTML "
+                   "the demo did not make (refused otherwise: the demo would replace them)")
     p.set_defaults(func=run)
+
+
+MADE_BY = "sss-jax demo"
+# what the demo writes into --out besides <technique>.exr/.png: a folder holding one of these, or any image, that a
+# demo did not make is the user's
+_DEMO_FILES = ("summary.json", "overview.png", "report.html", "report.json", "images")
+
+
+def _made_by_demo(out: pathlib.Path) -> bool:
+    """Whether ``out`` holds a demo's output: its summary.json is the demo's (``made_by``; a summary of the demo's
+    shape, width + height + rows, from a version before the marker)."""
+    import json
+
+    try:
+        summary = json.loads((out / "summary.json").read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(summary, dict) and (summary.get("made_by") == MADE_BY
+                                          or {"width", "height", "rows"} <= set(summary))
+
+
+def _check_out(out: pathlib.Path, *, overwrite: bool) -> None:
+    """Refuse an --out that is a file, or a folder with images, JSON or HTML of the user's that the demo would
+    replace (issue #30: the demo silently overwrote a user's reference.exr and summary.json)."""
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} is an existing file, not a folder: the demo writes a folder of images and a "
+                         "report; give a new or empty folder")
+    if not out.is_dir() or overwrite or _made_by_demo(out):
+        return
+    theirs = sorted(p.name for p in out.iterdir()
+                    if p.name in _DEMO_FILES or p.suffix.lower() in (".exr", ".png", ".html", ".json"))
+    if theirs:
+        shown = ", ".join(theirs[:6]) + (f" and {len(theirs) - 6} more" if len(theirs) > 6 else "")
+        raise ValueError(f"--out {out} holds files a demo did not make ({shown}) that the demo could replace; "
+                         "give a new or empty folder, or pass --overwrite")
 
 
 def _parse_size(text: str) -> tuple[int, int]:
@@ -54,9 +91,11 @@ def run(args) -> int:
         if args.taps < 1 or args.taps % 2 == 0:
             raise ValueError(f"--taps must be an odd number >= 1, got {args.taps}")
         out = args.out
-        out.mkdir(parents=True, exist_ok=True)
-        if not out.is_dir():
-            raise ValueError(f"--out {out} is not a directory")
+        _check_out(out, overwrite=args.overwrite)
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise ValueError(f"--out {out}: cannot create the folder ({exc.strerror})") from None
     except (ValueError, OSError) as exc:
         print(f"sss-jax demo: {exc}", file=sys.stderr)
         return 2
@@ -69,7 +108,7 @@ def run(args) -> int:
         write_png_preview(out / f"{name}.png", img)
     _write_overview(out / "overview.png", result)
     rows = summary_rows(result)
-    write_json_atomic(out / "summary.json", {"width": width, "height": height, "rows": rows})
+    write_json_atomic(out / "summary.json", {"made_by": MADE_BY, "width": width, "height": height, "rows": rows})
     print(f"\n{'technique':34s} {'ms/frame':>9s} {'rel L2 vs ref':>14s}  energy out/in (R, G, B)")
     for r in rows:
         ms = "" if r["ms_per_frame"] is None else f"{r['ms_per_frame']:9.1f}"

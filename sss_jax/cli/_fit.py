@@ -8,6 +8,10 @@ import pathlib
 import sys
 
 from . import rgb_triple
+from ._options import add_technique_flags, given_technique_options, option_arguments, technique_options
+
+# the techniques `fit --render` matches
+MATCHED = ("burley", "separable", "sta")
 
 EPILOG = """examples:
   sss-jax fit --all                                   # every measured and artist material into fits/
@@ -64,6 +68,12 @@ def register(subparsers) -> None:
 def run(args) -> int:
     if args.render is not None or args.truth is not None or args.holdout is not None:
         return _run_match(args)
+    if given_technique_options(args):
+        flags = ", ".join("--" + args.technique_flag_names.get(k, k).replace("_", "-")
+                          for k in given_technique_options(args))
+        print(f"sss-jax fit: {flags}: technique options are for matching a render (--render); presets are fitted "
+              "to profiles", file=sys.stderr)
+        return 2
     from .._fit_presets import (
         ARTIST_MATERIALS,
         DEFAULT_PHOTONS,
@@ -120,7 +130,7 @@ def _register_match(p) -> None:
     m.add_argument("--holdout", nargs=2, action="append", type=pathlib.Path, metavar=("IN.exr", "TRUTH.exr"),
                    help="a frame and its truth measured before and after but not fitted (repeatable)")
     m.add_argument("--truth-channels", help="the truth's pass (e.g. Combined) or three channels R,G,B")
-    m.add_argument("--technique", choices=("burley", "separable", "sta"), help="the technique to match")
+    m.add_argument("--technique", choices=MATCHED, help="the technique to match")
     m.add_argument("--samples", type=int, default=32, help="Burley spiral samples the fit is for (default 32)")
     m.add_argument("--mfp-mm", type=rgb_triple, help="starting mean free path per channel, mm (d = mfp / s(A))")
     m.add_argument("--preset", help="starting material: a preset name or JSON file")
@@ -152,6 +162,9 @@ def _register_match(p) -> None:
     sta.add_argument("--sta-ambient", type=rgb_triple, default=(0.0, 0.0, 0.0))
     sta.add_argument("--sta-thickness-mm", type=rgb_triple, default=(1.0, 1.0, 1.0))
     sta.add_argument("--thickness", type=float, help="constant thickness in scene units where frames carry none")
+    # the matched technique's own options (--seed is the Monte Carlo's here: Burley's is --burley-seed)
+    add_technique_flags(p, techniques=MATCHED, exclude=("samples", "taps", "radius_px", "albedo", "thickness"),
+                        rename={"seed": "burley-seed"}, title="technique options (with --render)")
 
 
 def _run_match(args) -> int:
@@ -178,6 +191,8 @@ def _run_match(args) -> int:
             if v is not None and not (v > 0 and v < float("inf")):
                 raise ValueError(f"--{name.replace('_', '-')} must be a finite positive number, got {v}")
         material, light = _material(args)  # the starting material, exactly as `apply` reads it
+        extra = option_arguments(match_render, {args.technique: technique_options(args, args.technique)},
+                                 "fit --render")
         if args.technique == "sta":
             material = (material, args.albedo if args.albedo is not None else (1.0, 1.0, 1.0))
         use_albedo_pass = args.albedo is None and not args.fit_albedo
@@ -193,7 +208,7 @@ def _run_match(args) -> int:
             raise ValueError("--report needs --technique burley or separable (the report's reference is a profile)")
         result = match_render(frames, material, technique=args.technique, holdout=holdout, samples=args.samples,
                               taps=args.taps, light=light, thickness=args.thickness, fit_albedo=args.fit_albedo,
-                              loss=args.loss, huber_delta=args.huber_delta, max_steps=args.max_steps)
+                              loss=args.loss, huber_delta=args.huber_delta, max_steps=args.max_steps, **extra)
     except (ValueError, TypeError, OSError, SSSInputError) as exc:
         print(f"sss-jax fit: {exc}", file=sys.stderr)
         return 2

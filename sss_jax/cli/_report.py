@@ -11,6 +11,8 @@ import sys
 import tempfile
 
 from . import rgb_triple
+from ._options import WarningPrinter, add_technique_flags, sta_thickness_warning, technique_options
+from ._options import option_arguments as option_arguments_for
 
 EPILOG = """examples:
   sss-jax report frame.exr --out rep --albedo 0.85,0.75,0.55 --d-mm 31.8,19.9,11.9
@@ -33,14 +35,9 @@ def _ints(text: str) -> tuple[int, ...]:
         raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
 
 
-def _burley_extras() -> dict[str, inspect.Parameter]:
-    """Options of ``sss_jax.burley`` beyond those the report sets itself (a sampling pattern, frames...), offered as
-    ``--burley-<name>`` flags when this version of burley has them."""
-    from .._techniques import burley
-
-    fixed = {"samples", "albedo_mode", "interpolation", "min_footprint_px", "compact"}
-    return {k: p for k, p in inspect.signature(burley).parameters.items()
-            if p.kind == p.KEYWORD_ONLY and k not in fixed and k in ("pattern", "frames", "frame", "sequence")}
+# technique options the report sets through flags of its own (the counts it sweeps, the reference's window, STA's
+# albedo and thickness)
+OWN_FLAGS = ("samples", "taps", "radius_px", "albedo", "thickness")
 
 
 def register(subparsers) -> None:
@@ -61,12 +58,9 @@ def register(subparsers) -> None:
                    help="comma-separated, from sta, separable, burley (default all; sta only with --light-dir)")
     p.add_argument("--taps", type=_ints, default=(9, 17, 25), help="separable taps to run (default 9,17,25)")
     p.add_argument("--samples", type=_ints, default=(8, 16, 32, 64), help="Burley samples to run (default 8,16,32,64)")
-    for name, param in _burley_extras().items():
-        kind = type(param.default) if param.default not in (None, inspect.Parameter.empty) else str
-        if kind is bool:
-            kind = lambda text: text.strip().lower() in ("1", "true", "yes", "on")
-        p.add_argument(f"--burley-{name.replace('_', '-')}", dest=f"burley_{name}", type=kind,
-                       help=f"sss_jax.burley's {name} (default {param.default!r})")
+    from .._evaluate import REPORT_TECHNIQUES
+
+    add_technique_flags(p, techniques=REPORT_TECHNIQUES, exclude=OWN_FLAGS)
     m = p.add_argument_group("material (as sss-jax apply)")
     m.add_argument("--preset", help="preset name(s) or JSON file(s), comma-separated: material id k takes the k-th")
     m.add_argument("--albedo", type=rgb_triple, help="surface albedo R,G,B in [0,1] (overrides an albedo pass)")
@@ -142,6 +136,27 @@ def materials(args):
     return mat, sep, sta, info
 
 
+def _warn_sta_thickness(args, params) -> None:
+    """STA's thickness far outside its falloff on a frame (it would add nothing, or not depend on the thickness)."""
+    import warnings
+
+    from .._batch import expand_inputs
+    from .._io import read_frame
+    from .._materials import STAParams
+
+    if not isinstance(params, STAParams):
+        return
+    for path in expand_inputs(args.inputs):
+        try:
+            frame = read_frame(path, channel_map=args.channel_map, focal_px=args.focal_px,
+                               mm_per_unit=args.mm_per_unit, depth_kind=args.depth_kind)
+        except (OSError, ValueError):
+            continue  # evaluate_frames names it
+        message = sta_thickness_warning(frame, params, args.thickness)
+        if message:
+            warnings.warn(f"{path}: {message}", UserWarning, stacklevel=2)
+
+
 def run(args) -> int:
     from .._evaluate import REPORT_TECHNIQUES, evaluate_frames
     from .._report import report
@@ -158,26 +173,30 @@ def run(args) -> int:
         if args.out.exists() and not args.out.is_dir():
             raise ValueError(f"--out {args.out} exists and is not a directory")
         mat, sep, sta, info = materials(args)
+        shown = WarningPrinter("sss-jax report")
         notes = []
         if "sta" in techniques and sta is None:
             if args.techniques != "sta,separable,burley":
                 raise ValueError("--techniques sta needs --light-dir X,Y,Z (the back light's direction)")
             techniques.remove("sta")
             notes.append("STA left out: it needs the back light's direction (--light-dir X,Y,Z).")
-        burley_options = {k: getattr(args, f"burley_{k}") for k in _burley_extras()
-                          if getattr(args, f"burley_{k}", None) is not None}
+        options = {t: technique_options(args, t, others=techniques) for t in techniques}
+        option_arguments = option_arguments_for(evaluate_frames, options, "report")
         # the reference cache lives in OUT/cache; on a first run it is built in a scratch folder and moved in only
         # when the report is complete, so bad input or an interruption leaves nothing in OUT
         cache = args.out / "cache"
         scratch = None if cache.is_dir() else pathlib.Path(tempfile.mkdtemp(prefix="sss-jax-report-"))
         try:
-            data = evaluate_frames(
-                args.inputs, mat, truth=args.truth, truth_channels=args.truth_channels, techniques=techniques,
-                taps=args.taps, samples=args.samples, separable_material=sep, sta=sta, sta_thickness=args.thickness,
-                burley_options=burley_options,
-                focal_px=args.focal_px, mm_per_unit=args.mm_per_unit, channel_map=args.channel_map,
-                depth_kind=args.depth_kind, use_albedo_pass=args.albedo is None, radius_px=args.radius_px,
-                cache_dir=scratch or cache, repeats=args.repeats, material_info=info, progress=not args.no_progress)
+            with shown:
+                if sta is not None and "sta" in techniques:
+                    _warn_sta_thickness(args, sta[0])
+                data = evaluate_frames(
+                    args.inputs, mat, truth=args.truth, truth_channels=args.truth_channels, techniques=techniques,
+                    taps=args.taps, samples=args.samples, separable_material=sep, sta=sta, sta_thickness=args.thickness,
+                    **option_arguments,
+                    focal_px=args.focal_px, mm_per_unit=args.mm_per_unit, channel_map=args.channel_map,
+                    depth_kind=args.depth_kind, use_albedo_pass=args.albedo is None, radius_px=args.radius_px,
+                    cache_dir=scratch or cache, repeats=args.repeats, material_info=info, progress=not args.no_progress)
             if notes:
                 import dataclasses
 
@@ -194,6 +213,8 @@ def run(args) -> int:
         print(f"sss-jax report: {exc}", file=sys.stderr)
         return 2
     rows = [(r.label, r.ms_per_frame) for r in data.runs]
+    for note in notes:  # what the report left out and why (also in report.json's notes)
+        print(f"sss-jax report: note: {note}", file=sys.stderr)
     print(f"report: {html}")
     print(f"{len(rows)} technique runs on {len(data.frames)} frame(s); json: {args.out / 'report.json'}")
     return 0
