@@ -760,6 +760,7 @@ class _Manifest:
                                   "warnings": [], "seconds": 0.0, "run": self.run_id} for j in jobs}
         self.last: tuple[int, int] | None = None  # (inode, mtime_ns) of this run's last write: unchanged -> no merge
         self.data: dict[str, Any] = {}
+        self.failed = False
         self.write()
 
     def record(self, r: "FrameResult") -> None:
@@ -800,10 +801,18 @@ class _Manifest:
     def write(self) -> None:
         if self.path is None:
             return
-        with _folder_lock(self.path.parent):
-            self.data = self._merged()
-            write_json_atomic(self.path, self.data)
-            self.last = self._stamp()
+        try:
+            with _folder_lock(self.path.parent):
+                self.data = self._merged()
+                write_json_atomic(self.path, self.data)
+                self.last = self._stamp()
+        except OSError as exc:  # a full disk: the frames go on, the manifest is rewritten whole at the next frame
+            if not self.failed:
+                warnings.warn(f"{self.path}: the manifest could not be written ({_describe(exc)}); it is retried "
+                              "as each frame finishes", UserWarning, stacklevel=2)
+            self.failed = True
+        else:
+            self.failed = False
 
 
 _TEMPORARY = re.compile(r"^\.(?P<name>.+)\.sss_jax-(?P<host>.+)-(?P<pid>\d+)\.[^.]+\.tmp(\.[^.]+)?$")
