@@ -44,12 +44,21 @@ from ._scene import (
     normals_from_depth as normals_from_depth,
     validate_buffers as validate_buffers,
 )
+from ._errors import (
+    ReferenceWindowWarning as ReferenceWindowWarning,
+    SamplingWarning as SamplingWarning,
+    SSSInputError as SSSInputError,
+)
 from ._techniques import (
+    AbstractTechnique as AbstractTechnique,
+    Burley as Burley,
+    Reference as Reference,
+    Separable as Separable,
+    Translucency as Translucency,
+    technique as technique,
     ENERGY_CONSERVING as ENERGY_CONSERVING,
     BURLEY_PATTERNS as BURLEY_PATTERNS,
     TECHNIQUES as TECHNIQUES,
-    ReferenceWindowWarning as ReferenceWindowWarning,
-    SamplingWarning as SamplingWarning,
     burley as burley,
     get_technique as get_technique,
     reference as reference,

@@ -74,9 +74,9 @@ from ._kernels import separable_kernel_from_profile, two_gaussian_kernel
 from ._materials import BurleyMaterial, DirectionalLight, ProfileMaterial, STAParams, TwoGaussianMaterial
 from ._profiles import BurleyProfile, burley_inverse_ccdf
 from ._scene import Buffers, Camera, validate_buffers
-from ._techniques import (MIN_FOOTPRINT_PX, TECHNIQUES, ReferenceWindowWarning, SamplingWarning,
-                          burley_channel_samples, reference_energy_held, separable_edge_error, translucency)
-from ._techniques._common import SAMPLING_ERROR_LIMIT
+from ._errors import ReferenceWindowWarning, SamplingWarning
+from ._techniques import AbstractTechnique, get_technique
+from ._techniques import technique as make_technique
 
 __all__ = ["BatchResult", "FrameResult", "Interrupted", "MANIFEST_NAME", "expand_inputs", "frame_number",
            "frame_seed", "frames_for_process", "output_paths", "process_frames", "remove_stale_temporaries"]
@@ -229,7 +229,7 @@ def _file_stamp(path: pathlib.Path) -> dict[str, Any] | None:
 def _resume_record(src: pathlib.Path, parameters: dict[str, Any]) -> tuple[dict[str, str], str]:
     """The header attributes that say what an output was made from, and their digest: the input (path, size,
     mtime; its sidecar's too), the technique and every parameter, the sss_jax version."""
-    from . import __version__
+    from ._version import __version__
 
     stamp = _file_stamp(src) or {"path": str(src)}
     record = {"input": stamp, "sidecar": _file_stamp(src.with_suffix(".json")), "parameters": parameters,
@@ -351,363 +351,83 @@ def _starts(n: int, t: int) -> list[int]:
     return sorted({min(s, n - t) for s in range(0, n, t)})
 
 
-def _tile(frame: Frame, y0: int, x0: int, ty: int, tx: int, r: int, sentinels, use_albedo: bool):
-    """The tile's buffers: rows y0-r..y0+ty+r, columns x0-r..x0+tx+r of the frame, outside it no surface (as the
-    techniques treat pixels outside the image), plus one row of sentinel pixels when given (separated from every
-    inner pixel by more than the reach)."""
+def _tile(frame: Frame, y0: int, x0: int, ty: int, tx: int, r: int, use_albedo: bool):
+    """The tile's buffers: rows y0-r..y0+ty+r, columns x0-r..x0+tx+r of the frame, cut at the frame's edge (the
+    technique knows where the frame ends from ``frame_shape``), and the tile's origin in the frame."""
     h, w = frame.shape
-    ye0, ye1, xe0, xe1 = y0 - r, y0 + ty + r, x0 - r, x0 + tx + r
-    sy0, sy1, sx0, sx1 = max(ye0, 0), min(ye1, h), max(xe0, 0), min(xe1, w)
-    extra = 1 if sentinels else 0
-    pads = ((sy0 - ye0, ye1 - sy1 + extra), (sx0 - xe0, xe1 - sx1))
-
-    def cut(a, fill):
-        if a is None:
-            return None
-        part = a[sy0:sy1, sx0:sx1]
-        out = np.pad(part, pads + ((0, 0),) * (a.ndim - 2), constant_values=fill)
-        for k, (sy, sx) in enumerate(sentinels):
-            out[-1, k] = a[sy, sx]
-        return out
-
-    depth = cut(frame.depth, np.inf)
-    if sentinels:  # only the sentinels have a surface in the extra row
-        depth[-1, len(sentinels):] = np.inf
-    ids = cut(frame.material_id, 0)
-    opt = lambda a: None if a is None else jnp.asarray(a)
-    return Buffers(irradiance=jnp.asarray(cut(frame.irradiance, 0.0)), depth=jnp.asarray(depth),
-                   albedo=opt(cut(frame.albedo, 0.0)) if use_albedo else None, normal=opt(cut(frame.normal, 0.0)),
-                   thickness=opt(cut(frame.thickness, 0.0)),
-                   material_id=None if ids is None else jnp.asarray(ids, jnp.int32)), (ye0, xe0)
+    sy0, sy1, sx0, sx1 = max(y0 - r, 0), min(y0 + ty + r, h), max(x0 - r, 0), min(x0 + tx + r, w)
+    cut = lambda a: None if a is None else jnp.asarray(np.ascontiguousarray(a[sy0:sy1, sx0:sx1]))
+    ids = None if frame.material_id is None else jnp.asarray(frame.material_id[sy0:sy1, sx0:sx1], jnp.int32)
+    return Buffers(irradiance=cut(frame.irradiance), depth=cut(frame.depth),
+                   albedo=cut(frame.albedo) if use_albedo else None, normal=cut(frame.normal),
+                   thickness=cut(frame.thickness), material_id=ids), (sy0, sx0)
 
 
 # ------------------------------------------------------------------------------------------------------------------
-# the technique object the batch asks (the #26 interface); an adapter over the technique functions until the
-# technique classes (sss_jax/_techniques/_base.py) land
+# what the batch asks of the technique object (sss_jax._techniques._base.AbstractTechnique): its options, reach and
+# checks; the clamp and the work estimate follow from its count option
 # ------------------------------------------------------------------------------------------------------------------
 
 
 def _hashable(value):
-    """A hashable, JSON-able form of an option value (a compile-cache key and a resume record)."""
+    """A hashable, JSON-able form of an option value (a record, a compile-cache key)."""
     if value is None or isinstance(value, (bool, str, int, float)):
         return value
     if isinstance(value, (np.integer, np.floating, np.bool_)):
         return value.item()
-    if isinstance(value, (tuple, list)) and all(isinstance(v, (str, bool)) for v in value):
-        return tuple(value)
+    if isinstance(value, (jax.Array, np.ndarray)) and np.ndim(value) == 0:
+        return np.asarray(value).item()
+    if isinstance(value, eqx.Module):
+        return _material_record(value)
     return tuple(float(v) for v in np.asarray(value, np.float64).ravel())
 
 
-def _accepts(fn: Callable, *names: str) -> bool:
-    params = inspect.signature(fn).parameters
-    return all(n in params for n in names)
-
-
-@dataclasses.dataclass(frozen=True)
-class _FunctionTechnique:
-    """One technique function with its options, answering what the batch asks of a technique object: its name,
-    the material it takes, whether it conserves energy, its reach (the tile halo), its sampling/window warnings and
-    the footprint clamp, all host side. Subclasses: one per technique."""
-
-    name: ClassVar[str]
-    conserves_energy: ClassVar[bool] = True
-    material_type: ClassVar[Any] = ()
-    defaults: ClassVar[dict[str, Any]] = {}
-    options: tuple[tuple[str, Any], ...] = ()
-
-    @classmethod
-    def make(cls, **options) -> "_FunctionTechnique":
-        merged = {**cls.defaults, **{k: v for k, v in options.items() if v is not None}}
-        tech = cls(tuple(sorted((k, _hashable(v)) for k, v in merged.items())))
-        tech.validate()
-        return tech
-
-    @property
-    def opts(self) -> dict[str, Any]:
-        return dict(self.options)
-
-    def replace(self, **options) -> "_FunctionTechnique":
-        return type(self)(tuple(sorted({**self.opts, **{k: _hashable(v) for k, v in options.items()}}.items())))
-
-    def function(self) -> Callable:
-        return TECHNIQUES[self.name]
-
-    @property
-    def places_tiles(self) -> bool:
-        """Whether a tile can say where it lies in the frame (the technique takes ``origin`` and ``frame_shape``):
-        only then does a tile get the whole frame's pixels under every rule (rotation hash, frame border)."""
-        return _accepts(self.function(), "origin", "frame_shape")
-
-    def _kwargs(self, buffers, origin, frame_shape) -> dict[str, Any]:
-        kw = self.opts
-        if self.places_tiles:
-            kw.update(origin=tuple(int(o) for o in origin), frame_shape=frame_shape)
-        elif tuple(origin) != (0, 0) or (frame_shape is not None and tuple(frame_shape) != buffers.depth.shape[-2:]):
-            raise ValueError(f"{self.name}: this version of the technique cannot place a tile in a frame (no origin "
-                             "and frame_shape options)")
-        return kw
-
-    def __call__(self, buffers: Buffers, material, camera: Camera, *, origin=(0, 0), frame_shape=None):
-        return self.function()(buffers, material, camera, **self._kwargs(buffers, origin, frame_shape))
-
-    def validate(self) -> None:
-        pass
-
-    def reach_px(self, buffers: Buffers, material, camera: Camera) -> int:
-        raise NotImplementedError
-
-    def check(self, buffers: Buffers, material, camera: Camera) -> list[Warning]:
-        return []
-
-    def clamp(self, buffers: Buffers, material, camera: Camera) -> tuple["_FunctionTechnique", str]:
-        """The technique with its count clamped to what the frame's footprint can use, and the message (or "")."""
-        return self, ""
-
-    def seconds_per_px(self) -> float:
-        """Rough cost per pixel on this project's 2-core CPU (the README's timings): the work estimate before the
-        batch has measured a frame of its own."""
-        return 1e-7
-
-
-def _positive_int(name: str, v) -> None:
-    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-        raise ValueError(f"{name} must be a positive integer, got {v!r}")
-
-
-class _Burley(_FunctionTechnique):
-    name = "burley"
-    material_type = BurleyMaterial
-    defaults = {"samples": 32}
-
-    def validate(self):
-        _positive_int("samples", self.opts["samples"])
-
-    def _d_px(self, buffers, material, camera) -> float:
-        d_max = np.asarray(material.d_mm, np.float64).reshape(-1, 3).max(axis=-1)
-        return _Reach.of(buffers, camera, material.count).largest(d_max, active_r99=_BURLEY_R99)[0]
-
-    def reach_px(self, buffers, material, camera):
-        # the farthest sample: the stratified inverse CDF's last stratum (u = 1 - 0.5/n) at the widest d
-        n = int(self.opts["samples"])
-        rho_max = float(np.asarray(burley_inverse_ccdf(np.float64(0.5 / n), np.float64(1.0))))
-        return math.ceil(rho_max * self._d_px(buffers, material, camera)) + 2
-
-    def clamp(self, buffers, material, camera):
-        h, w = buffers.depth.shape[-2:]
-        samples = int(self.opts["samples"])
-        # a footprint (99.9% of the energy at the nearest SSS pixel) of n pixels: more than the next power of two
-        # above n samples cannot help (the power of two keeps the sequence's distinct counts, and compilations, few)
-        footprint = min(math.pi * (_BURLEY_R999 * self._d_px(buffers, material, camera)) ** 2, h * w)
-        bound = _next_pow2(max(footprint, 1.0))
-        if samples <= bound:
-            return self, ""
-        return self.replace(samples=bound), (f"samples {samples} clamped to {bound}: the footprint has "
-                                             f"{math.ceil(footprint)} pixels, more samples cannot help")
-
-    def check(self, buffers, material, camera):
-        n = int(self.opts["samples"]) * int(self.opts.get("frames", 1))
-        worst = burley_channel_samples(material.d_mm, n)
-        if worst is None or worst[0] >= 4 or not np.any(_Reach.of(buffers, camera, material.count).valid):
-            return []
-        n_eff, m, c = worst
-        d = np.asarray(material.d_mm, np.float64).reshape(-1, 3)
-        implied = min(1.0, 0.5 / math.sqrt(max(n_eff, 1e-9)))
-        return [SamplingWarning(f"burley: channel {'RGB'[c]} of material {m + 1} (d {d[m, c]:.3g} mm, the widest "
-                                f"{d[m].max():.3g} mm) gets {n_eff:.2g} of {n} samples within the radius holding 95% "
-                                f"of its energy: its kernel is not represented (per-pixel error up to {implied:.2f} "
-                                "of an edge's contrast); more samples or frames")]
-
-    def seconds_per_px(self):
-        return 1.4e-8 * int(self.opts["samples"]) * int(self.opts.get("frames", 1))
-
-
-class _Separable(_FunctionTechnique):
-    name = "separable"
-    material_type = (TwoGaussianMaterial, BurleyMaterial, ProfileMaterial)
-    defaults = {"taps": 25}
-
-    def validate(self):
-        taps = self.opts["taps"]
-        _positive_int("taps", taps)
-        if taps % 2 == 0:
-            raise ValueError(f"taps must be odd, got {taps}")
-
-    def _plane(self, buffers, material, camera, taps):
-        return _Reach.of(buffers, camera, material.count).largest(_separable_reach_mm(material, taps))
-
-    def reach_px(self, buffers, material, camera):
-        return math.ceil(self._plane(buffers, material, camera, int(self.opts["taps"]))[0]) + 2
-
-    def tile_sentinels(self, buffers, material, camera) -> tuple[tuple[int, int], ...]:
-        """The pixels of the smallest and the largest reach: copied into a tile's extra row, so that its reach
-        levels (quantised between the smallest and the largest reach present) are the whole frame's."""
-        _, plane = self._plane(buffers, material, camera, int(self.opts["taps"]))
-        if not np.any(np.isfinite(plane)):
-            return ()
-        lo = np.unravel_index(np.nanargmin(plane), plane.shape)
-        hi = np.unravel_index(np.nanargmax(plane), plane.shape)
-        return tuple(int(i) for i in lo), tuple(int(i) for i in hi)
-
-    def clamp(self, buffers, material, camera):
-        taps = int(self.opts["taps"])
-        reach_px, _ = self._plane(buffers, material, camera, taps)
-        # a pass reads 2 reach + 1 pixels of a row: more taps than the next 2^k + 1 above that cannot help
-        footprint = 2 * math.ceil(reach_px) + 1
-        bound = _next_pow2(max(footprint - 1, 1)) + 1
-        if taps <= bound:
-            return self, ""
-        return self.replace(taps=bound), (f"taps {taps} clamped to {bound}: a pass reaches {footprint} pixels, more "
-                                          "taps cannot help")
-
-    def check(self, buffers, material, camera):
-        taps = int(self.opts["taps"])
-        implied = separable_edge_error(buffers, material, camera, taps,
-                                       float(self.opts.get("min_footprint_px", MIN_FOOTPRINT_PX)))
-        if implied[0] <= SAMPLING_ERROR_LIMIT:
-            return []
-        return [SamplingWarning(f"separable: {taps} taps at a reach of {implied[1]:.0f} px leave tap cells up to "
-                                f"{implied[2]:.1f} px wide: a hard edge may be off by up to {implied[0]:.3f} of its "
-                                "contrast (more taps lower it)")]
-
-    def seconds_per_px(self):
-        return 9e-9 * int(self.opts["taps"])
-
-
-class _Reference(_FunctionTechnique):
-    name = "reference"
-    material_type = (BurleyMaterial, ProfileMaterial)
-
-    def validate(self):
-        r = self.opts.get("radius_px")
-        if r is None:
-            raise ValueError("technique 'reference' in a batch needs radius_px (one window for every frame)")
-        if isinstance(r, bool) or not isinstance(r, (int, np.integer)) or r < 0:
-            raise ValueError(f"radius_px must be a non-negative integer, got {r!r}")
-
-    def reach_px(self, buffers, material, camera):
-        return int(self.opts["radius_px"]) + 1
-
-    def clamp(self, buffers, material, camera):
-        h, w = buffers.depth.shape[-2:]
-        radius = int(self.opts["radius_px"])
-        cap = max(1, max(h, w) - 1)  # a window past the frame reaches no further pixel
-        if radius <= cap:
-            return self, ""
-        return self.replace(radius_px=cap), f"radius_px {radius} clamped to {cap}: the frame is {w}x{h} pixels"
-
-    def check(self, buffers, material, camera):
-        radius = int(self.opts["radius_px"])
-        held = reference_energy_held(buffers, material, camera, radius)
-        if held >= 0.999:
-            return []
-        return [ReferenceWindowWarning(f"reference: the {radius}-px window holds {held:.1%} of the profile's energy "
-                                       f"at the nearest SSS pixel (the frame needs {max(buffers.depth.shape[-2:]) - 1} "
-                                       "px to hold all of it): the result misses the rest; pass a larger radius_px")]
-
-    def seconds_per_px(self):
-        return 3e-8 * (2 * int(self.opts["radius_px"]) + 1) ** 2
-
-
-class _STA(_FunctionTechnique):
-    """STA: a local term (reach 0, a tile needs only the normals' neighbours); its material is
-    ``(STAParams, DirectionalLight)``."""
-
-    name = "sta"
-    conserves_energy = False
-    material_type = tuple
-
-    def validate(self):
-        albedo = self.opts.get("albedo")
-        if albedo is not None:
-            a = np.asarray(albedo, np.float64)
-            if a.shape not in ((3,), (1, 3)) or not np.all((a >= 0) & (a <= 1)):  # NaN fails both
-                raise ValueError(f"STA albedo must be 3 values in [0, 1], got {a.tolist()}")
-        t = self.opts.get("thickness")
-        if t is not None and not (float(t) >= 0):
-            raise ValueError(f"STA thickness must be >= 0 scene units (inf: infinitely thick), got {t}")
-
-    @property
-    def places_tiles(self) -> bool:
-        return True  # local: a tile's pixels are the frame's once the principal point follows the tile
-
-    def __call__(self, buffers, material, camera, *, origin=(0, 0), frame_shape=None):
-        params, light = material
-        opts = self.opts
-        if tuple(origin) != (0, 0) or frame_shape is not None:
-            h, w = frame_shape if frame_shape is not None else buffers.depth.shape[-2:]
-            cx, cy = camera.principal_point if camera.principal_point is not None else (w / 2, h / 2)
-            camera = Camera(camera.focal_px, camera.mm_per_unit, principal_point=(cx - origin[1], cy - origin[0]))
-        albedo = opts.get("albedo")
-        return translucency(buffers, params, camera, light, albedo=None if albedo is None else jnp.asarray(albedo),
-                            thickness=opts.get("thickness"))
-
-    def reach_px(self, buffers, material, camera):
-        return 2
-
-    def seconds_per_px(self):
-        return 4e-8
-
-
-_ADAPTERS: dict[str, type[_FunctionTechnique]] = {c.name: c for c in (_Burley, _Separable, _Reference, _STA)}
-
-
-def _technique_object(technique, options: dict[str, Any]):
-    """The technique object a batch runs: one given (an ``AbstractTechnique``), or the one registered under a name
-    with ``options``; the error lists the valid names."""
-    if not isinstance(technique, str):
+def _technique_object(technique, options: dict[str, Any], material):
+    """The technique object a batch runs and its material: one given (an ``AbstractTechnique``), or the one
+    registered under a name with ``options`` (the named counts a technique does not have are not its own: the CLI
+    passes every count); the error lists the valid names. A ``(params, light)`` pair gives a technique with a
+    ``light`` field its light."""
+    if isinstance(technique, str):
+        cls = get_technique(technique)
+        fields = {f.name for f in dataclasses.fields(cls)}
+        if isinstance(material, tuple) and len(material) == 2 and "light" in fields:
+            material, options = material[0], {**options, "light": material[1]}
+        tech = make_technique(technique, **{k: v for k, v in options.items() if k in fields or k not in _NAMED})
+    else:
+        if not isinstance(technique, AbstractTechnique):
+            raise TypeError(f"technique must be a technique name or object, got {type(technique).__name__}")
         if options:
             raise TypeError(f"options {sorted(options)} go on the technique object itself, not to process_frames")
-        if not callable(technique) or not hasattr(technique, "reach_px"):
-            raise TypeError(f"technique must be a technique name or object, got {type(technique).__name__}")
-        return technique
-    if technique not in TECHNIQUES or technique not in _ADAPTERS:
-        raise ValueError(f"unknown technique {technique!r}; valid techniques: {', '.join(TECHNIQUES)}")
-    return _ADAPTERS[technique].make(**options)
+        tech = technique
+    if isinstance(material, (str, pathlib.Path)):  # a preset name or file
+        from ._presets import load_preset, material_for
+
+        material = material_for(tech, load_preset(material))
+    tech.check_material(material)
+    if getattr(tech, "radius_px", 0) is None:
+        raise ValueError(f"technique {tech.name!r} in a batch needs radius_px (one window for every frame)")
+    return tech, material
+
+
+_NAMED = ("samples", "taps", "radius_px", "albedo", "thickness")
 
 
 def _technique_options(tech) -> dict[str, Any]:
-    """Every option of a technique object (the rules that ran: the records say what made an output)."""
-    if isinstance(tech, _FunctionTechnique):
-        return {"technique": tech.name, **tech.opts}
-    out = {"technique": getattr(tech, "name", type(tech).__name__)}
+    """The technique's name and every option (the rules that ran: the records say what made an output), and its
+    other fields (a light) as records."""
+    out: dict[str, Any] = {"technique": tech.name}
     for f in dataclasses.fields(tech):
-        value = getattr(tech, f.name)
-        if isinstance(value, (jax.Array, np.ndarray)) and np.ndim(value) == 0:
-            value = np.asarray(value).item()
-        with contextlib.suppress(TypeError, ValueError):
-            out[f.name] = _hashable(value)
+        out[f.name] = _hashable(getattr(tech, f.name))
     return out
+
+
+def _has_seed(tech) -> bool:
+    return any(f.name == "seed" for f in dataclasses.fields(tech))
 
 
 def _with_seed(tech, seed):
     """The technique with ``seed`` (an integer or a traced one): each frame of a sequence its own rotation."""
-    if isinstance(tech, _FunctionTechnique):
-        return tech.replace(seed=seed) if not isinstance(seed, jax.Array) else _Seeded(tech, seed)
-    return eqx.tree_at(lambda t: t.seed, tech, seed)
-
-
-class _Seeded(eqx.Module):
-    """An adapted technique with a traced seed (a vmapped group: one seed per frame)."""
-
-    tech: _FunctionTechnique = eqx.field(static=True)
-    seed: Array
-
-    def __call__(self, buffers, material, camera, *, origin=(0, 0), frame_shape=None):
-        kw = self.tech._kwargs(buffers, origin, frame_shape)
-        kw["seed"] = self.seed
-        return self.tech.function()(buffers, material, camera, **kw)
-
-
-def _has_seed(tech) -> bool:
-    if isinstance(tech, _FunctionTechnique):
-        return _accepts(tech.function(), "seed")
-    return any(f.name == "seed" for f in dataclasses.fields(tech))
-
-
-def _base_seed(tech) -> int:
-    if isinstance(tech, _FunctionTechnique):
-        return int(tech.opts.get("seed", 0))
-    return int(np.asarray(getattr(tech, "seed", 0)))
+    return tech.replace(seed=seed)
 
 
 def frame_number(path: str | pathlib.Path, index: int) -> int:
@@ -722,6 +442,53 @@ def frame_seed(base: int, number: int) -> int:
     """The seed of frame ``number``: ``base`` mixed with the frame number (Knuth's multiplicative hash), so frames
     differ and neighbouring (seed, frame) pairs do not collide; reproducible."""
     return (int(base) ^ ((int(number) * 0x9E3779B1) & 0xFFFFFFFF)) & 0xFFFFFFFF
+
+
+def _clamp(tech, buffers: Buffers, material, camera: Camera):
+    """The technique with its count clamped to what the frame's footprint can use, and the message (or ""): samples
+    of a 2D profile beyond the next power of two above the pixels of its 99.9%-energy footprint, taps of a 1D pass
+    beyond the next 2^k + 1 above the pixels it reaches, a window beyond the frame."""
+    h, w = buffers.depth.shape[-2:]
+    option = getattr(tech, "count_option", None)
+    if option == "samples" and hasattr(material, "d_mm"):
+        samples = int(tech.samples)
+        d_max = np.asarray(material.d_mm, np.float64).reshape(-1, 3).max(axis=-1)
+        d_px = _Reach.of(buffers, camera, material.count).largest(d_max, active_r99=_BURLEY_R99)[0]
+        # the power of two keeps the sequence's distinct counts, and compilations, few
+        footprint = min(math.pi * (_BURLEY_R999 * d_px) ** 2, h * w)
+        bound = _next_pow2(max(footprint, 1.0))
+        if samples > bound:
+            return tech.replace(samples=bound), (f"samples {samples} clamped to {bound}: the footprint has "
+                                                 f"{math.ceil(footprint)} pixels, more samples cannot help")
+    elif option == "taps":
+        taps = int(tech.taps)
+        footprint = 2 * int(tech.reach_px(buffers, material, camera)) + 1  # a pass reads 2 reach + 1 pixels of a row
+        bound = _next_pow2(max(footprint - 1, 1)) + 1
+        if taps > bound:
+            return tech.replace(taps=bound), (f"taps {taps} clamped to {bound}: a pass reaches {footprint} pixels, "
+                                              "more taps cannot help")
+    radius = getattr(tech, "radius_px", None)
+    if isinstance(radius, (int, np.integer)) and radius > max(1, max(h, w) - 1):
+        cap = max(1, max(h, w) - 1)  # a window past the frame reaches no further pixel
+        return tech.replace(radius_px=cap), f"radius_px {radius} clamped to {cap}: the frame is {w}x{h} pixels"
+    return tech, ""
+
+
+def _seconds_per_px(tech) -> float:
+    """Rough cost per pixel on this project's 2-core CPU (the README's timings), from the technique's counts: the
+    work estimate before the batch has measured a frame of its own."""
+    frames = int(getattr(tech, "frames", 1) or 1)
+    if isinstance(getattr(tech, "samples", None), (int, np.integer)):
+        return 1.4e-8 * int(tech.samples) * frames
+    if isinstance(getattr(tech, "taps", None), (int, np.integer)):
+        return 9e-9 * int(tech.taps)
+    if isinstance(getattr(tech, "radius_px", None), (int, np.integer)):
+        return 3e-8 * (2 * int(tech.radius_px) + 1) ** 2
+    return 4e-8
+
+
+def _cannot_place_tiles(exc: BaseException) -> bool:
+    return isinstance(exc, ValueError) and "cannot place a tile" in str(exc)
 
 
 # ------------------------------------------------------------------------------------------------------------------
@@ -949,7 +716,6 @@ class _FramePlan:
     notes: list[str]
     layout: tuple[int, int] | None = None
     overlap: int = 0
-    sentinels: tuple = ()
 
 
 def _work_estimate(tech, buffers: Buffers, seconds_per_px: float) -> float:
@@ -959,20 +725,19 @@ def _work_estimate(tech, buffers: Buffers, seconds_per_px: float) -> float:
     return seconds_per_px * h * w
 
 
-def _plan_frame(tech, buffers: Buffers, material, camera: Camera, tile_pixels: int, cost: "_Cost") -> _FramePlan:
-    clamp = getattr(tech, "clamp", None)
+def _plan_frame(tech, buffers: Buffers, material, camera: Camera, tile_pixels: int, cost: "_Cost",
+                tiles_allowed: bool = True) -> _FramePlan:
     notes = []
-    if clamp is not None:
-        tech, message = clamp(buffers, material, camera)
-        if message:
-            estimate = _work_estimate(tech, buffers, cost.per_px(tech))
-            notes.append(f"{message}; it runs {_count_text(tech)}, about {_seconds_text(estimate)} per frame on this "
-                         f"machine ({cost.source(tech)})")
+    tech, message = _clamp(tech, buffers, material, camera)
+    if message:
+        estimate = _work_estimate(tech, buffers, cost.per_px(tech))
+        notes.append(f"{message}; it runs {_count_text(tech)}, about {_seconds_text(estimate)} per frame on this "
+                     f"machine ({cost.source(tech)})")
     plan = _FramePlan(tech, notes)
     h, w = buffers.depth.shape[-2:]
     seconds_per_px = cost.per_px(tech)
     budget = min(tile_pixels, int(CALL_SECONDS / seconds_per_px) if seconds_per_px else tile_pixels)
-    if h * w <= budget or not getattr(tech, "places_tiles", True):
+    if h * w <= budget or not tiles_allowed:
         return plan
     overlap = int(tech.reach_px(buffers, material, camera))
     # the inner part at least as wide as the overlap: a tile never computes more than ~9x its own pixels (a wide
@@ -982,9 +747,7 @@ def _plan_frame(tech, buffers: Buffers, material, camera: Camera, tile_pixels: i
     # as few tiles as fit, of equal size (1600 px in tiles of at most 1352: two of 800, not 1352 and a shifted 1352)
     ty, tx = -(-h // -(-h // inner)), -(-w // -(-w // inner))
     if (ty, tx) != (h, w):
-        sentinels = getattr(tech, "tile_sentinels", None)
         plan.layout, plan.overlap = (ty, tx), overlap
-        plan.sentinels = sentinels(buffers, material, camera) if sentinels is not None else ()
     return plan
 
 
@@ -1006,17 +769,14 @@ class _Cost:
         self.ratio: float | None = None
 
     def per_px(self, tech) -> float:
-        figure = getattr(tech, "seconds_per_px", None)
-        base = figure() if figure is not None else 1e-7
-        return base * (self.ratio or 1.0)
+        return _seconds_per_px(tech) * (self.ratio or 1.0)
 
     def source(self, tech) -> str:
         return "measured on this batch's frames" if self.ratio else "the technique's cost per pixel on a 2-core CPU"
 
     def measured(self, tech, pixels: int, seconds: float) -> None:
-        figure = getattr(tech, "seconds_per_px", None)
-        if figure is not None and pixels and seconds > 0:
-            r = seconds / (figure() * pixels)
+        if pixels and seconds > 0:
+            r = seconds / (_seconds_per_px(tech) * pixels)
             self.ratio = r if self.ratio is None else 0.7 * self.ratio + 0.3 * r
 
 
@@ -1064,13 +824,13 @@ def _run_tiled(tech, frame: Frame, use_albedo: bool, material, camera: Camera, p
     out = np.empty((h, w, 3), np.float32)
     count = _material_count(material)
     for y, x in [(y, x) for y in _starts(h, ty) for x in _starts(w, tx)]:
-        b, (ye0, xe0) = _tile(frame, y, x, ty, tx, r, plan.sentinels, use_albedo)
+        b, (oy, ox) = _tile(frame, y, x, ty, tx, r, use_albedo)
         validate_buffers(b, materials=count)
         with warnings.catch_warnings():  # the frame's warnings were computed on the whole frame (check)
             for category in _TECHNIQUE_WARNINGS:
                 warnings.simplefilter("ignore", category)
-            res = np.asarray(tech(b, material, camera, origin=(ye0, xe0), frame_shape=(h, w)))
-        out[y:y + ty, x:x + tx] = res[r:r + ty, r:r + tx]
+            res = np.asarray(tech(b, material, camera, origin=(oy, ox), frame_shape=(h, w)))
+        out[y:y + ty, x:x + tx] = res[y - oy:y - oy + ty, x - ox:x - ox + tx]
         on_tile()
     return out
 
@@ -1119,28 +879,6 @@ def _camera(frame: Frame) -> Camera:
     return Camera(frame.focal_px, frame.mm_per_unit if frame.mm_per_unit is not None else 1.0)
 
 
-def _material_for(tech, material):
-    """A preset name or file becomes the technique's material; the material's kind is checked."""
-    name = getattr(tech, "name", "")
-    if isinstance(material, (str, pathlib.Path)):
-        from ._presets import load_preset, material_for
-
-        if name == "sta":
-            raise TypeError("technique 'sta' needs material=(STAParams, DirectionalLight): a preset gives no light")
-        material = material_for(name, load_preset(material))
-    if isinstance(tech, _STA):
-        if not (isinstance(material, tuple) and len(material) == 2 and isinstance(material[0], STAParams)
-                and isinstance(material[1], DirectionalLight)):
-            raise TypeError("technique 'sta' needs material=(STAParams, DirectionalLight)")
-        return material
-    kinds = getattr(tech, "material_type", ())
-    kinds = kinds if isinstance(kinds, tuple) else (kinds,)
-    if kinds and not isinstance(material, kinds):
-        raise TypeError(f"technique {name!r} takes a {' or '.join(k.__name__ for k in kinds)}, got "
-                        f"{type(material).__name__}")
-    return material
-
-
 class _Batch:
     """One run's state: the technique and material, the records, the manifest, the results, the progress."""
 
@@ -1154,7 +892,8 @@ class _Batch:
         self.cost = _Cost()
         self.pending: dict[tuple, list[dict]] = {}
         self.seeded = _has_seed(tech)
-        self.base_seed = _base_seed(tech) if self.seeded else 0
+        self.tiles_allowed = True
+        self.base_seed = int(np.asarray(tech.seed)) if self.seeded else 0
         if len(devices) > 1:
             mesh = jax.sharding.Mesh(np.asarray(devices), ("frames",))
             self.sharded = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("frames"))
@@ -1235,17 +974,23 @@ class _Batch:
         try:
             frame, buffers, camera = self.read(job, read_options, use_albedo)
             tech = self.tech if not self.seeded else _with_seed(self.tech, self.seed_of(job))
-            plan = _plan_frame(tech, buffers, self.material, camera, tile_pixels, self.cost)
+            plan = _plan_frame(tech, buffers, self.material, camera, tile_pixels, self.cost, self.tiles_allowed)
             if plan.layout is None and len(self.devices) > 1:
                 # several devices: frames grouped and vmapped; checks on the host before tracing
                 warned = [str(w) for w in plan.tech.check(buffers, self.material, camera)]
                 self.queue(job, buffers, camera, plan, warned, time.perf_counter() - t0)
                 return
-            if plan.layout is None:
-                image, warned = _run_whole(plan.tech, buffers, self.material, camera)
-            else:
+            image = None
+            if plan.layout is not None:
                 warned = [str(w) for w in plan.tech.check(buffers, self.material, camera)]
-                image = self.tiled(job, frame, camera, plan, use_albedo)
+                try:
+                    image = self.tiled(job, frame, camera, plan, use_albedo)
+                except ValueError as exc:
+                    if not _cannot_place_tiles(exc):
+                        raise
+                    self.tiles_allowed = False  # this technique cannot place a tile yet: frames run whole
+            if image is None:
+                image, warned = _run_whole(plan.tech, buffers, self.material, camera)
         except (OSError, ValueError) as exc:
             self.fail(job, exc)
             return
@@ -1372,18 +1117,7 @@ def process_frames(
     """
     named = {k: v for k, v in dict(samples=samples, taps=taps, radius_px=radius_px, albedo=sta_albedo,
                                     thickness=sta_thickness).items() if v is not None}
-    extra = dict(technique_options or {})
-    if isinstance(technique, str) and technique in _ADAPTERS:
-        fn = TECHNIQUES[technique]
-        bad = sorted(k for k in extra if not _accepts(fn, k))
-        if bad:
-            raise ValueError(f"technique {technique!r} has no option {', '.join(bad)}")
-        # the counts of the other techniques are not this one's (the CLI passes every count)
-        options = {**{k: v for k, v in named.items() if _accepts(fn, k)}, **extra}
-    else:
-        options = {**named, **extra}
-    tech = _technique_object(technique, options)
-    material = _material_for(tech, material)
+    tech, material = _technique_object(technique, {**named, **dict(technique_options or {})}, material)
     if not (isinstance(tile_pixels, (int, np.integer)) and tile_pixels >= 1):
         raise ValueError(f"tile_pixels must be a positive integer, got {tile_pixels!r}")
 
@@ -1402,7 +1136,7 @@ def process_frames(
     _check_folders([j.dst for j in jobs] + ([manifest] if manifest is not None else []), out_dir is not None)
     remove_stale_temporaries([p for j in jobs for p in j.files(png)] + ([manifest] if manifest is not None else []))
 
-    from . import __version__
+    from ._version import __version__
 
     parameters = {**_technique_options(tech), "material": _material_record(material), "half": bool(half),
                   "focal_px": focal_px, "mm_per_unit": mm_per_unit, "depth_kind": depth_kind,

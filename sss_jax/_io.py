@@ -38,8 +38,7 @@ BUFFER_NAMES = ("irradiance", "depth", "albedo", "normal", "thickness", "id")
 _BACKGROUND_DEPTH = 1e9  # Blender writes 1e10 where there is no surface
 
 
-class SSSInputError(ValueError):
-    """Bad input from a user: the message names the input and what is wrong."""
+from ._errors import SSSInputError as SSSInputError  # noqa: E402  (the one definition is in _errors)
 
 
 def _oiio():

@@ -190,8 +190,7 @@ def frame_energy_fraction(cdf, rows: Array, cols: Array, height: int, width: int
     return total / (2 * math.pi)
 
 
-class SamplingWarning(UserWarning):
-    """A pass's taps or samples can no longer represent the kernel: the message states the error it implies."""
+from .._errors import SamplingWarning as SamplingWarning  # noqa: E402  (the one definition is in _errors)
 
 
 # an implied error (fraction of a hard edge's contrast) above which a configuration is called undersampled: the

@@ -64,8 +64,7 @@ def reference_energy_held(buffers: Buffers, material, camera: Camera, radius_px:
     return lo
 
 
-class ReferenceWindowWarning(UserWarning):
-    """``reference``'s window holds less than 99.9% of the profile's energy: the result is not ground truth there."""
+from .._errors import ReferenceWindowWarning as ReferenceWindowWarning  # noqa: E402  (defined in _errors)
 
 
 @eqx.filter_jit

@@ -1,28 +1,38 @@
-"""The techniques by name, and which of them conserve energy."""
+"""The techniques by name: a registry of classes (``TECHNIQUES``), ``technique(name, **options)`` to build one, and
+which of them conserve energy (each class says so; ``ENERGY_CONSERVING`` is read from the classes)."""
 
 from __future__ import annotations
 
-from typing import Callable
+import dataclasses
+from typing import Any
 
-from ._burley import burley
-from ._reference import reference
-from ._separable import separable
-from ._translucency import translucency
+from ._base import AbstractTechnique
+from ._burley_technique import Burley
+from ._reference_technique import Reference
+from ._separable_technique import Separable
+from ._translucency_technique import Translucency
 
-TECHNIQUES: dict[str, Callable] = {
-    "sta": translucency,
-    "separable": separable,
-    "burley": burley,
-    "reference": reference,
-}
+TECHNIQUES: dict[str, type[AbstractTechnique]] = {cls.name: cls for cls in (Translucency, Separable, Burley, Reference)}
 
 # Which techniques redistribute light (True) and which add it (False): the report shows this.
-ENERGY_CONSERVING = {"sta": False, "separable": True, "burley": True, "reference": True}
+ENERGY_CONSERVING: dict[str, bool] = {name: cls.conserves_energy for name, cls in TECHNIQUES.items()}
 
 
-def get_technique(name: str) -> Callable:
-    """The technique registered under ``name``; the error lists the valid names."""
+def get_technique(name: str) -> type[AbstractTechnique]:
+    """The technique class registered under ``name``; the error lists the valid names."""
     try:
         return TECHNIQUES[name]
-    except KeyError:
+    except (KeyError, TypeError):
         raise ValueError(f"unknown technique {name!r}; valid techniques: {', '.join(TECHNIQUES)}") from None
+
+
+def technique(name: str, **options: Any) -> AbstractTechnique:
+    """The technique registered under ``name`` with ``options`` (its fields: ``technique("burley", samples=64)``);
+    an unknown name or option is an error that lists the valid ones."""
+    cls = get_technique(name)
+    fields = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(options) - fields)
+    if unknown:
+        raise TypeError(f"technique {name!r} has no option(s) {', '.join(unknown)}; its options: "
+                        f"{', '.join(sorted(fields))}")
+    return cls(**options)

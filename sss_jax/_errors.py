@@ -1,0 +1,18 @@
+"""The errors and warnings sss_jax raises, in one place (re-exported on the public face).
+
+Nothing here imports another sss_jax module, so every module can import it without a cycle.
+"""
+
+from __future__ import annotations
+
+
+class SSSInputError(ValueError):
+    """Bad input from a user: the message names the input and what is wrong."""
+
+
+class SamplingWarning(UserWarning):
+    """A pass's taps or samples can no longer represent the kernel: the message states the error it implies."""
+
+
+class ReferenceWindowWarning(UserWarning):
+    """``reference``'s window holds less than 99.9% of the profile's energy: the result is not ground truth there."""

@@ -1,0 +1,139 @@
+"""The technique abstraction: one final equinox Module per technique, all answering the same questions.
+
+A technique object carries its options as fields (static, so a new option value is a new compilation, except the
+traced ones such as Burley's ``seed``), and answers for what it needs and does:
+
+- ``name`` (the registry's), ``conserves_energy`` (SSSS, Burley and the reference redistribute light; STA adds it),
+  ``material_type`` (the material class or classes it takes);
+- ``technique(buffers, material, camera, *, origin=(0, 0), frame_shape=None)``: the image ``(H, W, 3)``; a tile
+  passes its top-left pixel in the whole frame (``origin``) and the frame's ``(H, W)`` (``frame_shape``), so the
+  rotation hash and the frame border follow the frame, not the tile;
+- ``reach_px(buffers, material, camera)`` (host side): how many pixels away a pixel of the result reads, the halo a
+  tile needs for its pixels to be the untiled frame's;
+- ``check(buffers, material, camera)`` (host side): the sampling and window warnings a call would raise
+  (``SamplingWarning``, ``ReferenceWindowWarning``), as warning objects, so a batch can report them per frame.
+
+Options are declared with ``option(default, help, choices=...)``: the command line builds its flags from
+``option_fields()``, and a value outside ``choices`` is an error at construction naming the option. Callers (batch,
+report, match, bench, advise, the CLI) ask the object; none of them tests a technique's name. Models: diffrax's
+``AbstractSolver``, optimistix's ``AbstractMinimiser``, this project's ``engines._base.AbstractEngine``.
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+import inspect
+from typing import Any, Callable, ClassVar
+
+import equinox as eqx
+from jaxtyping import Array, Float
+
+from .._scene import Buffers, Camera
+
+
+def option(default: Any, help: str, *, choices: tuple | None = None, static: bool = True) -> Any:
+    """A technique option: a field with its default, its help (the CLI's) and, for a closed set, its ``choices``.
+
+    ``static=False`` for an option that is traced (a new value does not recompile, e.g. a seed)."""
+    metadata = {"help": help}
+    if choices is not None:
+        metadata["choices"] = tuple(choices)
+    return eqx.field(static=static, default=default, metadata=metadata)
+
+
+def default_of(function: Callable, name: str) -> Any:
+    """The default of keyword ``name`` in ``function``'s signature: the technique function is the one owner of its
+    defaults, so the class's option follows a change there."""
+    parameter = inspect.signature(function).parameters.get(name)
+    if parameter is None or parameter.default is inspect.Parameter.empty:
+        raise TypeError(f"{function.__name__} has no keyword option {name!r} with a default")
+    return parameter.default
+
+
+class AbstractTechnique(eqx.Module):
+    """A screen-space SSS technique. Concrete techniques are final; ``technique(name, **options)`` builds one."""
+
+    name: eqx.AbstractClassVar[str]  # the registry's name
+    conserves_energy: eqx.AbstractClassVar[bool]  # redistributes light (True) or adds it (False)
+    material_type: eqx.AbstractClassVar[type | tuple[type, ...]]  # the material class(es) it takes
+    # the option whose value is the technique's sample count, which a report sweeps ("samples", "taps"; None: none)
+    count_option: ClassVar[str | None] = None
+
+    def __check_init__(self):
+        for field in self.option_fields():
+            choices = field.metadata.get("choices")
+            value = getattr(self, field.name)
+            if choices is not None and value not in choices:
+                raise ValueError(f"{self.name}: {field.name}={value!r} is not one of {choices}")
+
+    @abc.abstractmethod
+    def __call__(self, buffers: Buffers, material: Any, camera: Camera, *, origin: tuple[int, int] = (0, 0),
+                 frame_shape: tuple[int, int] | None = None) -> Float[Array, "H W 3"]:
+        """The technique applied to ``buffers`` (one image) with ``material`` seen by ``camera``."""
+
+    @abc.abstractmethod
+    def reach_px(self, buffers: Buffers, material: Any, camera: Camera) -> int:
+        """Host side: the farthest (in px, along a row or a column) a pixel of the result reads from: a tile with
+        this halo on every side computes its inner pixels as the untiled frame does."""
+
+    def check(self, buffers: Buffers, material: Any, camera: Camera) -> list[Warning]:
+        """Host side: the warnings (``SamplingWarning``, ``ReferenceWindowWarning``) a call with these inputs
+        raises; none by default."""
+        return []
+
+    @classmethod
+    def option_fields(cls) -> tuple[dataclasses.Field, ...]:
+        """The technique's options (the fields declared with ``option``), in declaration order."""
+        return tuple(f for f in dataclasses.fields(cls) if "help" in f.metadata)
+
+    @classmethod
+    def option_fields_names(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in cls.option_fields())
+
+    def options(self) -> dict[str, Any]:
+        """The options' values by name (what a report or a manifest records)."""
+        return {f.name: getattr(self, f.name) for f in self.option_fields()}
+
+    def replace(self, **changes: Any) -> "AbstractTechnique":
+        """This technique with some options changed (``t.replace(samples=64)``)."""
+        return dataclasses.replace(self, **changes)
+
+    @classmethod
+    def accepts(cls, material: Any, **options: Any) -> bool:
+        """Whether the technique with ``options`` (its defaults elsewhere) takes ``material``; host side, without
+        building the technique."""
+        return isinstance(material, cls.material_type)
+
+    def takes(self, material: Any) -> bool:
+        """Whether ``material`` is one this technique (with its options) takes."""
+        return type(self).accepts(material, **self.options())
+
+    def check_material(self, material: Any) -> None:
+        """A ``TypeError`` naming the technique and the material classes it takes, unless it takes ``material``."""
+        if not self.takes(material):
+            kinds = self.material_type if isinstance(self.material_type, tuple) else (self.material_type,)
+            raise TypeError(f"{self.name} needs a {' or '.join(k.__name__ for k in kinds)}, "
+                            f"got {type(material).__name__}")
+
+
+def tile_options(function: Callable, buffers: Buffers, origin: tuple[int, int],
+                 frame_shape: tuple[int, int] | None) -> dict[str, Any]:
+    """The keyword options that place ``buffers`` in the whole frame, for ``function``: none where the buffer is the
+    whole frame; ``origin``/``frame_shape`` where the function takes them; else an error (it cannot place a tile)."""
+    shape = tuple(buffers.depth.shape[-2:])
+    origin = tuple(int(o) for o in origin)
+    if len(origin) != 2 or min(origin) < 0:
+        raise ValueError(f"origin must be (row, col) >= 0, got {origin!r}")
+    if frame_shape is not None:
+        frame_shape = tuple(int(s) for s in frame_shape)
+        if (len(frame_shape) != 2 or origin[0] + shape[0] > frame_shape[0]
+                or origin[1] + shape[1] > frame_shape[1]):
+            raise ValueError(f"a buffer of {shape} at origin {origin} does not fit in frame_shape {frame_shape}")
+    if origin == (0, 0) and frame_shape in (None, shape):
+        return {}
+    accepted = inspect.signature(function).parameters
+    if "origin" not in accepted or "frame_shape" not in accepted:
+        raise ValueError(f"{function.__name__} cannot place a tile in a frame yet (no origin/frame_shape options): "
+                         "pass the whole frame")
+    return {"origin": origin, "frame_shape": frame_shape}

@@ -1,0 +1,100 @@
+"""``Burley``: screen-space Christensen–Burley normalised diffusion as a technique object (``_burley`` computes)."""
+
+from __future__ import annotations
+
+import inspect
+import math
+from typing import ClassVar
+
+import numpy as np
+from jaxtyping import Array, Float
+
+from .._errors import SamplingWarning
+from .._materials import BurleyMaterial
+from .._profiles import burley_inverse_ccdf
+from .._scene import Buffers, Camera
+from . import _burley
+from ._base import AbstractTechnique, default_of, option, tile_options
+from ._common import ALBEDO_MODES, BORDERS
+from ._dispatch import IMPLS
+
+_f = _burley.burley
+
+
+def burley_sampling_warnings(buffers: Buffers, material: BurleyMaterial, camera: Camera, *, samples: int,
+                             frames: int, min_footprint_px: float) -> list[Warning]:
+    """Host side: the ``SamplingWarning`` a channel much narrower than the widest one implies (the samples follow
+    the widest channel's profile, so it sees only its innermost few), if any SSS pixel takes samples."""
+    count, _ = _burley._burley_active(buffers, material, camera, float(min_footprint_px))
+    if not count:
+        return []
+    worst = _burley.burley_channel_samples(material.d_mm, int(samples) * int(frames))
+    if worst is None or worst[0] >= 4:
+        return []
+    n_eff, m, c = worst
+    d = np.asarray(material.d_mm, np.float64).reshape(-1, 3)
+    implied = min(1.0, 0.5 / math.sqrt(max(n_eff, 1e-9)))
+    return [SamplingWarning(f"burley: channel {'RGB'[c]} of material {m + 1} (d {d[m, c]:.3g} mm, the widest "
+                            f"{d[m].max():.3g} mm) gets {n_eff:.2g} of {samples * frames} samples within the radius "
+                            f"holding 95% of its energy: its kernel is not represented (per-pixel error up to "
+                            f"{implied:.2f} of an edge's contrast); more samples or frames")]
+
+
+class Burley(AbstractTechnique):
+    """Christensen–Burley normalised diffusion in one pass of golden-angle spiral samples (``sss_jax.burley``'s
+    docstring holds the method, the options' meaning and their cost). Conserves energy: it redistributes light."""
+
+    name: ClassVar[str] = "burley"
+    conserves_energy: ClassVar[bool] = True
+    count_option: ClassVar[str | None] = "samples"
+    material_type: ClassVar[type] = BurleyMaterial
+
+    samples: int = option(default_of(_f, "samples"), "spiral samples per pixel (per frame)")
+    albedo_mode: str = option(default_of(_f, "albedo_mode"), "where the albedo multiplies: after the scatter "
+                              "('post') or its square root before and after ('pre_post')", choices=ALBEDO_MODES)
+    interpolation: str = option(default_of(_f, "interpolation"), "how a sample fetches the irradiance",
+                                choices=("bilinear", "nearest"))
+    min_footprint_px: float = option(default_of(_f, "min_footprint_px"), "pixels whose 99%-energy radius is "
+                                     "below this (px) keep their local shading; 0 disables that")
+    compact: bool | None = option(default_of(_f, "compact"), "compute only the active pixels, compacted (None: "
+                                  "where that holds under half the frame)", choices=(None, True, False))
+    impl: str = option(default_of(_f, "impl"), "the formulation ('auto': the fastest one with these options on "
+                       "the backend)", choices=IMPLS)
+    pattern: str = option(default_of(_f, "pattern"), "the spiral turned per pixel and frame ('rotated') or the "
+                          "same for every pixel ('fixed')", choices=_burley.BURLEY_PATTERNS)
+    frames: int = option(default_of(_f, "frames"), "frames averaged, each with its own rotations (converged TAA)")
+    seed: int | Array = option(default_of(_f, "seed"), "seed of the rotations (e.g. the frame number); traced",
+                               static=False)
+    border: str = option(default_of(_f, "border"), "light reaching past the frame leaves ('leaves') or the "
+                         "kernel is renormalised over the frame ('renormalise')", choices=BORDERS)
+
+    def __call__(self, buffers: Buffers, material: BurleyMaterial, camera: Camera, *,
+                 origin: tuple[int, int] = (0, 0),
+                 frame_shape: tuple[int, int] | None = None) -> Float[Array, "H W 3"]:
+        self.check_material(material)
+        return _f(buffers, material, camera, **self.options(), **tile_options(_f, buffers, origin, frame_shape))
+
+    def reach_px(self, buffers: Buffers, material: BurleyMaterial, camera: Camera) -> int:
+        """The farthest sample: the largest stratified CDF value ``(n - 1/2) / n`` of the widest channel's profile
+        at the active pixel with the widest d in px (truncation to the frame only shortens it), plus the bilinear
+        fetch's second pixel; at most the frame's larger extent."""
+        _, d_px = _burley._burley_active(buffers, material, camera, float(self.min_footprint_px))
+        if d_px <= 0:
+            return 0
+        unit = float(np.asarray(burley_inverse_ccdf(np.float64(0.5 / self.samples), np.float64(1.0))))
+        reach = math.ceil(unit * d_px) + (1 if self.interpolation == "bilinear" else 0)
+        return int(min(reach, max(buffers.depth.shape[-2:])))
+
+    def check(self, buffers: Buffers, material: BurleyMaterial, camera: Camera) -> list[Warning]:
+        self.check_material(material)
+        return burley_sampling_warnings(buffers, material, camera, samples=int(self.samples),
+                                        frames=int(self.frames), min_footprint_px=float(self.min_footprint_px))
+
+
+def burley(buffers: Buffers, material: BurleyMaterial, camera: Camera, **options) -> Float[Array, "H W 3"]:
+    return Burley(**options)(buffers, material, camera)
+
+
+# the function's own docstring and signature (its options, their defaults): help() and inspect read them
+burley.__doc__ = _f.__doc__
+burley.__signature__ = inspect.signature(_f)
