@@ -406,7 +406,21 @@ def _technique_object(technique, options: dict[str, Any], material):
     tech.check_material(material)
     if getattr(tech, "radius_px", 0) is None:
         raise ValueError(f"technique {tech.name!r} in a batch needs radius_px (one window for every frame)")
+    _check_ranges(tech)
     return tech, material
+
+
+def _check_ranges(tech) -> None:
+    """Ranges of the options a technique takes as plain values (checked when it runs; a batch checks them before
+    any frame)."""
+    albedo = getattr(tech, "albedo", None)
+    if albedo is not None:
+        a = np.asarray(albedo, np.float64)
+        if a.shape not in ((3,), (1, 3)) or not np.all((a >= 0) & (a <= 1)):  # NaN fails both
+            raise ValueError(f"{tech.name}: albedo must be 3 values in [0, 1], got {a.tolist()}")
+    t = getattr(tech, "thickness", None)
+    if t is not None and not np.all(np.asarray(t, np.float64) >= 0):
+        raise ValueError(f"{tech.name}: thickness must be >= 0 scene units (inf: infinitely thick), got {t}")
 
 
 _NAMED = ("samples", "taps", "radius_px", "albedo", "thickness")
@@ -790,7 +804,7 @@ _TECHNIQUE_WARNINGS = (SamplingWarning, ReferenceWindowWarning)
 
 def _material_count(material) -> int:
     """Rows of the material table (one for STA's (params, light) pair)."""
-    return 1 if isinstance(material, tuple) else int(material.count)
+    return int(getattr(material, "count", 1))
 
 
 def _run_whole(tech, buffers, material, camera) -> tuple[np.ndarray, list[str]]:
