@@ -3,6 +3,7 @@
     python scripts/bench_batch.py [--frames 64] [--size 512] [--technique burley] [--devices N]
     python scripts/bench_batch.py --long [--frames 1000] [--size 256] [--corrupt 0.1]
     python scripts/bench_batch.py --large 8000
+    python scripts/bench_batch.py --vs-pass [--frames 200] [--size 256] [--technique burley] [--samples 32]
 
 Default: frames are generated from the demo scene with a varying key light and written to a temporary directory
 first (not timed); then process_frames runs over them, compile included in the wall time and reported separately.
@@ -12,6 +13,11 @@ the CPU. Checks that every good frame is written and complete and every bad one 
 reports frames/s and the resident memory (RSS) after frame 100 and after the last frame (the growth between them is
 what a leak would show), then runs the batch again with resume and checks every frame is skipped with the outputs
 byte-identical. Exit status 0 only when all of that holds.
+
+``--vs-pass``: the batch against its pass, on the same frames in one run: the pass alone (the technique called on
+each frame's buffers, already in memory: no reading, no writing) and then ``process_frames`` over the files
+(reading, checks, writing, manifest included), each after one warm-up frame so compilation counts in neither;
+prints both frames/s and their ratio (the goal: batch >= 0.75 x pass), and the machine's load.
 
 ``--large N``: one NxN frame (written by a child process, so its generation does not count), processed in tiles;
 reports the wall time and the peak resident memory of the processing process, and checks the result is complete.
@@ -195,6 +201,47 @@ def large_run(args) -> int:
     return 0 if complete else 1
 
 
+def vs_pass(args) -> int:
+    import numpy as np
+
+    import sss_jax as sj
+    from sss_jax import _io
+    from sss_jax._batch import process_frames
+    from sss_jax._demo import demo_burley_material
+
+    mat = demo_burley_material()
+    fn = {"burley": lambda b, c: sj.burley(b, mat, c, samples=args.samples),
+          "separable": lambda b, c: sj.separable(b, mat, c, taps=args.taps)}[args.technique]
+    with tempfile.TemporaryDirectory() as tmp:
+        src = os.path.join(tmp, "src")
+        os.mkdir(src)
+        make_frames(src, args.frames, args.size, 0.0)
+        paths = sorted(os.path.join(src, n) for n in os.listdir(src))
+        frames = [_io.read_frame(p) for p in paths]
+        inputs = [(f.to_buffers(), sj.Camera(f.focal_px, 10.0)) for f in frames]
+        np.asarray(fn(*inputs[0]))  # compile
+        t0 = time.perf_counter()
+        for b, c in inputs:
+            np.asarray(fn(b, c))
+        pass_s = time.perf_counter() - t0
+        del inputs, frames
+        process_frames(paths[:1], args.technique, mat, out_dir=os.path.join(tmp, "warm"), progress=False,
+                       samples=args.samples, taps=args.taps, devices=None)
+        t0 = time.perf_counter()
+        r = process_frames(paths, args.technique, mat, out_dir=os.path.join(tmp, "out"), progress=False,
+                           samples=args.samples, taps=args.taps)
+        batch_s = time.perf_counter() - t0
+    ok = sum(f.status == "done" for f in r.frames)
+    pass_fps, batch_fps = args.frames / pass_s, ok / batch_s
+    count = f"{args.samples} samples" if args.technique == "burley" else f"{args.taps} taps"
+    print(f"{args.frames} frames of {args.size}x{args.size}, {args.technique} {count}, load average "
+          f"{', '.join(f'{v:.2f}' for v in os.getloadavg())}")
+    print(f"  pass alone: {pass_fps:.2f} frames/s ({pass_s:.1f} s; the technique on buffers in memory)")
+    print(f"  batch:      {batch_fps:.2f} frames/s ({batch_s:.1f} s; read + checks + compute + write + manifest)")
+    print(f"  batch / pass: {batch_fps / pass_fps:.3f} (goal >= 0.75)")
+    return 0 if ok == args.frames else 1
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=None)
@@ -204,6 +251,7 @@ def main() -> int:
     ap.add_argument("--long", action="store_true", help="the long run: 1,000 frames of 256x256, 10%% corrupt")
     ap.add_argument("--corrupt", type=float, default=0.1, help="fraction of corrupt frames in --long")
     ap.add_argument("--large", type=int, help="one NxN frame in tiles: peak memory")
+    ap.add_argument("--vs-pass", action="store_true", help="batch frames/s against the pass alone, one run")
     ap.add_argument("--focal-px", type=float, help="--large: focal length in px (default N/8)")
     ap.add_argument("--samples", type=int, default=32, help="burley samples (default 32)")
     ap.add_argument("--taps", type=int, default=25, help="separable taps (default 25)")
@@ -216,6 +264,10 @@ def main() -> int:
         return long_run(args)
     if args.large:
         return large_run(args)
+    if args.vs_pass:
+        args.frames = args.frames or 200
+        args.size = args.size or 256
+        return vs_pass(args)
     args.frames = args.frames or 64
     args.size = args.size or 512
     import numpy as np

@@ -1,25 +1,38 @@
 """Batch processing of frame sequences: streamed, sharded over ``jax.devices()``, resumable, failure tolerant.
 
-Before any frame runs, the whole batch is planned and checked: every output path (``out_dir`` keeps each input's
-path relative to the inputs' common folder, so ``shots/a/beauty.exr`` and ``shots/b/beauty.exr`` give two outputs),
-no two frames writing one output, no output equal to an input, no existing output made from another input (unless
-``overwrite``), every output folder writable, the technique's parameters in range. A batch that fails these checks
-raises ``SSSInputError`` naming the inputs and writes nothing.
+``process_frames`` is a short driver over small pieces:
 
-Frames are then read one at a time and grouped by (shape, buffers present, effective sample/tap count); each full
-group of ``len(devices)`` frames is stacked along a leading axis sharded over the devices
-(``NamedSharding(Mesh(devices, ("frames",)), P("frames"))``) and processed by one jitted, vmapped call, so every
-frame shape compiles once and memory holds at most one group per shape. A frame larger than one tile's budget
-(``tile_pixels``) or whose work would keep one call busy for more than about a second is processed alone in tiles
-that overlap by the kernel's reach (exactly the untiled result; memory bounded per tile, and Ctrl-C lands between
-tiles). Sample and tap counts beyond the footprint's pixel count are clamped with a warning.
+- **plan** (before any frame runs): every output path (``out_dir`` keeps each input's path relative to the inputs'
+  common folder), no two frames writing one file, no output equal to an input, no existing output made from another
+  input (unless ``overwrite``), every output folder writable, the technique's options in range; a batch that fails
+  these raises ``SSSInputError`` naming the inputs and writes nothing. Then the temporaries that killed runs left
+  beside this run's outputs are removed.
+- **the technique object** (``AbstractTechnique``: its options are its fields): the batch asks it, host side, how
+  far it reaches (``reach_px``: the tile halo), what it would warn about (``check``: sampling and window warnings)
+  and what count the frame's footprint can use (the clamp, with the count run and a work estimate); it never tests
+  a technique's name. Until the technique classes land, an adapter over the technique functions answers for them.
+- **frames**: read one at a time. On one device each frame is one call of the technique as a single call runs it
+  (its host-side work, compaction and checks included: the batch keeps up with the pass). On several devices
+  frames are grouped by (shape, buffers present, counts); each full group of ``len(devices)`` frames is stacked
+  along a leading axis sharded over the devices (``NamedSharding(Mesh(devices, ("frames",)), P("frames"))``) and
+  processed by one jitted, vmapped call, with the checks run on the host first.
+- **tiles**: a frame larger than one tile's budget (``tile_pixels``) or whose work would keep one call busy for more
+  than about a second runs in tiles overlapping by the technique's reach, each told its origin in the frame and the
+  frame's shape (``origin=``, ``frame_shape=``): the rotation hash and the frame border follow the frame, so tiles
+  give the untiled frame under every rule. A technique that cannot place a tile runs the frame whole.
+- **records**: each output carries, in its EXR header, what made it (input path, size, mtime, the technique and
+  every option that ran, the frame's seed, the material, the sss_jax version, and their digest); ``resume=True``
+  skips a frame whose output carries the same record and whose files all decode (EXR and PNG preview).
+- **files**: every file a run leaves (EXR, PNG preview, manifest) is written atomically (a temporary beside it,
+  fsync, checked to decode, renamed); a full disk or an I/O error fails that frame, naming the file, and the batch
+  goes on.
+- **manifest**: ``out_dir/sss_jax_manifest.json`` (one per process across hosts) lists every frame's input,
+  output, status, message, warnings and seconds, rewritten atomically as each frame finishes; runs into one folder
+  merge their entries frame by frame under a lock, so it never says a complete frame failed.
+- **signals**: SIGINT and SIGTERM stop the run between frames (between tiles in a tiled frame) and leave the
+  manifest true.
 
-Outputs are written atomically with a resume record in the EXR header (input path, size, mtime, the technique and
-its parameters, the sss_jax version); ``resume=True`` skips a frame whose output is complete and carries the same
-record. ``out_dir/sss_jax_manifest.json`` (one per process across hosts) lists every frame's input, output, status
-and seconds, rewritten atomically as each frame finishes; SIGINT and SIGTERM stop the run between frames and leave
-it true. A frame that cannot be read or is invalid is reported and skipped.
-
+Frames of a sequence get their own rotation: a technique's ``seed`` is mixed with the frame number (``frame_seed``).
 Across hosts, each process calls ``jax.distributed.initialize()`` first and then processes
 ``frames_for_process(frames, jax.process_index(), jax.process_count())`` (docs/batch.md shows the launch).
 """
@@ -30,24 +43,30 @@ import contextlib
 import ctypes
 import ctypes.util
 import dataclasses
+import fcntl
 import functools
 import glob
 import hashlib
+import inspect
 import json
 import math
 from numbers import Real
 import os
 import pathlib
+import re
 import signal
+import socket
+import sys
 import threading
 import time
 import warnings
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any, Callable, ClassVar, Iterable, Sequence
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array
 
 from ._io import (Frame, SSSInputError, check_writable, exr_is_complete, read_frame, read_header,
                   write_exr, write_json_atomic, write_png_preview)
@@ -55,10 +74,12 @@ from ._kernels import separable_kernel_from_profile, two_gaussian_kernel
 from ._materials import BurleyMaterial, DirectionalLight, ProfileMaterial, STAParams, TwoGaussianMaterial
 from ._profiles import BurleyProfile, burley_inverse_ccdf
 from ._scene import Buffers, Camera, validate_buffers
-from ._techniques import TECHNIQUES, burley, reference, separable, translucency
+from ._errors import ReferenceWindowWarning, SamplingWarning
+from ._techniques import AbstractTechnique, get_technique
+from ._techniques import technique as make_technique
 
-__all__ = ["BatchResult", "FrameResult", "Interrupted", "MANIFEST_NAME", "expand_inputs", "frames_for_process",
-           "output_paths", "process_frames"]
+__all__ = ["BatchResult", "FrameResult", "Interrupted", "MANIFEST_NAME", "expand_inputs", "frame_number",
+           "frame_seed", "frames_for_process", "output_paths", "process_frames", "remove_stale_temporaries"]
 
 MANIFEST_NAME = "sss_jax_manifest.json"
 
@@ -74,9 +95,6 @@ CALL_SECONDS = 1.0
 _MIN_FOOTPRINT_PX = 0.5
 _BURLEY_R99 = float(np.asarray(burley_inverse_ccdf(np.float64(0.01), np.float64(1.0))))
 _BURLEY_R999 = float(np.asarray(burley_inverse_ccdf(np.float64(0.001), np.float64(1.0))))
-# radius (units of d) beyond which the profile's energy rounds away in float32: burley samples the whole profile
-# (no truncation to the image) when this radius fits inside the frame's diagonal
-_BURLEY_UNTRUNCATED = float(np.asarray(burley_inverse_ccdf(np.float64(np.finfo(np.float32).eps / 4), np.float64(1))))
 
 
 @dataclasses.dataclass
@@ -86,12 +104,13 @@ class FrameResult:
     status: str  # "done", "skipped" (complete output of the same input and parameters there) or "failed"
     message: str = ""
     seconds: float = 0.0
+    warnings: list[str] = dataclasses.field(default_factory=list)  # the clamp's and the technique's, this frame
 
 
 @dataclasses.dataclass
 class BatchResult:
     frames: list[FrameResult]
-    compilations: int
+    compilations: int  # programs this batch traced for its vmapped groups (a one-device batch runs frames eagerly)
     manifest: str | None = None
 
     @property
@@ -174,26 +193,6 @@ def _check_plan(jobs: list[tuple[pathlib.Path, pathlib.Path]], png: bool, manife
     if problems:
         raise SSSInputError("batch refused before any frame ran: " + "; ".join(problems[:10])
                             + (f"; and {len(problems) - 10} more" if len(problems) > 10 else ""))
-
-
-# What a tile runs with: a tile's edge is not the frame's, and a tile's pixel grid starts at its own corner, so the
-# rules that depend on where the frame ends or on the pixel's place in it are the frame-independent ones: Burley's
-# fixed spiral, and the kernel renormalised at the edge (the overlap of the kernel's reach makes that exact inside).
-TILE_RULES = {"burley": dict(pattern="fixed", border="renormalise"), "separable": dict(border="renormalise"),
-              "reference": dict(border="renormalise")}
-
-
-def _run_technique(technique: str, buffers: Buffers, material, camera: Camera, options: dict, rules=None):
-    rules = rules or {}
-    if technique == "burley":
-        return burley(buffers, material, camera, samples=options["samples"], **rules)
-    if technique == "separable":
-        return separable(buffers, material, camera, taps=options["taps"], **rules)
-    if technique == "reference":
-        return reference(buffers, material, camera, radius_px=options["radius_px"], **rules)
-    params, light = material
-    return translucency(buffers, params, camera, light, albedo=options.get("albedo"),
-                        thickness=options.get("thickness"))
 
 
 def _material_attributes(material) -> dict[str, str]:
@@ -292,34 +291,8 @@ class _Signals:
                 raise Interrupted(signum)
 
 
-class _Manifest:
-    """``sss_jax_manifest.json``: the run's settings and one entry per frame of this process's share (pending,
-    done, failed with the message, skipped), rewritten atomically whenever a frame finishes."""
-
-    def __init__(self, path: pathlib.Path | None, header: dict[str, Any], jobs):
-        self.path = path
-        self.data = dict(header, state="running", frames=[
-            {"input": str(src), "output": str(dst), "status": "pending", "message": "", "seconds": 0.0}
-            for src, dst in jobs])
-        self.index = {str(dst): i for i, (_, dst) in enumerate(jobs)}
-        self.write()
-
-    def record(self, r: FrameResult) -> None:
-        self.data["frames"][self.index[r.output]] = {"input": r.input, "output": r.output, "status": r.status,
-                                                     "message": r.message, "seconds": round(r.seconds, 4)}
-        self.write()
-
-    def close(self, state: str) -> None:
-        self.data["state"] = state
-        self.write()
-
-    def write(self) -> None:
-        if self.path is not None:
-            write_json_atomic(self.path, self.data)
-
-
 # ------------------------------------------------------------------------------------------------------------------
-# reach, bounds and tiles (host side, NumPy)
+# reach and tiles (host side, NumPy)
 # ------------------------------------------------------------------------------------------------------------------
 
 
@@ -332,11 +305,11 @@ class _Reach:
     valid: np.ndarray  # (H, W) SSS pixels
 
     @classmethod
-    def of(cls, frame: Frame, camera: Camera, count: int) -> "_Reach":
+    def of(cls, frame, camera: Camera, count: int) -> "_Reach":
         # float32 like the techniques (and half the memory of float64 on an 8000x8000 frame)
         depth = np.asarray(frame.depth, np.float32)
         valid = np.isfinite(depth) & (depth > 0)
-        ids = frame.material_id
+        ids = None if frame.material_id is None else np.asarray(frame.material_id)
         if ids is not None:
             valid &= ids > 0
         rows = (np.zeros(depth.shape, np.int32) if ids is None or count == 1
@@ -368,87 +341,8 @@ def _next_pow2(n: Real) -> int:
     return 1 << max(0, math.ceil(n) - 1).bit_length()
 
 
-@dataclasses.dataclass
-class _Plan:
-    """How one frame runs: its effective options, the tile overlap (px) and the pixels copied into a tile's extra
-    row so its separable levels span the whole frame's reach."""
-
-    options: dict[str, Any]
-    warning: str = ""
-    overlap: int = 0
-    min_side: int = 1
-    sentinels: tuple[tuple[int, int], ...] = ()
-    exact_tiles: bool = True
-    seconds_per_px: float = 0.0
-
-
-def _frame_plan(technique: str, frame: Frame, material, camera: Camera, options: dict) -> _Plan:
-    h, w = frame.shape
-    opts = dict(options)
-    if technique == "sta":
-        return _Plan(opts, overlap=2, min_side=8, seconds_per_px=4e-8)
-    if technique == "reference":
-        radius = int(opts["radius_px"])
-        cap = max(1, max(h, w) - 1)  # a window past the frame reaches no further pixel
-        warning = ""
-        if radius > cap:
-            warning = f"radius_px {radius} clamped to {cap}: the frame is {w}x{h} pixels"
-            opts["radius_px"] = radius = cap
-        return _Plan(opts, warning, overlap=radius + 1, min_side=2 * radius + 3,
-                     seconds_per_px=3e-8 * (2 * radius + 1) ** 2)
-    reach = _Reach.of(frame, camera, material.count)
-    if technique == "burley":
-        d_max = np.asarray(material.d_mm, np.float64).reshape(-1, 3).max(axis=-1)
-        d_px, _ = reach.largest(d_max, active_r99=_BURLEY_R99)
-        samples, warning = int(opts["samples"]), ""
-        # a footprint (99.9% of the energy at the nearest SSS pixel) of n pixels: more than the next power of two
-        # above n samples cannot help (the power of two keeps the sequence's distinct counts, and compilations, few)
-        footprint = min(math.pi * (_BURLEY_R999 * d_px) ** 2, h * w)
-        bound = _next_pow2(max(footprint, 1.0))
-        if samples > bound:
-            warning = (f"samples {samples} clamped to {bound}: the footprint has {math.ceil(footprint)} pixels, "
-                       "more samples cannot help")
-            opts["samples"] = samples = bound
-        rho_max = float(np.asarray(burley_inverse_ccdf(np.float64(0.5 / samples), np.float64(1.0))))
-        exact = d_px * _BURLEY_UNTRUNCATED <= math.hypot(h, w)  # else sampling depends on the frame's size
-        return _Plan(opts, warning, overlap=math.ceil(rho_max * d_px) + 2,
-                     min_side=math.ceil(_BURLEY_UNTRUNCATED * d_px / math.sqrt(2)) + 2, exact_tiles=exact,
-                     seconds_per_px=1.4e-8 * samples)
-    # separable
-    taps, warning = int(opts["taps"]), ""
-    reach_mm = _separable_reach_mm(material, taps)
-    reach_px, plane = reach.largest(reach_mm)
-    # a pass reads 2 reach + 1 pixels of a row: more taps than the next 2^k + 1 above that cannot help
-    footprint = 2 * math.ceil(reach_px) + 1
-    bound = _next_pow2(max(footprint - 1, 1)) + 1
-    if taps > bound:
-        warning = f"taps {taps} clamped to {bound}: a pass reaches {footprint} pixels, more taps cannot help"
-        opts["taps"] = taps = bound
-        reach_px, plane = reach.largest(_separable_reach_mm(material, taps))
-    sentinels = ()
-    if np.any(np.isfinite(plane)):
-        lo = np.unravel_index(np.nanargmin(plane), plane.shape)
-        hi = np.unravel_index(np.nanargmax(plane), plane.shape)
-        sentinels = (tuple(int(i) for i in lo), tuple(int(i) for i in hi))
-    return _Plan(opts, warning, overlap=math.ceil(reach_px) + 2, min_side=8, sentinels=sentinels,
-                 seconds_per_px=9e-9 * taps)
-
-
-def _tile_layout(h: int, w: int, plan: _Plan, tile_pixels: int) -> tuple[int, int] | None:
-    """Inner tile size (rows, cols), or None where the frame runs whole (it fits the memory and work bounds, or
-    tiles could not reproduce it exactly)."""
-    budget = min(tile_pixels, int(CALL_SECONDS / plan.seconds_per_px) if plan.seconds_per_px else tile_pixels)
-    if h * w <= budget or not plan.exact_tiles:
-        return None
-    # the inner part at least as wide as the overlap: a tile never computes more than ~9x its own pixels (a wide
-    # window on a small frame then runs whole, past the work bound, rather than in tiles made of overlap)
-    side = max(math.isqrt(max(budget, 1)), 3 * plan.overlap + 8, plan.min_side)
-    inner = side - 2 * plan.overlap
-    # as few tiles as fit, of equal size (1600 px in tiles of at most 1352: two of 800, not 1352 and a shifted 1352)
-    ty, tx = -(-h // -(-h // inner)), -(-w // -(-w // inner))
-    if (ty, tx) == (h, w):
-        return None
-    return ty, tx
+def _next_pow2(n: Real) -> int:
+    return 1 << max(0, math.ceil(n) - 1).bit_length()
 
 
 def _starts(n: int, t: int) -> list[int]:
@@ -457,55 +351,537 @@ def _starts(n: int, t: int) -> list[int]:
     return sorted({min(s, n - t) for s in range(0, n, t)})
 
 
-def _tile(frame: Frame, y0: int, x0: int, ty: int, tx: int, r: int, sentinels, use_albedo: bool):
-    """The tile's buffers: rows y0-r..y0+ty+r, columns x0-r..x0+tx+r of the frame, outside it no surface (as the
-    techniques treat pixels outside the image), plus one row of sentinel pixels when given (separated from every
-    inner pixel by more than the reach)."""
+def _tile(frame: Frame, y0: int, x0: int, ty: int, tx: int, r: int, use_albedo: bool):
+    """The tile's buffers: rows y0-r..y0+ty+r, columns x0-r..x0+tx+r of the frame, cut at the frame's edge (the
+    technique knows where the frame ends from ``frame_shape``), and the tile's origin in the frame."""
     h, w = frame.shape
-    ye0, ye1, xe0, xe1 = y0 - r, y0 + ty + r, x0 - r, x0 + tx + r
-    sy0, sy1, sx0, sx1 = max(ye0, 0), min(ye1, h), max(xe0, 0), min(xe1, w)
-    extra = 1 if sentinels else 0
-    pads = ((sy0 - ye0, ye1 - sy1 + extra), (sx0 - xe0, xe1 - sx1))
-
-    def cut(a, fill):
-        if a is None:
-            return None
-        part = a[sy0:sy1, sx0:sx1]
-        out = np.pad(part, pads + ((0, 0),) * (a.ndim - 2), constant_values=fill)
-        for k, (sy, sx) in enumerate(sentinels):
-            out[-1, k] = a[sy, sx]
-        return out
-
-    depth = cut(frame.depth, np.inf)
-    if sentinels:  # only the sentinels have a surface in the extra row
-        depth[-1, len(sentinels):] = np.inf
-    ids = cut(frame.material_id, 0)
-    opt = lambda a: None if a is None else jnp.asarray(a)
-    return Buffers(irradiance=jnp.asarray(cut(frame.irradiance, 0.0)), depth=jnp.asarray(depth),
-                   albedo=opt(cut(frame.albedo, 0.0)) if use_albedo else None, normal=opt(cut(frame.normal, 0.0)),
-                   thickness=opt(cut(frame.thickness, 0.0)),
-                   material_id=None if ids is None else jnp.asarray(ids, jnp.int32)), (ye0, xe0)
+    sy0, sy1, sx0, sx1 = max(y0 - r, 0), min(y0 + ty + r, h), max(x0 - r, 0), min(x0 + tx + r, w)
+    cut = lambda a: None if a is None else jnp.asarray(np.ascontiguousarray(a[sy0:sy1, sx0:sx1]))
+    ids = None if frame.material_id is None else jnp.asarray(frame.material_id[sy0:sy1, sx0:sx1], jnp.int32)
+    return Buffers(irradiance=cut(frame.irradiance), depth=cut(frame.depth),
+                   albedo=cut(frame.albedo) if use_albedo else None, normal=cut(frame.normal),
+                   thickness=cut(frame.thickness), material_id=ids), (sy0, sx0)
 
 
-def _check_options(technique: str, options: dict) -> None:
-    """Ranges of the batch-level parameters (the materials check their own), before any frame runs."""
-    for name in ("samples", "taps"):
-        v = options.get(name)
-        if not isinstance(v, (int, np.integer)) or v < 1:
-            raise ValueError(f"{name} must be a positive integer, got {v!r}")
-    if options["taps"] % 2 == 0:
-        raise ValueError(f"taps must be odd, got {options['taps']}")
-    r = options.get("radius_px")
-    if technique == "reference" and (not isinstance(r, (int, np.integer)) or r < 0):
-        raise ValueError(f"radius_px must be a non-negative integer, got {r!r}")
-    albedo = options.get("albedo")
+# ------------------------------------------------------------------------------------------------------------------
+# what the batch asks of the technique object (sss_jax._techniques._base.AbstractTechnique): its options, reach and
+# checks; the clamp and the work estimate follow from its count option
+# ------------------------------------------------------------------------------------------------------------------
+
+
+def _hashable(value):
+    """A hashable, JSON-able form of an option value (a record, a compile-cache key)."""
+    if value is None or isinstance(value, (bool, str, int, float)):
+        return value
+    if isinstance(value, (np.integer, np.floating, np.bool_)):
+        return value.item()
+    if isinstance(value, (jax.Array, np.ndarray)) and np.ndim(value) == 0:
+        return np.asarray(value).item()
+    if isinstance(value, eqx.Module):
+        return _material_record(value)
+    return tuple(float(v) for v in np.asarray(value, np.float64).ravel())
+
+
+def _technique_object(technique, options: dict[str, Any], material):
+    """The technique object a batch runs and its material: one given (an ``AbstractTechnique``), or the one
+    registered under a name with ``options`` (the named counts a technique does not have are not its own: the CLI
+    passes every count); the error lists the valid names. A ``(params, light)`` pair gives a technique with a
+    ``light`` field its light."""
+    if isinstance(technique, str):
+        cls = get_technique(technique)
+        fields = {f.name for f in dataclasses.fields(cls)}
+        if isinstance(material, tuple) and len(material) == 2 and "light" in fields:
+            material, options = material[0], {**options, "light": material[1]}
+        tech = make_technique(technique, **{k: v for k, v in options.items() if k in fields or k not in _NAMED})
+    else:
+        if not isinstance(technique, AbstractTechnique):
+            raise TypeError(f"technique must be a technique name or object, got {type(technique).__name__}")
+        if options:
+            raise TypeError(f"options {sorted(options)} go on the technique object itself, not to process_frames")
+        tech = technique
+    if isinstance(material, (str, pathlib.Path)):  # a preset name or file
+        from ._presets import load_preset, material_for
+
+        material = material_for(tech, load_preset(material))
+    tech.check_material(material)
+    if getattr(tech, "radius_px", 0) is None:
+        raise ValueError(f"technique {tech.name!r} in a batch needs radius_px (one window for every frame)")
+    _check_ranges(tech)
+    return tech, material
+
+
+def _check_ranges(tech) -> None:
+    """Ranges of the options a technique takes as plain values (checked when it runs; a batch checks them before
+    any frame)."""
+    albedo = getattr(tech, "albedo", None)
     if albedo is not None:
         a = np.asarray(albedo, np.float64)
         if a.shape not in ((3,), (1, 3)) or not np.all((a >= 0) & (a <= 1)):  # NaN fails both
-            raise ValueError(f"STA albedo must be 3 values in [0, 1], got {a.tolist()}")
-    t = options.get("thickness")
-    if t is not None and not (float(t) >= 0):
-        raise ValueError(f"STA thickness must be >= 0 scene units (inf: infinitely thick), got {t}")
+            raise ValueError(f"{tech.name}: albedo must be 3 values in [0, 1], got {a.tolist()}")
+    t = getattr(tech, "thickness", None)
+    if t is not None and not np.all(np.asarray(t, np.float64) >= 0):
+        raise ValueError(f"{tech.name}: thickness must be >= 0 scene units (inf: infinitely thick), got {t}")
+
+
+_NAMED = ("samples", "taps", "radius_px", "albedo", "thickness")
+
+
+def _technique_options(tech) -> dict[str, Any]:
+    """The technique's name and every option (the rules that ran: the records say what made an output), and its
+    other fields (a light) as records."""
+    out: dict[str, Any] = {"technique": tech.name}
+    for f in dataclasses.fields(tech):
+        out[f.name] = _hashable(getattr(tech, f.name))
+    return out
+
+
+def _has_seed(tech) -> bool:
+    return any(f.name == "seed" for f in dataclasses.fields(tech))
+
+
+def _with_seed(tech, seed):
+    """The technique with ``seed`` (an integer or a traced one): each frame of a sequence its own rotation."""
+    return tech.replace(seed=seed)
+
+
+def frame_number(path: str | pathlib.Path, index: int) -> int:
+    """The frame number of a sequence's file: the last run of digits in its name (``shot.0042.exr`` -> 42), else its
+    place in the batch. It goes into the rotation seed, so a frame gets the same rotation whichever share, resume
+    or subset of the sequence computes it."""
+    digits = re.findall(r"\d+", pathlib.Path(path).stem)
+    return int(digits[-1]) if digits else index
+
+
+def frame_seed(base: int, number: int) -> int:
+    """The seed of frame ``number``: ``base`` mixed with the frame number (Knuth's multiplicative hash), so frames
+    differ and neighbouring (seed, frame) pairs do not collide; reproducible."""
+    return (int(base) ^ ((int(number) * 0x9E3779B1) & 0xFFFFFFFF)) & 0xFFFFFFFF
+
+
+def _clamp(tech, buffers: Buffers, material, camera: Camera):
+    """The technique with its count clamped to what the frame's footprint can use, and the message (or ""): samples
+    of a 2D profile beyond the next power of two above the pixels of its 99.9%-energy footprint, taps of a 1D pass
+    beyond the next 2^k + 1 above the pixels it reaches, a window beyond the frame."""
+    h, w = buffers.depth.shape[-2:]
+    option = getattr(tech, "count_option", None)
+    if option == "samples" and hasattr(material, "d_mm"):
+        samples = int(tech.samples)
+        d_max = np.asarray(material.d_mm, np.float64).reshape(-1, 3).max(axis=-1)
+        d_px = _Reach.of(buffers, camera, material.count).largest(d_max, active_r99=_BURLEY_R99)[0]
+        # the power of two keeps the sequence's distinct counts, and compilations, few
+        footprint = min(math.pi * (_BURLEY_R999 * d_px) ** 2, h * w)
+        bound = _next_pow2(max(footprint, 1.0))
+        if samples > bound:
+            return tech.replace(samples=bound), (f"samples {samples} clamped to {bound}: the footprint has "
+                                                 f"{math.ceil(footprint)} pixels, more samples cannot help")
+    elif option == "taps":
+        taps = int(tech.taps)
+        footprint = 2 * int(tech.reach_px(buffers, material, camera)) + 1  # a pass reads 2 reach + 1 pixels of a row
+        bound = _next_pow2(max(footprint - 1, 1)) + 1
+        if taps > bound:
+            return tech.replace(taps=bound), (f"taps {taps} clamped to {bound}: a pass reaches {footprint} pixels, "
+                                              "more taps cannot help")
+    radius = getattr(tech, "radius_px", None)
+    if isinstance(radius, (int, np.integer)) and radius > max(1, max(h, w) - 1):
+        cap = max(1, max(h, w) - 1)  # a window past the frame reaches no further pixel
+        return tech.replace(radius_px=cap), f"radius_px {radius} clamped to {cap}: the frame is {w}x{h} pixels"
+    return tech, ""
+
+
+def _seconds_per_px(tech) -> float:
+    """Rough cost per pixel on this project's 2-core CPU (the README's timings), from the technique's counts: the
+    work estimate before the batch has measured a frame of its own."""
+    frames = int(getattr(tech, "frames", 1) or 1)
+    if isinstance(getattr(tech, "samples", None), (int, np.integer)):
+        return 1.4e-8 * int(tech.samples) * frames
+    if isinstance(getattr(tech, "taps", None), (int, np.integer)):
+        return 9e-9 * int(tech.taps)
+    if isinstance(getattr(tech, "radius_px", None), (int, np.integer)):
+        return 3e-8 * (2 * int(tech.radius_px) + 1) ** 2
+    return 4e-8
+
+
+def _cannot_place_tiles(exc: BaseException) -> bool:
+    return isinstance(exc, ValueError) and "cannot place a tile" in str(exc)
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# the run's files: manifest (merged by frame under a lock), stale temporaries
+# ------------------------------------------------------------------------------------------------------------------
+
+_RANK = {"done": 3, "skipped": 3, "failed": 1, "pending": 0}
+
+
+@contextlib.contextmanager
+def _folder_lock(folder: pathlib.Path):
+    """An exclusive ``flock`` on the folder itself (no lock file left behind): runs sharing an output folder take
+    turns merging the manifest."""
+    fd = os.open(folder, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # closing releases the lock
+
+
+class _Manifest:
+    """The manifest: the settings of the runs and one entry per frame (pending, done, failed with the message,
+    skipped, and the warnings), rewritten atomically whenever a frame finishes.
+
+    Runs into one folder at once share it: each write merges, under a lock on the folder, this run's entries into
+    what is on disk, frame by frame; an entry that says an output is complete (done/skipped) is not replaced by
+    another run's pending or failed one while that output exists (the disk holds it; that run's own result says it
+    failed). So the manifest never says a complete frame failed."""
+
+    def __init__(self, path: pathlib.Path | None, run: dict[str, Any], jobs: list["_Job"]):
+        self.path = path
+        self.run = dict(run, state="running")
+        self.run_id = f"{socket.gethostname()}-{os.getpid()}-{time.time_ns()}"
+        self.mine = {str(j.dst): {"input": str(j.src), "output": str(j.dst), "status": "pending", "message": "",
+                                  "warnings": [], "seconds": 0.0, "run": self.run_id} for j in jobs}
+        self.last: tuple[int, int] | None = None  # (inode, mtime_ns) of this run's last write: unchanged -> no merge
+        self.data: dict[str, Any] = {}
+        self.failed = False
+        self.write()
+
+    def record(self, r: "FrameResult") -> None:
+        self.mine[r.output] = {"input": r.input, "output": r.output, "status": r.status, "message": r.message,
+                               "warnings": list(r.warnings), "seconds": round(r.seconds, 4), "run": self.run_id}
+        self.write()
+
+    def close(self, state: str) -> None:
+        self.run["state"] = state
+        self.write()
+
+    def _stamp(self) -> tuple[int, int] | None:
+        try:
+            st = self.path.stat()
+        except OSError:
+            return None
+        return st.st_ino, st.st_mtime_ns
+
+    def _merged(self) -> dict[str, Any]:
+        theirs: dict[str, Any] = {}
+        if self.last is None or self._stamp() != self.last:  # another run wrote since: merge with it
+            with contextlib.suppress(OSError, ValueError):
+                theirs = json.loads(self.path.read_text())
+        if not isinstance(theirs, dict):
+            theirs = {}
+        runs = {r.get("run"): r for r in theirs.get("runs", []) if isinstance(r, dict)} if theirs else {
+            r["run"]: r for r in self.data.get("runs", [])}
+        runs[self.run_id] = dict(self.run, run=self.run_id)
+        frames = {f.get("output"): f for f in (theirs or self.data).get("frames", []) if isinstance(f, dict)}
+        for out, entry in self.mine.items():
+            old = frames.get(out)
+            keep_old = (old is not None and old.get("run") != self.run_id
+                        and _RANK.get(old.get("status"), 0) > _RANK[entry["status"]] and os.path.exists(out))
+            if not keep_old:
+                frames[out] = entry
+        return dict(self.run, runs=list(runs.values()), frames=list(frames.values()))
+
+    def write(self) -> None:
+        if self.path is None:
+            return
+        try:
+            with _folder_lock(self.path.parent):
+                self.data = self._merged()
+                write_json_atomic(self.path, self.data)
+                self.last = self._stamp()
+        except OSError as exc:  # a full disk: the frames go on, the manifest is rewritten whole at the next frame
+            if not self.failed:
+                warnings.warn(f"{self.path}: the manifest could not be written ({_describe(exc)}); it is retried "
+                              "as each frame finishes", UserWarning, stacklevel=2)
+            self.failed = True
+        else:
+            self.failed = False
+
+
+_TEMPORARY = re.compile(r"^\.(?P<name>.+)\.sss_jax-(?P<host>.+)-(?P<pid>\d+)\.[^.]+\.tmp(\.[^.]+)?$")
+_OLD_TEMPORARY = re.compile(r"^\.(?P<name>.+)\.[A-Za-z0-9_]{8}\.tmp(\.[^.]+)?$")  # before the host-pid names
+_OLD_TEMPORARY_AGE_S = 600
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def remove_stale_temporaries(outputs: Iterable[pathlib.Path]) -> list[pathlib.Path]:
+    """Remove the temporaries that writers of these outputs left behind (a run killed by SIGKILL mid-write): those
+    of a process of this host that is gone, and unnamed ones older than 10 minutes. A live writer's are kept."""
+    wanted: dict[pathlib.Path, set[str]] = {}
+    for p in outputs:
+        wanted.setdefault(p.parent, set()).add(p.name)
+    host, removed = socket.gethostname(), []
+    for folder, names in wanted.items():
+        try:
+            entries = list(os.scandir(folder))
+        except OSError:
+            continue
+        for entry in entries:
+            if not entry.name.startswith(".") or ".tmp" not in entry.name:
+                continue
+            m = _TEMPORARY.match(entry.name)
+            if m is not None:
+                stale = m["name"] in names and m["host"] == host and not _alive(int(m["pid"]))
+            else:
+                m = _OLD_TEMPORARY.match(entry.name)
+                with contextlib.suppress(OSError):
+                    stale = (m is not None and m["name"] in names
+                             and time.time() - entry.stat().st_mtime > _OLD_TEMPORARY_AGE_S)
+            if m is not None and stale:
+                with contextlib.suppress(FileNotFoundError):
+                    os.unlink(entry.path)
+                    removed.append(pathlib.Path(entry.path))
+    return removed
+
+
+def _describe(exc: BaseException, path: pathlib.Path | None = None) -> str:
+    """An error message that names the file (an ``OSError`` from a full disk says only "No space left")."""
+    text = str(exc)
+    if isinstance(exc, OSError) and exc.strerror and not isinstance(exc, SSSInputError):
+        text = exc.strerror if exc.errno is None else f"{exc.strerror} (errno {exc.errno})"
+    name = path or getattr(exc, "filename", None)
+    if name is not None and str(name) not in text and pathlib.Path(str(name)).name not in text:
+        text = f"{name}: {text}"
+    return text
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# plan: the jobs, the existing outputs, the frame's technique
+# ------------------------------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class _Job:
+    src: pathlib.Path
+    dst: pathlib.Path
+    number: int  # the frame number (rotation seed)
+
+    def files(self, png: bool) -> list[pathlib.Path]:
+        return [self.dst] + ([self.dst.with_suffix(".png")] if png else [])
+
+
+def _targets(paths, out_dir, outputs) -> list[pathlib.Path]:
+    if outputs is not None:
+        if len(outputs) != len(paths):
+            raise ValueError(f"{len(outputs)} outputs for {len(paths)} inputs")
+        targets = [pathlib.Path(o) for o in outputs]
+    elif out_dir is not None:
+        targets = output_paths(paths, out_dir)
+    else:
+        raise ValueError("give out_dir or outputs")
+    for t in targets:
+        if t.suffix.lower() != ".exr":
+            raise SSSInputError(f"{t}: outputs are linear float EXR and need the .exr extension "
+                                "(png=True / --png adds an sRGB PNG preview beside each)")
+    return targets
+
+
+def _existing_outputs(jobs: list[_Job], overwrite: bool) -> dict[pathlib.Path, dict]:
+    """The existing outputs of this share: made from the same input (resumable or recomputed) or refused."""
+    existing: dict[pathlib.Path, dict] = {}
+    foreign = []
+    for job in jobs:
+        header = _existing_output(job.dst)
+        if header is None:
+            continue
+        existing[job.dst] = header
+        made_from = header.get("sss_jax:input")
+        same_input = made_from is not None and _identity(pathlib.Path(str(made_from))) == _identity(job.src)
+        if header and not same_input and not overwrite:
+            foreign.append(f"{job.dst} exists and was made from {made_from or 'something other than sss_jax'}, "
+                           f"not {job.src}")
+    if foreign:
+        raise SSSInputError("existing outputs would be overwritten (pass overwrite=True / --overwrite to allow it, "
+                            "or choose another output folder): " + "; ".join(foreign[:10])
+                            + (f"; and {len(foreign) - 10} more" if len(foreign) > 10 else ""))
+    return existing
+
+
+def _check_folders(paths: list[pathlib.Path], create_dirs: bool) -> None:
+    probed = set()
+    for path in paths:
+        if path.is_dir():
+            raise SSSInputError(f"{path}: output path is a directory")
+        if path.parent not in probed:  # --out-dir's folders are made; a typo in -o's folder is not
+            check_writable(path, create_dirs=create_dirs)
+            probed.add(path.parent)
+
+
+def _is_complete(job: _Job, png: bool, header: dict | None, record: str) -> bool:
+    """What --resume skips for: the output records the same input and parameters, and every file of the frame
+    decodes (the EXR and, with png, its preview)."""
+    return bool(header) and header.get("sss_jax:record") == record and all(
+        exr_is_complete(p) for p in job.files(png))
+
+
+@dataclasses.dataclass
+class _FramePlan:
+    """How one frame runs: its technique (counts clamped, the frame's seed), the clamp's message and work estimate,
+    and the tile layout (None: whole)."""
+
+    tech: Any
+    notes: list[str]
+    layout: tuple[int, int] | None = None
+    overlap: int = 0
+
+
+def _work_estimate(tech, buffers: Buffers, seconds_per_px: float) -> float:
+    """Seconds this frame should take: the technique's cost per pixel (this machine's, measured on the batch's
+    frames so far, else the technique's figure for the project's 2-core CPU) times the frame's pixels."""
+    h, w = buffers.depth.shape[-2:]
+    return seconds_per_px * h * w
+
+
+def _plan_frame(tech, buffers: Buffers, material, camera: Camera, tile_pixels: int, cost: "_Cost",
+                tiles_allowed: bool = True) -> _FramePlan:
+    notes = []
+    tech, message = _clamp(tech, buffers, material, camera)
+    if message:
+        estimate = _work_estimate(tech, buffers, cost.per_px(tech))
+        notes.append(f"{message}; it runs {_count_text(tech)}, about {_seconds_text(estimate)} per frame on this "
+                     f"machine ({cost.source(tech)})")
+    plan = _FramePlan(tech, notes)
+    h, w = buffers.depth.shape[-2:]
+    seconds_per_px = cost.per_px(tech)
+    budget = min(tile_pixels, int(CALL_SECONDS / seconds_per_px) if seconds_per_px else tile_pixels)
+    if h * w <= budget or not tiles_allowed:
+        return plan
+    overlap = int(tech.reach_px(buffers, material, camera))
+    # the inner part at least as wide as the overlap: a tile never computes more than ~9x its own pixels (a wide
+    # window on a small frame then runs whole, past the work bound, rather than in tiles made of overlap)
+    side = max(math.isqrt(max(budget, 1)), 3 * overlap + 8)
+    inner = side - 2 * overlap
+    # as few tiles as fit, of equal size (1600 px in tiles of at most 1352: two of 800, not 1352 and a shifted 1352)
+    ty, tx = -(-h // -(-h // inner)), -(-w // -(-w // inner))
+    if (ty, tx) != (h, w):
+        plan.layout, plan.overlap = (ty, tx), overlap
+    return plan
+
+
+def _count_text(tech) -> str:
+    opts = _technique_options(tech)
+    shown = [f"{opts[k]} {k.replace('_', ' ')}" for k in ("samples", "taps", "radius_px", "frames") if k in opts]
+    return ", ".join(shown) or "its options"
+
+
+def _seconds_text(s: float) -> str:
+    return f"{s:.2g} s" if s < 120 else f"{s / 60:.1f} min"
+
+
+class _Cost:
+    """Seconds per pixel per unit of the technique's count, as this batch measures them (frame seconds over the
+    estimate from the technique's own figure): the work estimate for the next frames."""
+
+    def __init__(self):
+        self.ratio: float | None = None
+
+    def per_px(self, tech) -> float:
+        return _seconds_per_px(tech) * (self.ratio or 1.0)
+
+    def source(self, tech) -> str:
+        return "measured on this batch's frames" if self.ratio else "the technique's cost per pixel on a 2-core CPU"
+
+    def measured(self, tech, pixels: int, seconds: float) -> None:
+        if pixels and seconds > 0:
+            r = seconds / (_seconds_per_px(tech) * pixels)
+            self.ratio = r if self.ratio is None else 0.7 * self.ratio + 0.3 * r
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# running a frame: whole (eager: the technique's host-side work, compaction and checks, as a single call gets),
+# vmapped over devices, or in tiles
+# ------------------------------------------------------------------------------------------------------------------
+
+_TECHNIQUE_WARNINGS = (SamplingWarning, ReferenceWindowWarning)
+
+
+def _material_count(material) -> int:
+    """Rows of the material table (one for STA's (params, light) pair)."""
+    return int(getattr(material, "count", 1))
+
+
+def _run_whole(tech, buffers, material, camera) -> tuple[np.ndarray, list[str]]:
+    """One frame, as a single call of the technique runs it; its own warnings are the frame's."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", UserWarning)
+        out = np.asarray(tech(buffers, material, camera))
+    return out, [str(w.message) for w in caught if issubclass(w.category, _TECHNIQUE_WARNINGS)]
+
+
+_TRACES = [0]
+
+
+@eqx.filter_jit
+def _run_group(tech, material, buffers: Buffers, camera: Camera, seeds):
+    _TRACES[0] += 1  # runs once per trace: one per (technique, shape, buffers present)
+
+    def one(b, c, seed):
+        t = tech if seeds is None else _with_seed(tech, seed)
+        return t(b, material, c)
+
+    return jax.vmap(one)(buffers, camera, seeds)
+
+
+def _run_tiled(tech, frame: Frame, use_albedo: bool, material, camera: Camera, plan: _FramePlan, on_tile) -> np.ndarray:
+    """The frame in tiles overlapping by the technique's reach; each tile says where it lies in the frame
+    (``origin``, ``frame_shape``), so the rotation hash and the frame border are the frame's."""
+    ty, tx = plan.layout
+    h, w = frame.shape
+    r = plan.overlap
+    out = np.empty((h, w, 3), np.float32)
+    count = _material_count(material)
+    for y, x in [(y, x) for y in _starts(h, ty) for x in _starts(w, tx)]:
+        b, (oy, ox) = _tile(frame, y, x, ty, tx, r, use_albedo)
+        validate_buffers(b, materials=count)
+        with warnings.catch_warnings():  # the frame's warnings were computed on the whole frame (check)
+            for category in _TECHNIQUE_WARNINGS:
+                warnings.simplefilter("ignore", category)
+            res = np.asarray(tech(b, material, camera, origin=(oy, ox), frame_shape=(h, w)))
+        out[y:y + ty, x:x + tx] = res[y - oy:y - oy + ty, x - ox:x - ox + tx]
+        on_tile()
+    return out
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# warnings reach the user: once per batch where they repeat
+# ------------------------------------------------------------------------------------------------------------------
+
+
+class _Warnings:
+    def __init__(self, bar):
+        self.seen: dict[str, int] = {}
+        self.bar = bar
+
+    def frame(self, src: pathlib.Path, messages: list[str]) -> None:
+        for m in messages:
+            n = self.seen.get(m, 0)
+            self.seen[m] = n + 1
+            if n == 0:
+                warnings.warn(f"{src}: {m}", _category(m), stacklevel=3)
+
+    def summary(self) -> None:
+        for m, n in self.seen.items():
+            if n > 1:
+                text = f"the same warning for {n - 1} more frame(s): {m}"
+                if self.bar is not None:
+                    self.bar.write(text)
+                else:
+                    print(f"sss_jax: {text}", file=sys.stderr)
+
+
+def _category(message: str) -> type[Warning]:
+    if message.startswith("reference:"):
+        return ReferenceWindowWarning
+    if "clamped to" in message:
+        return UserWarning
+    return SamplingWarning
 
 
 # ------------------------------------------------------------------------------------------------------------------
@@ -513,18 +889,186 @@ def _check_options(technique: str, options: dict) -> None:
 # ------------------------------------------------------------------------------------------------------------------
 
 
-class _Group(eqx.Module):
-    buffers: Buffers
-    camera: Camera
-
-
 def _camera(frame: Frame) -> Camera:
     return Camera(frame.focal_px, frame.mm_per_unit if frame.mm_per_unit is not None else 1.0)
 
 
+class _Batch:
+    """One run's state: the technique and material, the records, the manifest, the results, the progress."""
+
+    def __init__(self, tech, material, *, parameters, header, png, half, existing, book, signals, bar, on_frame_done,
+                 devices):
+        self.tech, self.material, self.parameters, self.header = tech, material, parameters, header
+        self.png, self.half, self.existing, self.book, self.signals = png, half, existing, book, signals
+        self.bar, self.on_frame_done, self.devices = bar, on_frame_done, devices
+        self.results: list[FrameResult] = []
+        self.warned = _Warnings(bar)
+        self.cost = _Cost()
+        self.pending: dict[tuple, list[dict]] = {}
+        self.seeded = _has_seed(tech)
+        self.tiles_allowed = True
+        self.base_seed = int(np.asarray(tech.seed)) if self.seeded else 0
+        if len(devices) > 1:
+            mesh = jax.sharding.Mesh(np.asarray(devices), ("frames",))
+            self.sharded = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("frames"))
+
+    # -- records
+    def seed_of(self, job: _Job) -> int | None:
+        return frame_seed(self.base_seed, job.number) if self.seeded else None
+
+    def record(self, job: _Job, tech=None) -> tuple[dict[str, str], str]:
+        params = dict(self.parameters)
+        if self.seeded:
+            params["frame_seed"] = self.seed_of(job)
+        return _resume_record(job.src, params)
+
+    # -- results
+    def finish(self, r: FrameResult) -> None:
+        with self.signals.critical():  # a skipped or failed frame's entry too: the manifest never lags the results
+            self.results.append(r)
+            self.book.record(r)
+        if len(self.results) % 64 == 0:
+            _release_free_memory()
+        if self.bar is not None:
+            self.bar.update(1)
+            if r.status == "failed":
+                self.bar.write(f"FAILED {r.input}: {r.message}")
+        if self.on_frame_done is not None:
+            self.on_frame_done(r)
+
+    def fail(self, job: _Job, exc: BaseException, path: pathlib.Path | None = None) -> None:
+        self.finish(FrameResult(str(job.src), str(job.dst), "failed", _describe(exc, path or job.src)))
+
+    def write(self, job: _Job, image: np.ndarray, camera: Camera, tech, seconds: float, notes: list[str],
+              warned: list[str]) -> None:
+        """The frame's files (the PNG preview first, then the EXR: an EXR with its resume record means the frame
+        is complete), atomically, and its manifest entry together with them; a failure names the file and the
+        frame fails, the batch goes on."""
+        self.warned.frame(job.src, notes + warned)
+        rules = {k: v for k, v in _technique_options(tech).items() if k != "technique"}
+        attrs = {**self.header, **self.record(job)[0], "sss_jax:technique": _technique_options(tech)["technique"],
+                 "sss_jax:focal_px": float(camera.focal_px), "sss_jax:mm_per_unit": float(camera.mm_per_unit),
+                 "sss_jax:rules": json.dumps(rules, sort_keys=True)}
+        for name in ("samples", "taps", "radius_px"):
+            if isinstance(rules.get(name), int):
+                attrs[f"sss_jax:{name}"] = int(rules[name])
+        if self.seeded:
+            attrs["sss_jax:seed"] = str(self.seed_of(job))  # a uint32: past a header int
+        preview = job.dst.with_suffix(".png")
+        fresh_png = self.png and not preview.exists()
+        current = preview if self.png else job.dst
+        with self.signals.critical():  # the files and their manifest entry together, or neither
+            try:
+                if self.png:
+                    write_png_preview(preview, image, overwrite=True)
+                current = job.dst
+                write_exr(job.dst, image, channel_names=["R", "G", "B"], half=self.half, attributes=attrs,
+                          overwrite=job.dst in self.existing)
+            except (OSError, ValueError) as exc:
+                if current == job.dst and fresh_png:  # no preview of a frame that has no output
+                    with contextlib.suppress(OSError):
+                        preview.unlink()
+                self.fail(job, exc, current)
+                return
+            self.finish(FrameResult(str(job.src), str(job.dst), "done", "; ".join(notes + warned), seconds=seconds,
+                                    warnings=notes + warned))
+
+    # -- computing
+    def read(self, job: _Job, read_options: dict, use_albedo: bool):
+        frame = read_frame(job.src, **read_options)
+        if frame.focal_px is None:
+            raise SSSInputError(f"{job.src}: no focal length (pass focal_px or put sss_jax:focal_px in the header)")
+        camera = _camera(frame)
+        buffers = frame.to_buffers(use_albedo=use_albedo)
+        validate_buffers(buffers, materials=_material_count(self.material))
+        return frame, buffers, camera
+
+    def run(self, job: _Job, read_options: dict, use_albedo: bool, tile_pixels: int) -> None:
+        t0 = time.perf_counter()
+        try:
+            frame, buffers, camera = self.read(job, read_options, use_albedo)
+            tech = self.tech if not self.seeded else _with_seed(self.tech, self.seed_of(job))
+            plan = _plan_frame(tech, buffers, self.material, camera, tile_pixels, self.cost, self.tiles_allowed)
+            if plan.layout is None and len(self.devices) > 1:
+                # several devices: frames grouped and vmapped; checks on the host before tracing
+                warned = [str(w) for w in plan.tech.check(buffers, self.material, camera)]
+                self.queue(job, buffers, camera, plan, warned, time.perf_counter() - t0)
+                return
+            image = None
+            if plan.layout is not None:
+                warned = [str(w) for w in plan.tech.check(buffers, self.material, camera)]
+                try:
+                    image = self.tiled(job, frame, camera, plan, use_albedo)
+                except ValueError as exc:
+                    if not _cannot_place_tiles(exc):
+                        raise
+                    self.tiles_allowed = False  # this technique cannot place a tile yet: frames run whole
+            if image is None:
+                image, warned = _run_whole(plan.tech, buffers, self.material, camera)
+        except (OSError, ValueError) as exc:
+            self.fail(job, exc)
+            return
+        seconds = time.perf_counter() - t0
+        self.cost.measured(plan.tech, frame.shape[0] * frame.shape[1], seconds)
+        self.write(job, image, camera, plan.tech, seconds, plan.notes, warned)
+
+    def tiled(self, job, frame, camera, plan, use_albedo) -> np.ndarray:
+        ty, tx = plan.layout
+        h, w = frame.shape
+        count = len(_starts(h, ty)) * len(_starts(w, tx))
+        tile_bar = None
+        if self.bar is not None:
+            from tqdm.auto import tqdm
+
+            tile_bar = tqdm(total=count, unit="tile", desc=f"{job.src.name} ({w}x{h})", leave=False)
+        try:
+            return _run_tiled(plan.tech, frame, use_albedo, self.material, camera, plan,
+                              (lambda: tile_bar.update(1)) if tile_bar is not None else (lambda: None))
+        finally:
+            if tile_bar is not None:
+                tile_bar.close()
+
+    def queue(self, job, buffers, camera, plan, warned, read_s) -> None:
+        present = tuple(getattr(buffers, n) is not None for n in ("albedo", "normal", "thickness", "material_id"))
+        key = (buffers.depth.shape, present, _technique_options(plan.tech).get("samples"),
+               _technique_options(plan.tech).get("taps"), _technique_options(plan.tech).get("radius_px"))
+        self.pending.setdefault(key, []).append(dict(job=job, buffers=buffers, camera=camera, plan=plan,
+                                                     warned=warned, read_s=read_s))
+        if len(self.pending[key]) == len(self.devices):
+            self.flush(key)
+
+    def flush(self, key) -> None:
+        items = self.pending.pop(key)
+        n = len(self.devices)
+        padded = items + [items[-1]] * (n - len(items))  # the last group repeats a frame to fill every device
+        stack = lambda *xs: jnp.stack(xs)
+        buffers = jax.device_put(jax.tree.map(stack, *[it["buffers"] for it in padded]), self.sharded)
+        cameras = jax.device_put(jax.tree.map(stack, *[it["camera"] for it in padded]), self.sharded)
+        seeds = None
+        tech = items[0]["plan"].tech
+        if self.seeded:  # one program for the group, the frames' seeds traced
+            seeds = jax.device_put(jnp.asarray([self.seed_of(it["job"]) for it in padded], jnp.uint32), self.sharded)
+            tech = _with_seed(tech, 0)
+        t0 = time.perf_counter()
+        try:
+            out = np.asarray(_run_group(tech, self.material, buffers, cameras, seeds))
+        except Exception as exc:  # noqa: BLE001 - a failed group fails its frames, not the batch
+            for it in items:
+                self.fail(it["job"], exc)
+            return
+        dt = (time.perf_counter() - t0) / len(items)
+        for k, it in enumerate(items):
+            self.write(it["job"], out[k], it["camera"], it["plan"].tech, dt + it["read_s"], it["plan"].notes,
+                       it["warned"])
+
+    def flush_all(self) -> None:
+        for key in list(self.pending):
+            self.flush(key)
+
+
 def process_frames(
     inputs: str | pathlib.Path | Iterable[str | pathlib.Path],
-    technique: str,
+    technique,
     material,
     *,
     out_dir: str | pathlib.Path | None = None,
@@ -537,9 +1081,10 @@ def process_frames(
     use_albedo_pass: bool = True,
     sta_albedo=None,
     sta_thickness: float | None = None,
-    samples: int = 32,
-    taps: int = 25,
+    samples: int | None = None,
+    taps: int | None = None,
     radius_px: int | None = None,
+    technique_options: dict[str, Any] | None = None,
     half: bool = False,
     resume: bool = True,
     overwrite: bool = False,
@@ -555,258 +1100,94 @@ def process_frames(
     with the ``.exr`` extension (or the given ``outputs``, one per input, each ending in ``.exr``), with an sRGB PNG
     preview beside each when ``png``.
 
-    ``material``: a preset name or file (see ``_presets``), a ``BurleyMaterial`` / ``TwoGaussianMaterial`` (rows
-    per material id), or ``(STAParams, DirectionalLight)`` for ``"sta"`` (with ``sta_albedo (3,)`` in [0, 1] where
-    frames carry no albedo and ``sta_thickness`` >= 0 in scene units where they carry no thickness). ``radius_px``
-    is required for ``"reference"`` (one window for the sequence).
+    ``technique``: a technique object (its options are its fields) or a registered name with its options
+    (``samples`` for burley, ``taps`` for separable, ``radius_px`` for reference (required: one window for the
+    sequence), ``sta_albedo (3,)`` in [0, 1] and ``sta_thickness`` >= 0 scene units for sta, any other option of the
+    technique in ``technique_options``, e.g. ``{"pattern": "fixed", "border": "renormalise", "seed": 7}``).
+    ``material``: a preset name or file (see ``_presets``), the technique's material (rows per material id), or
+    ``(STAParams, DirectionalLight)`` for ``"sta"``. A technique with a ``seed`` gets, per frame, the seed mixed with
+    the frame number (the last digits of the file name; ``frame_seed``): each frame its own rotation, reproducibly.
 
-    - ``resume``: skip a frame whose output is complete and records the same input (path, size, mtime), technique,
-      parameters and sss_jax version; every other frame is computed.
+    - ``resume``: skip a frame whose output records the same input (path, size, mtime), technique, options and seed,
+      parameters and sss_jax version, and whose files all decode (the EXR and, with ``png``, the preview); every
+      other frame is computed.
     - ``overwrite``: allow replacing an existing output that was not made from the same input (refused otherwise,
       before any frame runs).
     - ``manifest``: ``True`` writes ``out_dir/sss_jax_manifest.json`` (``sss_jax_manifest.<process index>.json``
       when several processes share the batch; none with ``outputs``), a path writes there, ``None``/``False`` none.
-    - ``tile_pixels``: the most pixels (overlap included) one call of the technique sees; larger frames run in
-      tiles overlapping by the kernel's reach, which reproduce the untiled frame.
+      Runs into one folder merge their entries frame by frame under a lock on the folder.
+    - ``tile_pixels``: the most pixels (overlap included) one call of the technique sees; larger frames (or frames
+      whose work would keep one call busy for more than about a second) run in tiles overlapping by the technique's
+      reach, each told its origin in the frame and the frame's shape: the untiled frame's pixels.
+
+    Every file is written atomically (a temporary beside it, fsync, verified to decode, renamed); temporaries that
+    killed runs left beside this run's outputs are removed first. Counts beyond what the frame's footprint can use
+    are clamped, with the count run and a work estimate; the technique's sampling and window warnings are computed
+    for every frame, warned about once per batch, and recorded per frame (message, manifest).
 
     Returns a per-frame status list; raises (``SSSInputError``/``ValueError``/``TypeError``, nothing written) only
     where the whole batch is impossible, and ``Interrupted`` (a ``KeyboardInterrupt``) on SIGINT/SIGTERM after
     recording the finished frames in the manifest.
     """
-    if technique not in TECHNIQUES:
-        raise ValueError(f"unknown technique {technique!r}; valid techniques: {', '.join(TECHNIQUES)}")
-    if isinstance(material, (str, pathlib.Path)):  # a preset name or file
-        from ._presets import load_preset, material_for
-
-        material = material_for(technique, load_preset(material))
-        if technique == "sta":
-            raise TypeError("technique 'sta' needs material=(STAParams, DirectionalLight): a preset gives no light")
-    if technique == "sta":
-        if not (isinstance(material, tuple) and len(material) == 2 and isinstance(material[0], STAParams)
-                and isinstance(material[1], DirectionalLight)):
-            raise TypeError("technique 'sta' needs material=(STAParams, DirectionalLight)")
-    elif not isinstance(material, (BurleyMaterial, TwoGaussianMaterial, ProfileMaterial)):
-        raise TypeError(f"material must be a BurleyMaterial or TwoGaussianMaterial, got {type(material).__name__}")
-    if technique == "reference" and radius_px is None:
-        raise ValueError("technique 'reference' in a batch needs radius_px (one window for every frame)")
+    named = {k: v for k, v in dict(samples=samples, taps=taps, radius_px=radius_px, albedo=sta_albedo,
+                                    thickness=sta_thickness).items() if v is not None}
+    tech, material = _technique_object(technique, {**named, **dict(technique_options or {})}, material)
     if not (isinstance(tile_pixels, (int, np.integer)) and tile_pixels >= 1):
         raise ValueError(f"tile_pixels must be a positive integer, got {tile_pixels!r}")
-    options = dict(samples=samples, taps=taps, radius_px=radius_px, albedo=sta_albedo, thickness=sta_thickness)
-    _check_options(technique, options)
 
     paths = expand_inputs(inputs)
-    if outputs is not None:
-        if len(outputs) != len(paths):
-            raise ValueError(f"{len(outputs)} outputs for {len(paths)} inputs")
-        targets = [pathlib.Path(o) for o in outputs]
-    elif out_dir is not None:
-        out_dir = pathlib.Path(out_dir)
-        targets = output_paths(paths, out_dir)
-    else:
-        raise ValueError("give out_dir or outputs")
-    for t in targets:
-        if t.suffix.lower() != ".exr":
-            raise SSSInputError(f"{t}: outputs are linear float EXR and need the .exr extension "
-                                "(png=True / --png adds an sRGB PNG preview beside each)")
+    targets = _targets(paths, None if out_dir is None else pathlib.Path(out_dir), outputs)
     pi = jax.process_index() if process_index is None else process_index
     pc = jax.process_count() if process_count is None else process_count
     if manifest is True:
-        manifest = None if out_dir is None else out_dir / (MANIFEST_NAME if pc == 1 else
-                                                            MANIFEST_NAME.replace(".json", f".{pi}.json"))
+        manifest = None if out_dir is None else pathlib.Path(out_dir) / (
+            MANIFEST_NAME if pc == 1 else MANIFEST_NAME.replace(".json", f".{pi}.json"))
     manifest = pathlib.Path(manifest) if manifest not in (None, False) else None
-    all_jobs = list(zip(paths, targets))
-    _check_plan(all_jobs, png, manifest)
+    all_jobs = [_Job(src, dst, frame_number(src, i)) for i, (src, dst) in enumerate(zip(paths, targets))]
+    _check_plan([(j.src, j.dst) for j in all_jobs], png, manifest)
     jobs = frames_for_process(all_jobs, pi, pc)
+    existing = _existing_outputs(jobs, overwrite)
+    _check_folders([j.dst for j in jobs] + ([manifest] if manifest is not None else []), out_dir is not None)
+    remove_stale_temporaries([p for j in jobs for p in j.files(png)] + ([manifest] if manifest is not None else []))
 
-    # the existing outputs of this share: made from the same input (resumable or recomputed) or refused
-    existing: dict[pathlib.Path, dict] = {}
-    foreign = []
-    for src, dst in jobs:
-        header = _existing_output(dst)
-        if header is None:
-            continue
-        existing[dst] = header
-        made_from = header.get("sss_jax:input")
-        same_input = made_from is not None and _identity(pathlib.Path(str(made_from))) == _identity(src)
-        if header and not same_input and not overwrite:
-            foreign.append(f"{dst} exists and was made from {made_from or 'something other than sss_jax'}, "
-                           f"not {src}")
-    if foreign:
-        raise SSSInputError("existing outputs would be overwritten (pass overwrite=True / --overwrite to allow it, "
-                            "or choose another output folder): " + "; ".join(foreign[:10])
-                            + (f"; and {len(foreign) - 10} more" if len(foreign) > 10 else ""))
-    probed = set()
-    for path in [dst for _, dst in jobs] + ([manifest] if manifest is not None else []):
-        if path.is_dir():
-            raise SSSInputError(f"{path}: output path is a directory")
-        if path.parent not in probed:  # --out-dir's folders are made; a typo in -o's folder is not
-            check_writable(path, create_dirs=out_dir is not None)
-            probed.add(path.parent)
+    from ._version import __version__
 
-    devices = list(jax.devices() if devices is None else devices)
-    mesh = jax.sharding.Mesh(np.asarray(devices), ("frames",))
-    sharded = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("frames"))
-    parameters = {"technique": technique, "material": _material_record(material), "half": bool(half),
+    parameters = {**_technique_options(tech), "material": _material_record(material), "half": bool(half),
                   "focal_px": focal_px, "mm_per_unit": mm_per_unit, "depth_kind": depth_kind,
-                  "use_albedo_pass": bool(use_albedo_pass), "png": bool(png), "channel_map": _channel_map_record(
-                      channel_map)}
-    parameters.update({k: (np.asarray(v, np.float64).tolist() if v is not None and k == "albedo" else v)
-                       for k, v in options.items() if _used(technique, k)})
-    header = _material_attributes(material)
-    traces = {"count": 0}
-
-    @eqx.filter_jit
-    def run_group(group: _Group, opts_key: tuple):
-        traces["count"] += 1  # runs once per trace: one per (shape, buffers present, options)
-        opts = dict(opts_key)
-        return jax.vmap(lambda b, c: _run_technique(technique, b, material, c, opts))(group.buffers, group.camera)
-
-    results: list[FrameResult] = []
+                  "use_albedo_pass": bool(use_albedo_pass), "png": bool(png),
+                  "channel_map": _channel_map_record(channel_map)}
     bar = None
     if progress:
         from tqdm.auto import tqdm
 
-        bar = tqdm(total=len(jobs), unit="frame", desc=f"sss-jax {technique}")
-    from ._version import __version__
-
-    book = _Manifest(manifest, {"sss_jax_version": __version__, "technique": technique, "parameters": parameters,
-                                "process_index": pi, "process_count": pc}, jobs)
-    pending: dict[tuple, list] = {}
+        bar = tqdm(total=len(jobs), unit="frame", desc=f"sss-jax {parameters['technique']}")
+    book = _Manifest(manifest, {"sss_jax_version": __version__, "technique": parameters["technique"],
+                                "parameters": parameters, "process_index": pi, "process_count": pc}, jobs)
     signals = _Signals()
-
-    def finish(r: FrameResult):
-        with signals.critical():  # a skipped or failed frame's entry too: the manifest never lags the results
-            results.append(r)
-            book.record(r)
-        if len(results) % 64 == 0:
-            _release_free_memory()
-        if bar is not None:
-            bar.update(1)
-            if r.status == "failed":
-                bar.write(f"FAILED {r.input}: {r.message}")
-        if on_frame_done is not None:
-            on_frame_done(r)
-
-    def write_frame(src, dst, image, cam, seconds, note):
-        attrs = {**header, **_resume_record(src, parameters)[0], "sss_jax:technique": technique,
-                 "sss_jax:focal_px": float(cam.focal_px), "sss_jax:mm_per_unit": float(cam.mm_per_unit)}
-        for name in ("samples", "taps", "radius_px"):
-            if _used(technique, name):
-                attrs[f"sss_jax:{name}"] = int(note["options"][name])
-        fresh = dst not in existing
-        try:
-            with signals.critical():  # the files and their manifest entry together, or neither
-                write_exr(dst, image, channel_names=["R", "G", "B"], half=half, attributes=attrs, overwrite=not fresh)
-                if png:
-                    write_png_preview(dst.with_suffix(".png"), image, overwrite=True)
-                finish(FrameResult(str(src), str(dst), "done", note["warning"], seconds=seconds))
-        except (OSError, ValueError) as exc:
-            finish(FrameResult(str(src), str(dst), "failed", str(exc)))
-
-    def flush(key):
-        items = pending.pop(key)
-        n = len(devices)
-        padded = items + [items[-1]] * (n - len(items))  # the last group repeats a frame to fill every device
-        stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *[_Group(it["buffers"], it["camera"]) for it in padded])
-        stacked = jax.device_put(stacked, sharded)
-        t0 = time.perf_counter()
-        try:
-            out = np.asarray(run_group(stacked, key[-1]))
-        except Exception as exc:  # noqa: BLE001 - a failed group fails its frames, not the batch
-            for it in items:
-                finish(FrameResult(str(it["src"]), str(it["dst"]), "failed", f"{type(exc).__name__}: {exc}"))
-            return
-        dt = (time.perf_counter() - t0) / len(items)
-        for k, it in enumerate(items):
-            write_frame(it["src"], it["dst"], out[k], it["camera"], dt + it["read_s"], it)
-
-    def run_tiled(src, dst, frame, cam, plan, layout, t0):
-        ty, tx = layout
-        h, w = frame.shape
-        r = plan.overlap
-        count = 1 if technique == "sta" else material.count
-        out = np.empty((h, w, 3), np.float32)
-        tiles = [(y, x) for y in _starts(h, ty) for x in _starts(w, tx)]
-        tile_bar = None
-        if bar is not None:
-            from tqdm.auto import tqdm
-
-            tile_bar = tqdm(total=len(tiles), unit="tile", desc=f"{src.name} ({w}x{h})", leave=False)
-        cx, cy = cam.principal_point if cam.principal_point is not None else (w / 2, h / 2)
-        try:
-            for y, x in tiles:
-                b, (ye0, xe0) = _tile(frame, y, x, ty, tx, r, plan.sentinels if technique == "separable" else (),
-                                      use_albedo_pass)
-                validate_buffers(b, materials=count)
-                tile_cam = cam if technique != "sta" else Camera(cam.focal_px, cam.mm_per_unit,
-                                                                 principal_point=(cx - xe0, cy - ye0))
-                res = np.asarray(_run_technique(technique, b, material, tile_cam, plan.options,
-                                                TILE_RULES.get(technique)))
-                out[y:y + ty, x:x + tx] = res[r:r + ty, r:r + tx]
-                if tile_bar is not None:
-                    tile_bar.update(1)
-        finally:
-            if tile_bar is not None:
-                tile_bar.close()
-        write_frame(src, dst, out, cam, time.perf_counter() - t0,
-                    {"options": plan.options, "warning": plan.warning})
-
+    run = _Batch(tech, material, parameters=parameters, header=_material_attributes(material), png=png, half=half,
+                 existing=existing, book=book, signals=signals, bar=bar, on_frame_done=on_frame_done,
+                 devices=list(jax.devices() if devices is None else devices))
+    read_options = dict(channel_map=channel_map, focal_px=focal_px, mm_per_unit=mm_per_unit, depth_kind=depth_kind)
+    traces = _TRACES[0]
     state = "interrupted"
     try:
         with signals:
-            for src, dst in jobs:
-                record = _resume_record(src, parameters)[1]
-                old = existing.get(dst)
-                if (resume and old and old.get("sss_jax:record") == record and exr_is_complete(dst)
-                        and (not png or dst.with_suffix(".png").exists())):
-                    finish(FrameResult(str(src), str(dst), "skipped", "complete output of the same input and "
-                                       "parameters"))
+            for job in jobs:
+                if resume and _is_complete(job, png, existing.get(job.dst), run.record(job)[1]):
+                    run.finish(FrameResult(str(job.src), str(job.dst), "skipped", "complete output of the same "
+                                           "input and parameters"))
                     continue
-                t0 = time.perf_counter()
-                try:
-                    frame = read_frame(src, channel_map=channel_map, focal_px=focal_px, mm_per_unit=mm_per_unit,
-                                       depth_kind=depth_kind)
-                    if frame.focal_px is None:
-                        raise SSSInputError(f"{src}: no focal length (pass focal_px or put sss_jax:focal_px in the "
-                                            "header)")
-                    camera = _camera(frame)
-                    plan = _frame_plan(technique, frame, material if technique != "sta" else None, camera, options)
-                    if plan.warning:
-                        warnings.warn(f"{src}: {plan.warning}", stacklevel=2)
-                    layout = _tile_layout(*frame.shape, plan, int(tile_pixels))
-                    if layout is None:
-                        buffers = frame.to_buffers(use_albedo=use_albedo_pass)
-                        count = 1 if technique == "sta" else material.count
-                        validate_buffers(buffers, materials=count)
-                except (OSError, ValueError) as exc:
-                    finish(FrameResult(str(src), str(dst), "failed", str(exc)))
-                    continue
-                if layout is not None:
-                    try:
-                        run_tiled(src, dst, frame, camera, plan, layout, t0)
-                    except (OSError, ValueError) as exc:
-                        finish(FrameResult(str(src), str(dst), "failed", str(exc)))
-                    continue
-                present = tuple(getattr(buffers, n) is not None
-                                for n in ("albedo", "normal", "thickness", "material_id"))
-                opts_key = tuple((k, _static(plan.options[k])) for k in ("samples", "taps", "radius_px", "albedo",
-                                                                          "thickness") if _used(technique, k))
-                key = (buffers.depth.shape, present, opts_key)
-                pending.setdefault(key, []).append(dict(src=src, dst=dst, buffers=buffers, camera=camera,
-                                                        read_s=time.perf_counter() - t0, options=plan.options,
-                                                        warning=plan.warning))
-                if len(pending[key]) == len(devices):
-                    flush(key)
-            for key in list(pending):
-                flush(key)
+                run.run(job, read_options, use_albedo_pass, int(tile_pixels))
+            run.flush_all()
         state = "complete"
     finally:
         with contextlib.suppress(OSError, ValueError):
             book.close(state)
         if bar is not None:
             bar.close()
-    return BatchResult(frames=results, compilations=traces["count"], manifest=None if manifest is None
-                       else str(manifest))
+        run.warned.summary()
+    return BatchResult(frames=run.results, compilations=_TRACES[0] - traces,
+                       manifest=None if manifest is None else str(manifest))
 
 
 @functools.lru_cache(maxsize=1)
@@ -824,19 +1205,6 @@ def _release_free_memory() -> None:
     trim = _malloc_trim()
     if trim is not None:
         trim(0)
-
-
-def _used(technique: str, name: str) -> bool:
-    return {"samples": technique == "burley", "taps": technique == "separable",
-            "radius_px": technique == "reference", "albedo": technique == "sta",
-            "thickness": technique == "sta"}[name]
-
-
-def _static(value):
-    """A hashable form of an option (a compile-cache key)."""
-    if value is None or isinstance(value, (int, float, np.integer, np.floating)):
-        return value
-    return tuple(float(v) for v in np.asarray(value, np.float64).ravel())
 
 
 def _channel_map_record(channel_map) -> Any:

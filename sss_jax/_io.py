@@ -27,9 +27,10 @@ import errno
 import json
 import os
 import pathlib
+import socket
 import tempfile
 import warnings
-from typing import Any, Iterator, Mapping
+from typing import Any, Callable, Iterator, Mapping
 
 import numpy as np
 
@@ -506,9 +507,18 @@ def check_writable(path: str | os.PathLike, *, create_dirs: bool = True) -> path
     return path
 
 
+def temporary_prefix(path: str | os.PathLike) -> str:
+    """How ``atomic_path`` names the temporaries beside ``path``: ``.<name>.sss_jax-<host>-<pid>.<random>.tmp<ext>``,
+    so a later run can tell the temporaries of a writer that is gone (SIGKILL) from those of one still writing."""
+    return f".{pathlib.Path(path).name}.sss_jax-{socket.gethostname()}-{os.getpid()}."
+
+
 @contextlib.contextmanager
-def atomic_path(path: str | os.PathLike, *, overwrite: bool = True) -> Iterator[pathlib.Path]:
-    """Yield a temporary path beside ``path``; on success move it into place, on any failure remove it.
+def atomic_path(path: str | os.PathLike, *, overwrite: bool = True,
+                verify: Callable[[pathlib.Path], bool] | None = None) -> Iterator[pathlib.Path]:
+    """Yield a temporary path beside ``path``; on success flush it to the disk (fsync), check it with ``verify``
+    (a writer that loses a failed write, as OpenImageIO's PNG writer does on a full disk, leaves a file that does
+    not decode), move it into place and fsync the folder; on any failure remove it.
 
     ``overwrite=False`` places it only if ``path`` does not exist at that moment (a hard link, atomic across
     processes): a file another process created meanwhile is never replaced, an ``SSSInputError`` says so."""
@@ -518,11 +528,16 @@ def atomic_path(path: str | os.PathLike, *, overwrite: bool = True) -> Iterator[
         raise SSSInputError(f"{directory}: output directory does not exist")
     if not os.access(directory, os.W_OK):
         raise SSSInputError(f"{directory}: output directory is not writable")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=directory)
+    fd, tmp = tempfile.mkstemp(prefix=temporary_prefix(path), suffix=".tmp" + path.suffix, dir=directory)
     os.close(fd)
     tmp_path = pathlib.Path(tmp)
     try:
         yield tmp_path
+        with open(tmp_path, "rb+") as f:
+            os.fsync(f.fileno())
+        if verify is not None and not verify(tmp_path):
+            raise OSError(errno.EIO, f"{path}: the written file does not decode (disk full or an I/O error while "
+                                     "writing); nothing was placed")
         # mkstemp creates 0600; a finished output gets the permissions an ordinary file would (0666 less umask)
         umask = os.umask(0)
         os.umask(umask)
@@ -531,6 +546,12 @@ def atomic_path(path: str | os.PathLike, *, overwrite: bool = True) -> Iterator[
             os.replace(tmp_path, path)
         else:
             _place_new(tmp_path, path)
+        with contextlib.suppress(OSError):  # the rename on the disk too (a folder fsync is not possible everywhere)
+            dfd = os.open(directory, os.O_RDONLY)
+            try:
+                os.fsync(dfd)
+            finally:
+                os.close(dfd)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             tmp_path.unlink()
@@ -626,7 +647,7 @@ def write_exr(
             spec.attribute(key, float(value))
         else:
             spec.attribute(key, str(value))
-    with atomic_path(path, overwrite=overwrite) as tmp:
+    with atomic_path(path, overwrite=overwrite, verify=exr_is_complete) as tmp:
         out = oiio.ImageOutput.create(str(tmp))
         if out is None or not out.open(str(tmp), spec):
             raise SSSInputError(f"{path}: cannot open for writing ({oiio.geterror()})")
@@ -667,7 +688,7 @@ def write_png_preview(path: str | os.PathLike, image: np.ndarray, *, exposure: f
     h, w, c = data.shape
     spec = oiio.ImageSpec(w, h, c, oiio.UINT8)
     spec.attribute("oiio:ColorSpace", "sRGB")  # the values went through the sRGB OETF above: the label is true
-    with atomic_path(path, overwrite=overwrite) as tmp:
+    with atomic_path(path, overwrite=overwrite, verify=exr_is_complete) as tmp:
         out = oiio.ImageOutput.create(str(tmp))
         if out is None or not out.open(str(tmp), spec):
             raise SSSInputError(f"{path}: cannot open for writing ({oiio.geterror()})")

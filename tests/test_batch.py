@@ -12,7 +12,7 @@ import pytest
 
 import sss_jax as sj
 from sss_jax import _io
-from sss_jax._batch import MANIFEST_NAME, frames_for_process, process_frames
+from sss_jax._batch import MANIFEST_NAME, frame_seed, frames_for_process, process_frames
 
 MAT = sj.BurleyMaterial([[0.8, 0.6, 0.5]] * 3, [[3.0, 1.4, 0.8], [2.2, 1.9, 1.6], [3.5, 2.4, 1.4]])
 
@@ -51,11 +51,15 @@ def test_four_devices_give_the_pixels_of_one(frames, one_device_run, tmp_path):
     r1, o1 = one_device_run
     assert r4.ok and r1.ok and len(r4.frames) == 5
     assert r4.compilations == 1  # one frame shape, one compilation, 5 frames in 2 sharded groups
+    # one device runs each frame as a single call does (compacted on the host), four run it vmapped (every pixel
+    # computed): the two formulations agree to rounding
     for i in range(5):
-        np.testing.assert_array_equal(read_rgb(tmp_path / "o4" / f"f{i}.exr"), read_rgb(o1 / f"f{i}.exr"))
-    # and each frame equals the single-frame API
+        np.testing.assert_allclose(read_rgb(tmp_path / "o4" / f"f{i}.exr"), read_rgb(o1 / f"f{i}.exr"), rtol=1e-6,
+                                   atol=1e-6)
+    # and each frame equals the single-frame API with that frame's seed (the frame number mixed into the seed)
     f = _io.read_frame(frames / "f3.exr")
-    single = np.asarray(sj.burley(f.to_buffers(), MAT, sj.Camera(f.focal_px, 10.0), samples=8))
+    single = np.asarray(sj.burley(f.to_buffers(), MAT, sj.Camera(f.focal_px, 10.0), samples=8,
+                                  seed=frame_seed(0, 3)))
     np.testing.assert_allclose(read_rgb(tmp_path / "o4" / "f3.exr"), single, rtol=1e-6, atol=1e-6)
 
 
@@ -201,10 +205,13 @@ def test_one_name_in_two_folders_gives_two_outputs(frames, tmp_path):
     r = process_frames(str(tmp_path / "shots" / "*" / "beauty.exr"), "burley", MAT, out_dir=tmp_path / "out",
                        samples=4, progress=False, devices=jax.devices()[:1])
     assert r.ok and [f.status for f in r.frames] == ["done", "done"]
-    for src, out in ((a, tmp_path / "out" / "a" / "beauty.exr"), (b, tmp_path / "out" / "b" / "beauty.exr")):
+    for k, (src, out) in enumerate(((a, tmp_path / "out" / "a" / "beauty.exr"),
+                                    (b, tmp_path / "out" / "b" / "beauty.exr"))):
         f = _io.read_frame(src)
-        # independent of the batch: the single-frame API on that input
-        single = np.asarray(sj.burley(f.to_buffers(), MAT, sj.Camera(f.focal_px, 10.0), samples=4))
+        # independent of the batch: the single-frame API on that input (no digits in the name: the frame number is
+        # its place in the batch)
+        single = np.asarray(sj.burley(f.to_buffers(), MAT, sj.Camera(f.focal_px, 10.0), samples=4,
+                                      seed=frame_seed(0, k)))
         np.testing.assert_allclose(read_rgb(out), single, rtol=1e-6, atol=1e-6)
     assert not np.array_equal(read_rgb(tmp_path / "out" / "a" / "beauty.exr"),
                               read_rgb(tmp_path / "out" / "b" / "beauty.exr"))
@@ -358,11 +365,11 @@ def readonly_dir(tmp_path):
 
 def test_sta_ranges_are_checked_before_any_frame(frames, tmp_path):
     sta = (sj.STAParams(), sj.DirectionalLight([0.3, -0.4, 0.9]))
-    with pytest.raises(ValueError, match=r"STA albedo must be 3 values in \[0, 1\]"):
+    with pytest.raises(ValueError, match=r"sta: albedo must be 3 values in \[0, 1\]"):
         process_frames(str(frames / "*.exr"), "sta", sta, out_dir=tmp_path / "o", sta_albedo=(2.0, 0.5, 0.5))
-    with pytest.raises(ValueError, match="STA thickness must be >= 0"):
+    with pytest.raises(ValueError, match="sta: thickness must be >= 0"):
         process_frames(str(frames / "*.exr"), "sta", sta, out_dir=tmp_path / "o", sta_thickness=-3.0)
-    with pytest.raises(ValueError, match="STA thickness must be >= 0"):
+    with pytest.raises(ValueError, match="sta: thickness must be >= 0"):
         process_frames(str(frames / "*.exr"), "sta", sta, out_dir=tmp_path / "o", sta_thickness=float("nan"))
     with pytest.raises(ValueError, match="scale must be finite"):
         sj.STAParams(scale=float("inf"))
@@ -406,29 +413,51 @@ def test_samples_beyond_the_footprint_are_clamped_with_a_warning(frames, tmp_pat
 STA_MATERIAL = (sj.STAParams(thickness_mm=2.0), sj.DirectionalLight([0.3, -0.4, 0.9]))
 
 
-# tiles run with the frame-independent rules (TILE_RULES): the fixed spiral, the kernel renormalised at the edge
+# tiles under the DEFAULTS: each tile is told its origin in the frame and the frame's shape, so the rotation hash and
+# the frame border are the frame's; a technique that cannot place a tile (no origin/frame_shape options yet) runs
+# the frame whole
 @pytest.mark.parametrize("technique, material, options, direct", [
-    ("burley", MAT, dict(samples=8),
-     lambda b, c: sj.burley(b, MAT, c, samples=8, pattern="fixed", border="renormalise")),
-    ("separable", MAT, dict(taps=9), lambda b, c: sj.separable(b, MAT, c, taps=9, border="renormalise")),
-    ("reference", MAT, dict(radius_px=4), lambda b, c: sj.reference(b, MAT, c, radius_px=4, border="renormalise")),
+    ("burley", MAT, dict(samples=8), lambda b, c: sj.burley(b, MAT, c, samples=8, seed=frame_seed(0, 1))),
+    ("separable", MAT, dict(taps=9), lambda b, c: sj.separable(b, MAT, c, taps=9)),
+    ("reference", MAT, dict(radius_px=4), lambda b, c: sj.reference(b, MAT, c, radius_px=4)),
     ("sta", STA_MATERIAL, dict(sta_thickness=0.5),
      lambda b, c: sj.translucency(b, STA_MATERIAL[0], c, STA_MATERIAL[1], thickness=0.5)),
 ])
-def test_tiles_give_the_whole_frame(frames, tmp_path, monkeypatch, technique, material, options, direct):
+def test_tiles_give_the_untiled_frame_under_the_defaults(frames, tmp_path, monkeypatch, technique, material, options,
+                                                         direct):
     import sss_jax._batch as batch
 
-    calls = []
-    run = batch._run_technique
-    monkeypatch.setattr(batch, "_run_technique", lambda t, b, *a: calls.append(b.depth.shape) or run(t, b, *a))
-    r = process_frames(str(frames / "f1.exr"), technique, material, out_dir=tmp_path, progress=False,
-                       tile_pixels=24 * 24, **options)
-    assert r.ok
-    assert len(calls) >= 4 and all(h < 40 + 30 and w < 48 for h, w in calls)  # it did run in tiles
+    tiles = []
+    real = batch._run_tiled
+
+    def spy(tech, frame, use_albedo, mat, camera, plan, on_tile):
+        out = real(tech, frame, use_albedo, mat, camera, plan, on_tile)  # raises where it cannot place a tile
+        tiles.append(plan.layout)
+        return out
+
+    monkeypatch.setattr(batch, "_run_tiled", spy)
+    whole = process_frames(str(frames / "f1.exr"), technique, material, out_dir=tmp_path / "whole", progress=False,
+                           devices=jax.devices()[:1], **options)
+    assert whole.ok and tiles == []
+    tiled = process_frames(str(frames / "f1.exr"), technique, material, out_dir=tmp_path / "tiled", progress=False,
+                           tile_pixels=24 * 24, devices=jax.devices()[:1], **options)
+    assert tiled.ok
+    # where the technique places tiles it did run in tiles (else the frame ran whole: the same pixels either way)
+    assert all(ty * tx < 40 * 48 for ty, tx in tiles)
+    out_tiled, out_whole = read_rgb(tmp_path / "tiled" / "f1.exr"), read_rgb(tmp_path / "whole" / "f1.exr")
+    assert np.max(np.abs(out_tiled - out_whole)) <= 1e-4
     f = _io.read_frame(frames / "f1.exr")
-    # independent check: the public technique on the whole frame
-    whole = np.asarray(direct(f.to_buffers(), sj.Camera(f.focal_px, 10.0)))
-    np.testing.assert_allclose(read_rgb(tmp_path / "f1.exr"), whole, rtol=1e-5, atol=1e-6)
+    # independent check: the public technique on the whole frame, with the frame's seed (the file's frame number 1)
+    single = np.asarray(direct(f.to_buffers(), sj.Camera(f.focal_px, 10.0)))
+    np.testing.assert_allclose(out_whole, single, rtol=1e-5, atol=1e-6)
+    header = _io.read_header(tmp_path / "tiled" / "f1.exr")[0]
+    rules = json.loads(header["sss_jax:rules"])  # the rules that ran are in the header
+    for name, value in {"samples": 8, "taps": 9, "radius_px": 4, "thickness": 0.5, "border": "leaves",
+                        "pattern": "rotated"}.items():
+        if name in rules:
+            assert rules[name] == value
+    if technique == "sta":  # local: it places tiles now (the others once they take origin/frame_shape)
+        assert tiles, "expected tiles"
 
 
 # ------------------------------------------------------------------------------------------------------------------
@@ -484,3 +513,178 @@ def test_manifest_after_a_signal_lists_exactly_the_complete_frames(frames, tmp_p
     assert 2 <= len(done) < 12 and done == on_disk  # no temporary files either
     assert all(_io.exr_is_complete(out / n) for n in on_disk)
     assert {f["status"] for f in book["frames"]} == {"done", "pending"}
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# every file atomic, a full disk fails one frame (named), --resume verifies what it skips for, one true manifest,
+# stale temporaries removed
+# ------------------------------------------------------------------------------------------------------------------
+
+
+def five_frames(frames, folder):
+    for i in range(5):
+        copy_frame(frames, f"f{i}.exr", folder / f"f{i}.exr")
+    return folder
+
+
+def temporaries(folder):
+    return sorted(p.name for p in folder.iterdir() if ".tmp" in p.name)
+
+
+def test_a_disk_filling_during_a_png_batch_fails_that_frame_and_resume_recomputes_it(frames, tmp_path, monkeypatch):
+    import contextlib
+
+    src = five_frames(frames, tmp_path / "src")
+    out = tmp_path / "out"
+    real = _io.atomic_path
+
+    @contextlib.contextmanager
+    def filling(path, **kw):
+        # the disk fills while f2's preview is written: OpenImageIO's PNG writer reports nothing and the file ends
+        # half way (what a 256 KiB tmpfs did), so only the check that the written file decodes can catch it
+        with real(path, **kw) as tmp:
+            yield tmp
+            if pathlib.Path(path).name == "f2.png":
+                data = tmp.read_bytes()
+                tmp.write_bytes(data[: len(data) // 2])
+
+    monkeypatch.setattr(_io, "atomic_path", filling)
+    r = process_frames(str(src / "*.exr"), "burley", MAT, out_dir=out, png=True, samples=4, progress=False,
+                       devices=jax.devices()[:1])
+    assert [f.status for f in r.frames] == ["done", "done", "failed", "done", "done"]  # the batch went on
+    assert "f2.png" in r.failed[0].message and "does not decode" in r.failed[0].message
+    # no partial file: neither the broken preview nor an EXR of the failed frame nor a temporary
+    names = sorted(p.name for p in out.iterdir())
+    assert names == sorted([f"f{i}.{e}" for i in (0, 1, 3, 4) for e in ("exr", "png")] + [MANIFEST_NAME])
+    book = json.loads((out / MANIFEST_NAME).read_text())
+    entry = next(f for f in book["frames"] if f["output"].endswith("f2.exr"))
+    assert entry["status"] == "failed" and "f2.png" in entry["message"]
+    monkeypatch.setattr(_io, "atomic_path", real)
+    # a preview broken behind the batch's back (another tool, a bad disk): --resume decodes it and recomputes
+    (out / "f3.png").write_bytes((out / "f3.png").read_bytes()[:60])
+    again = process_frames(str(src / "*.exr"), "burley", MAT, out_dir=out, png=True, samples=4, progress=False,
+                           devices=jax.devices()[:1])
+    assert [f.status for f in again.frames] == ["skipped", "skipped", "done", "done", "skipped"]
+    assert all(_io.exr_is_complete(out / f"f{i}.{e}") for i in range(5) for e in ("exr", "png"))
+    assert temporaries(out) == []
+
+
+def test_a_real_full_file_system_names_the_file(frames, tmp_path):
+    import os
+    import subprocess
+
+    src = five_frames(frames, tmp_path / "src")
+    small = tmp_path / "small"
+    small.mkdir()
+    # a tmpfs of 48 KiB: a few frames' EXR and PNG fit, then every write fails (needs mount rights: root here)
+    if os.geteuid() != 0 or subprocess.run(["mount", "-t", "tmpfs", "-o", "size=48k", "tmpfs", str(small)],
+                                           capture_output=True).returncode != 0:
+        pytest.skip("cannot mount a small tmpfs here")
+    try:
+        r = process_frames(str(src / "*.exr"), "burley", MAT, out_dir=small, png=True, samples=4, progress=False,
+                           devices=jax.devices()[:1])
+        assert r.failed, "the file system never filled: make it smaller"
+        for f in r.failed:
+            assert pathlib.Path(f.output).stem in f.message  # the frame's file is named
+        done = {pathlib.Path(f.output).stem for f in r.frames if f.status == "done"}
+        for p in small.iterdir():  # what is there is whole: a complete frame's files, no partial file
+            assert ".tmp" not in p.name
+            if p.suffix in (".exr", ".png"):
+                assert p.stem in done and _io.exr_is_complete(p)
+    finally:
+        subprocess.run(["umount", str(small)], check=True)
+
+
+def test_two_runs_into_one_folder_leave_a_true_manifest(frames, tmp_path):
+    # run B starts while run A is at its first frame and runs to the end; A then finds every other frame made by B
+    # (not replaced: its writes fail); the manifest must still say every frame is complete, as the disk does
+    src = five_frames(frames, tmp_path / "src")
+    out = tmp_path / "out"
+    inner = []
+
+    def start_b(result):
+        if not inner:
+            inner.append(process_frames(str(src / "*.exr"), "burley", MAT, out_dir=out, samples=4, progress=False,
+                                        devices=jax.devices()[:1]))
+
+    a = process_frames(str(src / "*.exr"), "burley", MAT, out_dir=out, samples=4, progress=False,
+                       devices=jax.devices()[:1], resume=False, on_frame_done=start_b)
+    b = inner[0]
+    assert b.ok and [f.status for f in b.frames] == ["skipped", "done", "done", "done", "done"]
+    assert [f.status for f in a.frames] == ["done"] + ["failed"] * 4  # A's own report: it did not replace them
+    assert all("created by another process" in f.message for f in a.failed)
+    book = json.loads((out / MANIFEST_NAME).read_text())
+    assert sorted(pathlib.Path(f["output"]).name for f in book["frames"]) == [f"f{i}.exr" for i in range(5)]
+    assert {f["status"] for f in book["frames"]} <= {"done", "skipped"}
+    assert all(_io.exr_is_complete(f["output"]) for f in book["frames"])
+    assert len(book["runs"]) == 2 and {r["state"] for r in book["runs"]} == {"complete"}
+
+
+def test_stale_temporaries_are_removed_and_live_ones_kept(frames, tmp_path):
+    import os
+    import socket
+    import subprocess
+    import sys
+    import time
+
+    src = five_frames(frames, tmp_path / "src")
+    out = tmp_path / "out"
+    out.mkdir()
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()  # a pid that is no process now: a writer killed by SIGKILL
+    host = socket.gethostname()
+    stale = [out / f".f0.exr.sss_jax-{host}-{gone.pid}.k3j4h5g6.tmp.exr",
+             out / f".f1.png.sss_jax-{host}-{gone.pid}.a1b2c3d4.tmp.png",
+             out / f".{MANIFEST_NAME}.sss_jax-{host}-{gone.pid}.zz99yy88.tmp.json",
+             out / ".f2.exr.q1w2e3r4.tmp.exr"]  # before temporaries named their writer: removed when an hour old
+    kept = [out / f".f3.exr.sss_jax-{host}-{os.getpid()}.live1234.tmp.exr",  # a live writer's
+            out / f".other.exr.sss_jax-{host}-{gone.pid}.n0tm1n3x.tmp.exr",  # not an output of this run
+            out / ".f4.exr.y7u8i9o0.tmp.exr"]  # unnamed and fresh: perhaps a writer of another version, still running
+    for p in stale + kept:
+        p.write_bytes(b"partial")
+    hour_ago = time.time() - 3600
+    os.utime(stale[-1], (hour_ago, hour_ago))
+    r = process_frames(str(src / "*.exr"), "burley", MAT, out_dir=out, png=True, samples=4, progress=False,
+                       devices=jax.devices()[:1])
+    assert r.ok
+    assert temporaries(out) == sorted(p.name for p in kept)
+
+
+def test_the_technique_warnings_reach_the_user_once_and_the_manifest_per_frame(frames, tmp_path):
+    # 5 taps for kernels up to ~20 px wide: the separable pass's tap cells are too coarse for a hard edge
+    src = five_frames(frames, tmp_path / "src")
+    with pytest.warns(sj.SamplingWarning) as caught:
+        r = process_frames(str(src / "*.exr"), "separable", MAT, out_dir=tmp_path / "out", taps=5, progress=False,
+                           devices=jax.devices()[:1])
+    assert r.ok
+    sampling = [w for w in caught if issubclass(w.category, sj.SamplingWarning)]
+    assert len(sampling) == 1 and "5 taps" in str(sampling[0].message)  # once per batch, not once per frame
+    book = json.loads((tmp_path / "out" / MANIFEST_NAME).read_text())
+    assert all(any("5 taps" in w for w in f["warnings"]) for f in book["frames"])
+    # with several devices (vmapped groups) the same check runs on the host before tracing
+    with pytest.warns(sj.SamplingWarning, match="5 taps"):
+        r4 = process_frames(str(src / "*.exr"), "separable", MAT, out_dir=tmp_path / "out4", taps=5, progress=False)
+    assert r4.ok and all(any("5 taps" in w for w in f.warnings) for f in r4.frames)
+
+
+def test_frames_of_a_sequence_get_their_own_reproducible_rotation(frames, tmp_path):
+    from sss_jax._batch import frame_number
+
+    assert [frame_number(p, 9) for p in ("shot.0042.exr", "f7.exr", "beauty.exr")] == [42, 7, 9]
+    assert len({frame_seed(0, n) for n in range(1000)}) == 1000 and frame_seed(0, 0) == 0
+    src = tmp_path / "src"
+    copy_frame(frames, "f0.exr", src / "a.0001.exr")
+    copy_frame(frames, "f0.exr", src / "a.0002.exr")  # the same pixels, the next frame
+    out = tmp_path / "out"
+    r = process_frames(str(src / "*.exr"), "burley", MAT, out_dir=out, samples=4, progress=False,
+                       devices=jax.devices()[:1])
+    assert r.ok
+    one, two = read_rgb(out / "a.0001.exr"), read_rgb(out / "a.0002.exr")
+    assert np.max(np.abs(one - two)) > 1e-3  # another rotation: another sampling error
+    header = _io.read_header(out / "a.0002.exr")[0]
+    assert int(header["sss_jax:seed"]) == frame_seed(0, 2)
+    # reproducible: frame 2 alone (another subset of the sequence) gets the same pixels
+    alone = process_frames(str(src / "a.0002.exr"), "burley", MAT, out_dir=tmp_path / "alone", samples=4,
+                           progress=False, devices=jax.devices()[:1])
+    assert alone.ok
+    np.testing.assert_array_equal(read_rgb(tmp_path / "alone" / "a.0002.exr"), two)

@@ -58,7 +58,13 @@ class Translucency(AbstractTechnique):
     def __call__(self, buffers: Buffers, material: STAParams | BurleyMaterial | MediumMaterial, camera: Camera, *,
                  origin: tuple[int, int] = (0, 0),
                  frame_shape: tuple[int, int] | None = None) -> Float[Array, "H W 3"]:
-        del origin, frame_shape  # a local pass: a tile with its halo needs no placing in the frame
+        if tuple(origin) != (0, 0) or frame_shape is not None:
+            # a local pass, but the view ray of a pixel comes from its place relative to the principal point: a tile
+            # sees the frame's principal point moved by its origin
+            h, w = frame_shape if frame_shape is not None else buffers.depth.shape[-2:]
+            cx, cy = camera.principal_point if camera.principal_point is not None else (w / 2, h / 2)
+            camera = Camera(camera.focal_px, camera.mm_per_unit,
+                            principal_point=(cx - int(origin[1]), cy - int(origin[0])))
         return _f(buffers, material, camera, self.light, **call_options(self, material))
 
     def reach_px(self, buffers: Buffers, material: STAParams | BurleyMaterial | MediumMaterial,
