@@ -10,9 +10,30 @@ import jax
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_rank_promotion", "raise")
 
+import atexit
 import pathlib
+import shutil
+import tempfile
 
 import pytest
+
+
+def _persistent_compilation_cache() -> None:
+    """JAX's persistent compilation cache in a fresh folder for this test session (one per xdist worker: JAX writes
+    its entries without a lock, so two processes never share a folder), removed at exit. The per-file clearing below
+    then empties only memory: a program a later file compiles again (the same pass at the same shapes) is read back
+    from disk instead of compiled, on CPU too (jax >= 0.4.26). ``SSS_JAX_TEST_JAX_CACHE=0`` switches it off."""
+    if os.environ.get("SSS_JAX_TEST_JAX_CACHE", "1") == "0":
+        return
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+    folder = tempfile.mkdtemp(prefix=f"sss_jax-tests-jax-cache-{worker}-")
+    atexit.register(shutil.rmtree, folder, ignore_errors=True)
+    jax.config.update("jax_compilation_cache_dir", folder)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)  # the eager ops' small programs too
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+
+
+_persistent_compilation_cache()
 
 SHARED = pathlib.Path(__file__).resolve().parents[2] / "shared"
 if not SHARED.exists():  # CI clones the repo with shared/ beside it; a developer checkout may nest differently
@@ -43,3 +64,17 @@ def shared_dir() -> pathlib.Path:
     if not SHARED.exists():
         pytest.skip("../shared is not beside the checkout")
     return SHARED
+
+
+def pytest_xdist_auto_num_workers(config):
+    """``-n auto`` (the README's test command): one worker per core, as many as memory holds at the suite's peak of
+    ~3.4 GB per process (measured with /usr/bin/time -v), so a many-core machine with little memory does not swap."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cores = os.cpu_count() or 1
+    try:
+        memory_gb = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
+    except (ValueError, OSError, AttributeError):
+        return cores
+    return max(1, min(cores, int(memory_gb // 4)))

@@ -112,3 +112,89 @@ def test_metrics_by_material_splits_and_counts():
 def test_metric_errors(call, message):
     with pytest.raises(ValueError, match=message):
         call()
+
+
+# ---- HDR-ꟻLIP. The published example pair (NVlabs/flip images/reference.exr, test.exr: mean 0.283478 over 14
+# exposures from -12.5423 to 0.9427, src/tests/test.py) is 4+ MB and not shipped; instead, flat images, where ꟻLIP
+# reduces to a closed form: its CSF filters sum to 1 (a flat image passes unchanged) and its edge and point
+# detectors sum to 0 (no feature difference), so the error is the colour term alone, written out below from
+# Andersson et al., "FLIP: A Difference Evaluator for Alternating Images" (HPG 2020), sec. 3.1 (Hunt-adjusted
+# L*a*b*, HyAB distance, q_c = 0.7, the green-blue maximum c_max, p_c = 0.4, p_t = 0.95; feature term 0), and the
+# HDR-ꟻLIP paper (Eurographics 2021), sec. 4: ACES tone mapping (Narkowicz's fit, 0.6 pre-exposure cancelled) at
+# exposures from log2(x/Y_max) to log2(x/Y_median), x the input ACES maps to 0.85, the pixel's maximum over them.
+_ACES_FIT = (0.6 * 0.6 * 2.51, 0.6 * 0.03, 0.0, 0.6 * 0.6 * 2.43, 0.6 * 0.59, 0.14)
+
+
+def _flip_flat_by_hand(ref, test):
+    a, b, c, d, e, f = _ACES_FIT
+
+    def lab_hunt(rgb):  # CIE 1976 L*a*b* (D65, the sRGB matrix of _lab_by_hand), chroma scaled by 0.01 L*
+        m = np.array([[0.4124, 0.3576, 0.1805], [0.2126, 0.7152, 0.0722], [0.0193, 0.1192, 0.9505]])
+        xyz = m @ rgb / m.sum(axis=1)
+        fx = np.where(xyz > (6 / 29) ** 3, np.cbrt(xyz), xyz / (3 * (6 / 29) ** 2) + 4 / 29)
+        L = 116 * fx[1] - 16
+        return np.array([L, 0.01 * L * 500 * (fx[0] - fx[1]), 0.01 * L * 200 * (fx[1] - fx[2])])
+
+    def hyab(p, q):
+        return abs(p[0] - q[0]) + np.hypot(p[1] - q[1], p[2] - q[2])
+
+    def tone(x):
+        return np.clip((a * x * x + b * x + c) / (d * x * x + e * x + f), 0.0, 1.0)
+
+    ref, test = np.asarray(ref, float), np.asarray(test, float)
+    t = 0.85  # (a - t d) x^2 + (b - t e) x + (c - t f) = 0, the positive root
+    x = (-(b - t * e) + np.sqrt((b - t * e) ** 2 - 4 * (a - t * d) * (c - t * f))) / (2 * (a - t * d))
+    exposure = np.log2(x / (ref @ [0.2126, 0.7152, 0.0722]))  # flat: Y_max = Y_median, every exposure the same
+    c_max = hyab(lab_hunt(np.array([0.0, 1, 0])), lab_hunt(np.array([0.0, 0, 1]))) ** 0.7
+    de = hyab(lab_hunt(tone(2**exposure * ref)), lab_hunt(tone(2**exposure * test))) ** 0.7
+    pc, pt = 0.4, 0.95
+    return de * pt / (pc * c_max) if de < pc * c_max else pt + (de - pc * c_max) / (c_max - pc * c_max) * (1 - pt)
+
+
+@pytest.mark.parametrize("ref, test", [((0.5, 0.5, 0.5), (0.3, 0.3, 0.3)), ((0.8, 0.3, 0.1), (0.6, 0.35, 0.2)),
+                                       ((2.0, 1.5, 0.5), (2.2, 1.4, 0.6)), ((10.0, 8.0, 6.0), (1.0, 1.0, 1.0))])
+def test_flip_on_flat_images_against_the_papers_formula(ref, test):
+    r, t = np.broadcast_to(ref, (9, 11, 3)), np.broadcast_to(test, (9, 11, 3))
+    res = M.flip(t, r)
+    expected = _flip_flat_by_hand(ref, test)
+    # flip-evaluator works in float32 with the sRGB matrix as exact fractions: 1e-4 apart from the 4-digit one
+    assert res["mean"] == pytest.approx(expected, abs=3e-4)
+    np.testing.assert_allclose(res["map"], expected, atol=3e-4)
+    assert res["start_exposure"] == res["stop_exposure"] and res["num_exposures"] == 2 and res["tonemapper"] == "ACES"
+
+
+def test_flip_exposure_range_is_flips_own_rule():
+    # on a pair with no mask, the range is the one flip-evaluator computes itself when none is given (FLIP.h
+    # computeExposures): passing it explicitly changes nothing
+    import flip_evaluator
+
+    rng = np.random.default_rng(4)
+    ref = rng.lognormal(-1.0, 1.5, (20, 24, 3))
+    test = ref * rng.uniform(0.7, 1.3, ref.shape)
+    _, mean, used = flip_evaluator.evaluate(ref.astype(np.float32), test.astype(np.float32), "HDR", applyMagma=False)
+    start, stop, count = M.flip_exposures(ref)
+    assert (start, stop) == pytest.approx((used["startExposure"], used["stopExposure"]), abs=1e-5)
+    assert count == used["numExposures"] and count > 2
+    assert M.flip(test, ref)["mean"] == pytest.approx(mean, abs=1e-5)
+
+
+def test_flip_mask_identity_and_errors():
+    rng = np.random.default_rng(5)
+    ref = rng.uniform(0.05, 1, (12, 14, 3))
+    assert M.flip(ref, ref)["mean"] == 0.0 and not M.flip(ref, ref)["map"].any()
+    test = ref.copy()
+    test[:, 7:] *= 1.5
+    mask = np.zeros((12, 14), bool)
+    mask[:, 9:] = True
+    res = M.flip(test, ref, mask=mask)
+    # the map is 0 off the mask and its mean is over the masked pixels; the range comes from the masked reference
+    assert not res["map"][~mask].any() and res["map"][mask].min() > 0
+    assert res["mean"] == pytest.approx(res["map"][mask].mean())
+    assert (res["start_exposure"], res["stop_exposure"]) == pytest.approx(M.flip_exposures(ref, mask=mask)[:2])
+    assert M.flip(test, ref, exposures=(-1.0, 1.0, 3))["num_exposures"] == 3
+    with pytest.raises(ValueError, match="exposures must be"):
+        M.flip(test, ref, exposures=(1.0, -1.0, 3))
+    with pytest.raises(ValueError, match="reference is black"):
+        M.flip(test, np.zeros_like(ref))
+    with pytest.raises(ValueError, match="output has non-finite values"):
+        M.flip(np.full_like(ref, np.nan), ref)

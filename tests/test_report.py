@@ -43,13 +43,23 @@ def test_layout_numbers_match_hand_computation(tmp_path):
         inputs=[{"name": "f"}], material={"albedo": [[1, 1, 1]]}, machine={"cpu": "test"})
     html = sj.report(data, tmp_path / "out").read_text()
     doc = json.loads((tmp_path / "out" / "report.json").read_text())
-    assert set(doc) == {"inputs", "material", "machine", "techniques"}  # the issue's schema, nothing else
+    assert set(doc) == {"inputs", "material", "machine", "techniques", "flip"}  # the issues' schema, nothing else
     rows = {(r["technique"], r["count"]): r for r in doc["techniques"]}
     assert set(rows) == {("separable", 9), ("burley", 8), ("burley", 16)}
     assert set(rows[("burley", 8)]) == {"technique", "count", "ms_per_frame", "vs_reference", "vs_truth"}
     # ||1.1 r - r|| / ||r|| = 0.1 on the masked pixels; the identical image is 0 with no colour difference
     assert rows[("separable", 9)]["vs_reference"]["rel_l2"] == pytest.approx(0.1, rel=1e-12)
-    assert rows[("burley", 8)]["vs_reference"] == {"rel_l2": 0.0, "delta_e_mean": 0.0, "delta_e_p95": 0.0}
+    assert rows[("burley", 8)]["vs_reference"] == {"rel_l2": 0.0, "delta_e_mean": 0.0, "delta_e_p95": 0.0,
+                                                   "flip_mean": 0.0}
+    # HDR-FLIP of 1.1 r against r, straight from flip-evaluator on the SSS pixels at the range the report states
+    import flip_evaluator
+
+    (rng_ref,) = [e for e in doc["flip"]["exposures"] if e["target"] == "reference"]
+    params = {"startExposure": rng_ref["start"], "stopExposure": rng_ref["stop"], "numExposures": rng_ref["count"]}
+    fmap, _, _ = flip_evaluator.evaluate(ref.astype(np.float32), out.astype(np.float32), "HDR", applyMagma=False,
+                                         parameters=params)
+    assert rows[("separable", 9)]["vs_reference"]["flip_mean"] == pytest.approx(fmap[..., 0][ids > 0].mean(), abs=1e-6)
+    assert rows[("separable", 9)]["vs_reference"]["flip_mean"] > 0.01
     # against the truth 0.8 r: ||1.1 r - 0.8 r|| / ||0.8 r|| = 0.3 / 0.8, and ||r - 0.8 r|| / ||0.8 r|| = 0.25
     assert rows[("separable", 9)]["vs_truth"]["rel_l2"] == pytest.approx(0.375, rel=1e-12)
     assert rows[("burley", 8)]["vs_truth"]["rel_l2"] == pytest.approx(0.25, rel=1e-12)
@@ -102,7 +112,7 @@ def test_blender_frame_report_against_cycles_truth(shared_dir, tmp_path, capsys)
     out = tmp_path / "rep"
     assert main(["report", str(src), "--out", str(out), "--truth", str(truth), *BLENDER_ARGS]) == 0
     doc = json.loads((out / "report.json").read_text())
-    assert set(doc) == {"inputs", "material", "machine", "techniques"}
+    assert set(doc) == {"inputs", "material", "machine", "techniques", "flip"}
     rows = {(r["technique"], r["count"]): r for r in doc["techniques"]}
     assert set(rows) == {("sta", None), ("separable", 9), ("burley", 8), ("reference", None)}
     # independent: Cycles' Combined and the SSS pixels (IndexOB > 0 on a surface; Blender's background depth is 1e10)
@@ -112,6 +122,15 @@ def test_blender_frame_report_against_cycles_truth(shared_dir, tmp_path, capsys)
     depth = _read_rgb(src, ["ViewLayer.Depth.Z"])[..., 0]
     mask = (index_ob > 0.5) & (depth < 1e9)
     assert mask.sum() > 30_000  # sphere and Suzanne (tests the mask is not vacuous)
+    import flip_evaluator
+
+    lum = np.maximum(combined[mask], 0) @ [0.2126, 0.7152, 0.0722]  # Rec. 709 luminance
+    A, B, C = 0.36 * 2.51 - 0.85 * 0.36 * 2.43, 0.6 * 0.03 - 0.85 * 0.6 * 0.59, -0.85 * 0.14  # ACES fit = 0.85
+    x = (-B + np.sqrt(B * B - 4 * A * C)) / (2 * A)
+    start, stop = np.log2(x / lum.max()), np.log2(x / np.sort(lum)[lum.size // 2])
+    params = {"startExposure": start, "stopExposure": stop, "numExposures": int(max(2, np.ceil(stop - start)))}
+    (stated,) = [e for e in doc["flip"]["exposures"] if e["target"] == "truth"]
+    assert (stated["start"], stated["stop"], stated["count"]) == pytest.approx(tuple(params.values()), abs=1e-9)
     for (tech, count), row in rows.items():
         img = _read_rgb(out / "images" / "irradiance_backlit" / (tech + ("" if count is None else f"_{count}") + ".exr"),
                         "RGB")
@@ -119,6 +138,12 @@ def test_blender_frame_report_against_cycles_truth(shared_dir, tmp_path, capsys)
         assert row["vs_truth"]["rel_l2"] == pytest.approx(expected, rel=1e-6), tech
         # a real gap (back-lit ears, noise) but not a broken image; STA adds light, so it may exceed 1
         assert 0.05 < row["vs_truth"]["rel_l2"] < (5.0 if tech == "sta" else 1.0), tech
+        # HDR-FLIP against the truth: flip-evaluator itself on the written image and Cycles' Combined, at the range
+        # HDR-FLIP's rule gives on the truth's SSS pixels (log2(x / Y_max) to log2(x / Y_median), x = 0.85 under ACES)
+        fmap, _, _ = flip_evaluator.evaluate(combined.astype(np.float32), np.maximum(img, 0).astype(np.float32), "HDR",
+                                             applyMagma=False, parameters=params)
+        assert row["vs_truth"]["flip_mean"] == pytest.approx(fmap[..., 0][mask].mean(), abs=1e-6), tech
+        assert 0.0 < row["vs_truth"]["flip_mean"] < 1.0, tech
     assert rows[("reference", None)]["vs_reference"]["rel_l2"] == 0
     page = (out / "report.html").read_text()
     assert len(re.findall(r"data:image/png;base64,", page)) >= 12

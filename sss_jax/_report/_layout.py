@@ -3,8 +3,9 @@ self-contained page) and ``out_dir/report.json``.
 
 It runs no technique and times nothing: ``data`` (a ``ReportData``) holds the images and times. What it computes
 are the metrics, on the SSS pixels of each frame (material id > 0 with a surface), all frames pooled:
-``rel_l2 = ||out - target||_2 / ||target||_2`` over RGB, and CIEDE2000's mean and 95th percentile, against the
-dense reference and, where the caller gave one, against the offline render ("truth").
+``rel_l2 = ||out - target||_2 / ||target||_2`` over RGB, CIEDE2000's mean and 95th percentile, and HDR-ꟻLIP's
+mean (NVIDIA's flip-evaluator; each frame's exposure range from the target's SSS pixels, stated in the page and in
+``report.json``), against the dense reference and, where the caller gave one, against the offline render ("truth").
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .._metrics import delta_e_2000, rel_l2
+from .._metrics import FLIP_PPD, delta_e_2000, flip, flip_exposures, rel_l2
 from ._page import Page
 from ._plots import heatmap, trade_figure
 from ._results import FrameImages, ReportData, TechniqueRun
@@ -37,13 +38,28 @@ def _delta_e_values(images: Sequence[np.ndarray], targets: Sequence[np.ndarray],
     return cache[key]
 
 
+def _flip_values(images: Sequence[np.ndarray], targets: Sequence[np.ndarray], frames: Sequence[FrameImages],
+                 exposures: Sequence[tuple[float, float, int]], cache: dict, key: tuple) -> list[np.ndarray]:
+    """Per frame, the HDR-ꟻLIP map (0 off the mask) at that frame's exposure range; computed once per (run,
+    target) and kept in ``cache``."""
+    if key not in cache:
+        cache[key] = [flip(img, tgt, mask=f.mask, exposures=ex)["map"]
+                      for img, tgt, f, ex in zip(images, targets, frames, exposures)]
+    return cache[key]
+
+
 def compare(images: Sequence[np.ndarray], targets: Sequence[np.ndarray], masks: Sequence[np.ndarray],
-            delta_e_maps: Sequence[np.ndarray]) -> dict[str, float]:
-    """``{"rel_l2", "delta_e_mean", "delta_e_p95"}`` over the masked pixels of all frames pooled."""
+            delta_e_maps: Sequence[np.ndarray], flip_maps: Sequence[np.ndarray] | None = None) -> dict[str, float]:
+    """``{"rel_l2", "delta_e_mean", "delta_e_p95"}`` (and ``"flip_mean"`` where ``flip_maps`` are given) over the
+    masked pixels of all frames pooled."""
     out = np.concatenate([np.asarray(i, np.float64)[m] for i, m in zip(images, masks)])
     tgt = np.concatenate([np.asarray(t, np.float64)[m] for t, m in zip(targets, masks)])
     de = np.concatenate([d[m] for d, m in zip(delta_e_maps, masks)])
-    return {"rel_l2": rel_l2(out, tgt), "delta_e_mean": float(de.mean()), "delta_e_p95": float(np.percentile(de, 95))}
+    result = {"rel_l2": rel_l2(out, tgt), "delta_e_mean": float(de.mean()),
+              "delta_e_p95": float(np.percentile(de, 95))}
+    if flip_maps is not None:
+        result["flip_mean"] = float(np.concatenate([fl[m] for fl, m in zip(flip_maps, masks)]).mean())
+    return result
 
 
 def pareto_flags(ms: Sequence[Real | None], err: Sequence[Real]) -> list[bool]:
@@ -95,8 +111,9 @@ def report(data: ReportData, out_dir: str | pathlib.Path, *,
     """Write ``out_dir/report.html`` and ``out_dir/report.json``; return the HTML's path.
 
     ``report.json``: ``{"inputs": [...], "material": {...}, "machine": {...}, "techniques": [{"technique", "count",
-    "ms_per_frame", "vs_reference": {"rel_l2", "delta_e_mean", "delta_e_p95"}, "vs_truth": {...} or null}]}``
-    (plus ``"sections"`` with the data of the extra sections that carry any). ``extra_sections``: ``(title,
+    "ms_per_frame", "vs_reference": {"rel_l2", "delta_e_mean", "delta_e_p95", "flip_mean"}, "vs_truth": {...} or
+    null}], "flip": {"tonemapper", "ppd", "exposures": [{"frame", "target", "start", "stop", "count"}]}}`` (plus
+    ``"sections"`` with the data of the extra sections that carry any). ``extra_sections``: ``(title,
     html_fragment)`` or ``(title, html_fragment, data)`` sections from other parts of a workflow (a fit's
     before/after, the demo's profiles), placed after the trade. ``images``: also write every image compared as
     float32 EXR, ``out_dir/images/<frame>/<technique>[_<count>].exr`` (and ``reference.exr``), linear RGB.
@@ -111,13 +128,22 @@ def report(data: ReportData, out_dir: str | pathlib.Path, *,
     refs = [f.reference for f in frames]
     truths = [f.truth for f in frames] if has_truth else None
     de_cache: dict = {}
+    flip_cache: dict = {}
+    # HDR-FLIP's exposure range follows the target (FLIP's reference image), one per frame and target
+    flip_ranges = {"reference": [flip_exposures(f.reference, mask=f.mask) for f in frames]}
+    if has_truth:
+        flip_ranges["truth"] = [flip_exposures(f.truth, mask=f.mask) for f in frames]
+
+    def flip_maps(run: TechniqueRun, which: str) -> list[np.ndarray]:
+        return _flip_values(run.images, refs if which == "reference" else truths, frames, flip_ranges[which],
+                            flip_cache, (run.label, which))
 
     target_images = {"reference": refs, "truth": truths}  # what each comparison is against
 
     def metrics(run: TechniqueRun, which: str):
         targets = target_images[which]
         des = _delta_e_values(run.images, targets, frames, exposure, de_cache, (run.label, which))
-        return compare(run.images, targets, masks, des)
+        return compare(run.images, targets, masks, des, flip_maps(run, which))
 
     entries = []
     all_runs = runs + ([data.reference_run] if data.reference_run is not None else [])
@@ -135,12 +161,20 @@ def report(data: ReportData, out_dir: str | pathlib.Path, *,
             e[f"pareto_{key}"] = f
 
     page = Page(data.title, subtitle=", ".join(f.name for f in frames))
+    flip_info = {"tonemapper": "ACES", "ppd": FLIP_PPD,
+                 "exposures": [{"frame": f.name, "target": which, "start": ex[0], "stop": ex[1], "count": ex[2]}
+                               for which, ranges in flip_ranges.items() for f, ex in zip(frames, ranges)]}
+    flip_note = (f"ACES tone mapping at {FLIP_PPD:.0f} pixels per degree, exposures from the target's SSS pixels: "
+                 + "; ".join(f"{e['frame']} vs {e['target']} {e['start']:+.2f} to {e['stop']:+.2f} stops in "
+                             f"{e['count']} steps" for e in flip_info["exposures"]))
     names = data.material.get("names") or []
 
     # summary
     sec = page.section("Summary", "Each technique on the pixels with subsurface scattering (material id &gt; 0), all "
                        "frames pooled: relative L2 <code>||out - target|| / ||target||</code> over RGB, CIEDE2000 "
-                       f"(mean, 95th percentile; exposure {exposure:+g} stops, linear sRGB white = L* 100), against "
+                       f"(mean, 95th percentile; exposure {exposure:+g} stops, linear sRGB white = L* 100) and "
+                       "HDR-ꟻLIP (mean; NVIDIA's flip-evaluator, 0 = identical, 1 = most different; "
+                       f"{html.escape(flip_note)}), against "
                        "the dense reference" + (" and against the offline render (truth)" if has_truth else "")
                        + ". Times are medians per frame after compilation, on the machine below. Rows on the Pareto "
                        "front (nothing both faster and closer to the reference) are shaded.")
@@ -148,10 +182,10 @@ def report(data: ReportData, out_dir: str | pathlib.Path, *,
     for e in entries:
         row = {"technique": e["technique"], "count": e["count"], "ms / frame": e["ms_per_frame"],
                "rel L2 vs ref": e["vs_reference"]["rel_l2"], "ΔE mean vs ref": e["vs_reference"]["delta_e_mean"],
-               "ΔE p95 vs ref": e["vs_reference"]["delta_e_p95"]}
+               "ΔE p95 vs ref": e["vs_reference"]["delta_e_p95"], "ꟻLIP vs ref": e["vs_reference"]["flip_mean"]}
         if has_truth:
             row.update({"rel L2 vs truth": e["vs_truth"]["rel_l2"], "ΔE mean vs truth": e["vs_truth"]["delta_e_mean"],
-                        "ΔE p95 vs truth": e["vs_truth"]["delta_e_p95"]})
+                        "ΔE p95 vs truth": e["vs_truth"]["delta_e_p95"], "ꟻLIP vs truth": e["vs_truth"]["flip_mean"]})
         rows.append(row)
     page.table(sec, rows, "time and error per technique and count", key="techniques",
                highlight=[bool(e.get("pareto_vs_reference")) for e in entries])
@@ -176,9 +210,9 @@ def report(data: ReportData, out_dir: str | pathlib.Path, *,
         page.raw(sec, "</div>")
 
     # difference and CIEDE2000 maps
-    targets = [("reference", "Against the reference", "Absolute difference to the dense reference (mean over RGB) "
-                "and CIEDE2000 per pixel, SSS pixels only. Scattering techniques share one scale; STA, which adds "
-                "light instead of redistributing it, has its own.")]
+    targets = [("reference", "Against the reference", "Absolute difference to the dense reference (mean over RGB), "
+                "CIEDE2000 and HDR-ꟻLIP per pixel, SSS pixels only. Scattering techniques share one scale; STA, "
+                "which adds light instead of redistributing it, has its own; ꟻLIP maps use ꟻLIP's own 0 to 1 scale.")]
     if has_truth:
         targets.append(("truth", "Against the truth", "The same against the offline render. The reference's own "
                         "distance from it (first pair) is what screen space cannot know: light entering surfaces "
@@ -190,11 +224,12 @@ def report(data: ReportData, out_dir: str | pathlib.Path, *,
                 page.raw(sec, f"<h3>{html.escape(f.name)}</h3>")
             tgt = target_images[which][fi]
             cmp_runs = ([data.reference_run] if which == "truth" and data.reference_run is not None else []) + shown
-            diffs, des = {}, {}
+            diffs, des, flips = {}, {}, {}
             for run in cmp_runs:
                 diffs[run.label] = np.abs(np.asarray(run.images[fi], np.float64) - tgt).mean(-1) * f.mask
                 des[run.label] = _delta_e_values(run.images, target_images[which], frames,
                                                  exposure, de_cache, (run.label, which))[fi]
+                flips[run.label] = flip_maps(run, which)[fi]
             sta = [r.label for r in cmp_runs if r.adds_light]  # kept apart: it adds light by design
             rest = [k for k in diffs if k not in sta]
             page.raw(sec, "<div class=grid>")
@@ -204,6 +239,8 @@ def report(data: ReportData, out_dir: str | pathlib.Path, *,
                             f"{run.label}: absolute difference to the {which}")
                 page.figure(sec, heatmap(des[run.label], f"ΔE2000 {run.label} vs {which}",
                                          _scale(des, keys, f.mask), "viridis"), f"{run.label}: CIEDE2000 to the {which}")
+                page.figure(sec, heatmap(flips[run.label], f"ꟻLIP {run.label} vs {which}", 1.0, "magma"),
+                            f"{run.label}: HDR-ꟻLIP to the {which}")
             page.raw(sec, "</div>")
 
     # per material
@@ -222,9 +259,10 @@ def report(data: ReportData, out_dir: str | pathlib.Path, *,
                         continue
                     de = _delta_e_values(run.images, refs if which == "ref" else truths, frames, exposure, de_cache,
                                          (run.label, "reference" if which == "ref" else "truth"))[fi]
-                    c = compare([run.images[fi]], [tgt], [m], [de])
+                    fl = flip_maps(run, "reference" if which == "ref" else "truth")[fi]
+                    c = compare([run.images[fi]], [tgt], [m], [de], [fl])
                     row.update({f"rel L2 vs {which}": c["rel_l2"], f"ΔE mean vs {which}": c["delta_e_mean"],
-                                f"ΔE p95 vs {which}": c["delta_e_p95"]})
+                                f"ΔE p95 vs {which}": c["delta_e_p95"], f"ꟻLIP vs {which}": c["flip_mean"]})
                 mrows.append(row)
         page.table(sec, mrows, f"{f.name}: per material", key=f"frame{fi}")
 
@@ -261,7 +299,8 @@ def report(data: ReportData, out_dir: str | pathlib.Path, *,
     doc: dict[str, Any] = {"inputs": data.inputs, "material": data.material, "machine": data.machine,
                            "notes": list(data.notes),  # what was left out and why (issue #27)
                            "techniques": [{k: e[k] for k in ("technique", "count", "ms_per_frame", "vs_reference",
-                                                             "vs_truth")} for e in entries]}
+                                                             "vs_truth")} for e in entries],
+                           "flip": flip_info}
     extra_data = {t: d for t, _, d in extras if d}
     if extra_data:
         doc["sections"] = extra_data
