@@ -43,7 +43,7 @@ def test_layout_numbers_match_hand_computation(tmp_path):
         inputs=[{"name": "f"}], material={"albedo": [[1, 1, 1]]}, machine={"cpu": "test"})
     html = sj.report(data, tmp_path / "out").read_text()
     doc = json.loads((tmp_path / "out" / "report.json").read_text())
-    assert set(doc) == {"inputs", "material", "machine", "techniques", "flip"}  # the issues' schema, nothing else
+    assert set(doc) == {"inputs", "material", "machine", "techniques", "flip", "notes"}  # the issues' schema (#19, #27 notes, #30 flip), nothing else
     rows = {(r["technique"], r["count"]): r for r in doc["techniques"]}
     assert set(rows) == {("separable", 9), ("burley", 8), ("burley", 16)}
     assert set(rows[("burley", 8)]) == {"technique", "count", "ms_per_frame", "vs_reference", "vs_truth"}
