@@ -112,7 +112,7 @@ def test_blender_frame_report_against_cycles_truth(shared_dir, tmp_path, capsys)
     out = tmp_path / "rep"
     assert main(["report", str(src), "--out", str(out), "--truth", str(truth), *BLENDER_ARGS]) == 0
     doc = json.loads((out / "report.json").read_text())
-    assert set(doc) == {"inputs", "material", "machine", "techniques", "flip"}
+    assert set(doc) == {"inputs", "material", "machine", "techniques", "flip", "notes"}
     rows = {(r["technique"], r["count"]): r for r in doc["techniques"]}
     assert set(rows) == {("sta", None), ("separable", 9), ("burley", 8), ("reference", None)}
     # independent: Cycles' Combined and the SSS pixels (IndexOB > 0 on a surface; Blender's background depth is 1e10)
