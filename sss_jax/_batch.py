@@ -230,7 +230,7 @@ def _file_stamp(path: pathlib.Path) -> dict[str, Any] | None:
 def _resume_record(src: pathlib.Path, parameters: dict[str, Any]) -> tuple[dict[str, str], str]:
     """The header attributes that say what an output was made from, and their digest: the input (path, size,
     mtime; its sidecar's too), the technique and every parameter, the sss_jax version."""
-    from . import __version__
+    from ._version import __version__
 
     stamp = _file_stamp(src) or {"path": str(src)}
     record = {"input": stamp, "sidecar": _file_stamp(src.with_suffix(".json")), "parameters": parameters,
@@ -667,7 +667,7 @@ def process_frames(
         from tqdm.auto import tqdm
 
         bar = tqdm(total=len(jobs), unit="frame", desc=f"sss-jax {technique}")
-    from . import __version__
+    from ._version import __version__
 
     book = _Manifest(manifest, {"sss_jax_version": __version__, "technique": technique, "parameters": parameters,
                                 "process_index": pi, "process_count": pc}, jobs)

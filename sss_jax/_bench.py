@@ -44,6 +44,20 @@ _BURLEY_FLOPS_PER_FETCH = 33  # validity (3), dz (2), r (3 with sqrt), 3 x kerne
 _STA_COST = {"fetches": 4, "flops": 40}  # irradiance, normal, thickness, albedo; the transmittance and the light
 
 
+# pixels a filtered fetch reads (bilinear: 4; a linear 1D fetch: 2) and each technique's cost from (count, pixels
+# per fetch): tables by registry name, so a technique added to the bench adds a row, not a branch
+_PIXELS_PER_FETCH = {"burley": 4}
+_COST_MODELS: dict[str, Callable[[int | None, int], dict[str, int]]] = {
+    "sta": lambda count, per_fetch: dict(_STA_COST),
+    "separable": lambda count, per_fetch: {
+        "fetches": 2 * (count * per_fetch + 1),
+        "flops": 2 * (count * _SEPARABLE_FLOPS_PER_TAP + count * per_fetch * _SEPARABLE_FLOPS_PER_FETCH)},
+    "burley": lambda count, per_fetch: {
+        "fetches": count * per_fetch + 1,
+        "flops": count * _BURLEY_FLOPS_PER_SAMPLE + count * per_fetch * _BURLEY_FLOPS_PER_FETCH},
+}
+
+
 def cost_per_pixel(technique: str, count: int | None, interpolation: str = "linear") -> dict[str, int]:
     """Engine-comparable cost of one pixel of the technique: ``fetches`` (texels read, each RGB + depth, what a
     shader's texture fetches are) and ``flops`` (arithmetic per pixel, counted from the formulation). The same on
@@ -51,16 +65,9 @@ def cost_per_pixel(technique: str, count: int | None, interpolation: str = "line
 
     separable: 2 passes x ``count`` taps x (2 pixels per linear fetch, 1 nearest), plus the centre per pass.
     burley: ``count`` samples x (4 pixels per bilinear fetch, 1 nearest), plus the centre."""
-    if technique == "sta":
-        return dict(_STA_COST)
-    per_fetch = 1 if interpolation == "nearest" else (4 if technique == "burley" else 2)
-    if technique == "separable":
-        fetches = count * per_fetch
-        return {"fetches": 2 * (fetches + 1),
-                "flops": 2 * (count * _SEPARABLE_FLOPS_PER_TAP + fetches * _SEPARABLE_FLOPS_PER_FETCH)}
-    if technique == "burley":
-        fetches = count * per_fetch
-        return {"fetches": fetches + 1, "flops": count * _BURLEY_FLOPS_PER_SAMPLE + fetches * _BURLEY_FLOPS_PER_FETCH}
+    model = _COST_MODELS.get(technique)
+    if model is not None:
+        return model(count, 1 if interpolation == "nearest" else _PIXELS_PER_FETCH.get(technique, 2))
     raise ValueError(f"no cost model for technique {technique!r}")
 
 

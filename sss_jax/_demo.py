@@ -5,13 +5,12 @@ from __future__ import annotations
 import dataclasses
 from typing import Callable
 
-import jax
 import numpy as np
 
 from ._materials import BurleyMaterial, STAParams, TwoGaussianMaterial
 from ._metrics import rel_l2
 from ._scene import DemoScene, demo_scene
-from ._techniques import ENERGY_CONSERVING, burley, reference, separable, translucency
+from ._techniques import ENERGY_CONSERVING, AbstractTechnique, Burley, Reference, Separable, Translucency
 from ._timing import time_call
 
 __all__ = ["DEMO_MATERIALS", "DemoResult", "run_demo", "demo_two_gaussian", "demo_trade", "demo_montecarlo",
@@ -60,6 +59,9 @@ class DemoResult:
     compile_seconds: dict[str, float]
     errors: dict[str, float]  # relative L2 against the reference over SSS pixels
     energy: dict[str, np.ndarray]  # output / input energy per channel over SSS pixels (albedo divided out)
+    # the images that are technique runs (the reference aside): image name -> (the report's label of the run, count
+    # or None, whether the technique conserves energy)
+    runs: dict[str, tuple[str, int | None, bool]] = dataclasses.field(default_factory=dict)
 
 
 def run_demo(*, height: int = 192, width: int = 256, samples: int = 32, taps: int = 25, repeats: int = 2,
@@ -71,21 +73,23 @@ def run_demo(*, height: int = 192, width: int = 256, samples: int = 32, taps: in
     mat = demo_burley_material()
     tg = demo_two_gaussian()
     sta = STAParams(**DEMO_STA)
-    runs: dict[str, Callable[[], jax.Array]] = {
-        "reference": lambda: reference(b, mat, cam),
-        f"burley_{samples}": lambda: burley(b, mat, cam, samples=samples),
-        f"separable_preintegrated_{taps}": lambda: separable(b, mat, cam, taps=taps),
-        f"separable_two_gaussian_{taps}": lambda: separable(b, tg, cam, taps=taps),
-        "sta": lambda: translucency(b, sta, cam, scene.back_light),
+    # image name -> (technique, its material, the report's label of the run); the reference first, timed once (it
+    # is slow by design). The two-Gaussian separable keeps a label of its own beside the pre-integrated one.
+    runs: dict[str, tuple[AbstractTechnique, object, str]] = {
+        f"burley_{samples}": (Burley(samples=samples), mat, "burley"),
+        f"separable_preintegrated_{taps}": (Separable(taps=taps), mat, "separable"),
+        f"separable_two_gaussian_{taps}": (Separable(taps=taps), tg, "separable_two_gaussian"),
+        "sta": (Translucency(scene.back_light), sta, "sta"),
     }
     mask = np.asarray(b.material_id) > 0
     albedo = np.asarray(b.albedo)
     irr = np.asarray(b.irradiance)
     local = albedo * irr
     images, seconds, compile_s = {}, {}, {}
-    for name, fn in runs.items():
+    timed = [("reference", Reference(), mat, 0)] + [(name, t, m, repeats) for name, (t, m, _) in runs.items()]
+    for name, technique, material, reps in timed:
         say(f"rendering {name} ...")
-        img, seconds[name], compile_s[name] = time_call(fn, 0 if name == "reference" else repeats)
+        img, seconds[name], compile_s[name] = time_call(lambda: technique(b, material, cam), reps)
         # the passes leave pixels without SSS untouched (irradiance); shade them locally for a finished picture
         images[name] = np.where(mask[..., None], img, local)
     images["irradiance"] = irr
@@ -98,8 +102,10 @@ def run_demo(*, height: int = 192, width: int = 256, samples: int = 32, taps: in
         errors[name] = rel_l2(img, ref, mask=mask)
         scattered = img / np.where(albedo > 0, albedo, 1)
         energy[name] = scattered[mask].sum(0) / irr[mask].sum(0)
+    counts = {name: (label, None if t.count_option is None else int(getattr(t, t.count_option)), t.conserves_energy)
+              for name, (t, _, label) in runs.items()}
     return DemoResult(scene=scene, images=images, seconds=seconds, compile_seconds=compile_s, errors=errors,
-                      energy=energy)
+                      energy=energy, runs=counts)
 
 
 def summary_rows(result: DemoResult) -> list[dict]:
@@ -129,13 +135,14 @@ def demo_trade(result: DemoResult, *, taps=(9, 17, 25), samples=(8, 16, 32, 64),
     mat = demo_burley_material()
     mask = np.asarray(b.material_id) > 0
     local = result.images["local"]
-    configs = [("sta", None, lambda: translucency(b, STAParams(**DEMO_STA), cam, scene.back_light))]
-    configs += [("separable", n, lambda n=n: separable(b, mat, cam, taps=n)) for n in taps]
-    configs += [("burley", n, lambda n=n: burley(b, mat, cam, samples=n)) for n in samples]
+    configs = [(Translucency(scene.back_light), STAParams(**DEMO_STA), None)]
+    configs += [(Separable(taps=n), mat, n) for n in taps]
+    configs += [(Burley(samples=n), mat, n) for n in samples]
     runs = []
-    for tech, n, fn in configs:
-        img, seconds, _ = time_call(fn, repeats)
-        runs.append(TechniqueRun(tech, n, 1e3 * seconds, (np.where(mask[..., None], img, local),)))
+    for technique, material, n in configs:
+        img, seconds, _ = time_call(lambda: technique(b, material, cam), repeats)
+        runs.append(TechniqueRun(technique.name, n, 1e3 * seconds, (np.where(mask[..., None], img, local),),
+                                 conserves_energy=technique.conserves_energy))
     return runs
 
 
@@ -168,13 +175,8 @@ def demo_report_data(result: DemoResult, trade=()):
     h, w = np.asarray(b.depth).shape
     ms = lambda name: 1e3 * result.seconds[name]
     runs, seen = [], set()
-    for name, img in result.images.items():
-        if name in ("irradiance", "local", "reference"):
-            continue
-        tech, _, count = name.rpartition("_")
-        tech, count = (tech, int(count)) if count.isdigit() else (name, None)
-        tech = {"separable_preintegrated": "separable"}.get(tech, tech)
-        runs.append(TechniqueRun(tech, count, ms(name), (img,)))
+    for name, (tech, count, conserves) in result.runs.items():
+        runs.append(TechniqueRun(tech, count, ms(name), (result.images[name],), conserves_energy=conserves))
         seen.add((tech, count))
     runs += [r for r in trade if (r.technique, r.count) not in seen]
     runs.sort(key=lambda r: (r.technique, r.count or 0))

@@ -9,7 +9,6 @@ version), so a second report on the same frame reads it back.
 from __future__ import annotations
 
 import hashlib
-import inspect
 import io
 import json
 import os
@@ -23,6 +22,7 @@ from ._io import Frame, SSSInputError, _blender_layers, read_channels, read_fram
 from ._machine import machine_info
 from ._materials import BurleyMaterial, DirectionalLight, ProfileMaterial, STAParams, TwoGaussianMaterial
 from ._report import FrameImages, ReportData, TechniqueRun
+from ._techniques._base import AbstractTechnique
 from ._timing import time_call
 
 __all__ = ["evaluate_frames", "read_truth", "REPORT_TECHNIQUES"]
@@ -129,17 +129,57 @@ def _material_albedo(material, ids: np.ndarray) -> np.ndarray:
     return table[rows]
 
 
+def _technique_object(t: str | AbstractTechnique, context: Mapping[str, Any],
+                      burley_options: Mapping[str, Any]) -> AbstractTechnique:
+    """The technique object a report runs for ``t``: ``t`` itself, or the class registered under the name ``t``
+    built with what the call gives that it has fields for (the STA's light, thickness, albedo; Burley's
+    ``burley_options``). Errors name the technique and what is wrong."""
+    import dataclasses
+
+    from ._techniques import TECHNIQUES
+
+    if isinstance(t, AbstractTechnique):
+        return t
+    if t not in REPORT_TECHNIQUES:
+        raise SSSInputError(f"unknown technique(s) [{t!r}]; valid: {', '.join(REPORT_TECHNIQUES)}")
+    cls = TECHNIQUES[t]
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    options = {k: v for k, v in context.items() if k in fields and v is not None}
+    own = {"burley": burley_options}.get(t, {})
+    extra = sorted(set(own) - set(fields) | ({cls.count_option} & set(own)))
+    if extra:
+        valid = ", ".join(sorted(set(cls.option_fields_names()) - {cls.count_option}))
+        raise ValueError(f"burley_options {extra} not accepted here; sss_jax.burley takes {valid} (samples come "
+                         "from `samples`)")
+    missing = [n for n, f in fields.items() if f.default is dataclasses.MISSING
+               and f.default_factory is dataclasses.MISSING and n not in options]
+    if missing:
+        raise SSSInputError(f"the {t} technique needs its {' and '.join(missing)}: light=DirectionalLight(...) and "
+                            "sta=STAParams(...) (on the command line --light-dir X,Y,Z)")
+    return cls(**options, **own)
+
+
+def _changed_options(t: AbstractTechnique) -> dict[str, Any]:
+    """The options of ``t`` that differ from its class's defaults (its count aside): what a run records."""
+    import dataclasses
+
+    defaults = {f.name: f.default for f in dataclasses.fields(t)}
+    return {k: v for k, v in t.options().items()
+            if k != t.count_option and isinstance(v, (str, int, float, bool, type(None))) and v != defaults[k]}
+
+
 def evaluate_frames(
     inputs: str | os.PathLike | Iterable[str | os.PathLike],
     material: BurleyMaterial | ProfileMaterial,
     *,
     truth: str | os.PathLike | Sequence[str | os.PathLike] | None = None,
     truth_channels: str | Sequence[str] | None = None,
-    techniques: Sequence[str] = REPORT_TECHNIQUES,
+    techniques: Sequence[str | AbstractTechnique] = REPORT_TECHNIQUES,
     taps: Iterable[int] = (9, 17, 25),
     samples: Iterable[int] = (8, 16, 32, 64),
     separable_material: TwoGaussianMaterial | BurleyMaterial | ProfileMaterial | None = None,
-    sta: tuple[STAParams, DirectionalLight] | None = None,
+    sta: STAParams | tuple[STAParams, DirectionalLight] | None = None,
+    light: DirectionalLight | None = None,
     sta_thickness: float | None = None,
     burley_options: Mapping[str, Any] | None = None,
     focal_px: float | None = None,
@@ -155,10 +195,13 @@ def evaluate_frames(
 ) -> ReportData:
     """Render, time and collect what ``sss_jax.report`` lays out, for EXR frames read as ``sss-jax apply`` reads them.
 
+    ``techniques``: registry names (of ``REPORT_TECHNIQUES``) or technique objects (``sj.Burley(pattern="fixed")``);
+    each technique whose ``count_option`` is ``"taps"`` or ``"samples"`` runs once per count of ``taps``/``samples``.
     ``material``: the Burley (or tabulated-profile) material table of the reference and of ``burley`` (one row per
     material id, or one row for every id > 0); ``separable_material`` (default ``material``) the separable's
-    kernels; ``sta``: ``(STAParams, DirectionalLight)`` for the STA, required when ``techniques`` holds ``"sta"``;
-    ``sta_thickness``: its constant thickness in scene units where a frame has no thickness channel (else 0).
+    kernels; ``sta``: the ``STAParams`` of the STA (the material it takes) and ``light`` its back light, required
+    when ``techniques`` holds it (``sta=(STAParams, DirectionalLight)`` is accepted too); ``sta_thickness``: its
+    constant thickness in scene units where a frame has no thickness channel (else 0).
     ``truth``: one offline render per input (``truth_channels`` as in ``read_truth``). ``taps``/``samples``: the
     separable's taps and Burley's samples to run (one run per count). ``burley_options``: further keyword arguments
     of ``sss_jax.burley`` (e.g. a sampling pattern), checked against its signature. Camera: ``focal_px`` (px) and
@@ -173,33 +216,38 @@ def evaluate_frames(
 
     from ._batch import expand_inputs
     from ._scene import Camera
-    from ._techniques import burley, reference, reference_radius_px, separable, translucency
+    from ._techniques import reference, reference_radius_px
 
     # ---- every check first: nothing is rendered or written for bad input
-    techniques = tuple(techniques)
-    unknown = [t for t in techniques if t not in REPORT_TECHNIQUES]
-    if unknown or not techniques:
-        raise SSSInputError(f"unknown technique(s) {unknown or '(none given)'}; valid: {', '.join(REPORT_TECHNIQUES)}")
-    taps = _counts("taps", taps, odd=True) if "separable" in techniques else ()
-    samples = _counts("samples", samples) if "burley" in techniques else ()
+    if not isinstance(material, (BurleyMaterial, ProfileMaterial)):
+        raise TypeError(f"material must be a BurleyMaterial or ProfileMaterial, got {type(material).__name__}")
+    if isinstance(sta, tuple):  # the older (STAParams, DirectionalLight) pair: the light belongs to the technique
+        sta, light = sta
+    table = np.asarray(material.albedo, np.float32).reshape(-1, 3)
+    # the STA takes one albedo where the buffers carry none: the material's when there is one material
+    sta_albedo = table[0] if table.shape[0] == 1 else None
+    # what a technique built from its name takes from this call, where it has such a field
+    context = {"light": light, "thickness": sta_thickness, "albedo": sta_albedo}
+    burley_options = dict(burley_options or {})
+    objects = tuple(_technique_object(t, context, burley_options) for t in techniques)
+    if not objects:
+        raise SSSInputError(f"unknown technique(s) (none given); valid: {', '.join(REPORT_TECHNIQUES)}")
+    sweeps = {"taps": (taps, True), "samples": (samples, False)}
+    counts = {opt: _counts(opt, values, odd=odd) for opt, (values, odd) in sweeps.items()
+              if any(t.count_option == opt for t in objects)}
     if not isinstance(repeats, (int, np.integer)) or repeats < 0:
         raise ValueError(f"repeats must be a non-negative integer, got {repeats!r}")
     if radius_px is not None and (not isinstance(radius_px, (int, np.integer)) or radius_px < 1):
         raise ValueError(f"radius_px must be a positive integer, got {radius_px!r}")
-    if not isinstance(material, (BurleyMaterial, ProfileMaterial)):
-        raise TypeError(f"material must be a BurleyMaterial or ProfileMaterial, got {type(material).__name__}")
-    if "burley" in techniques and not isinstance(material, BurleyMaterial):
-        raise TypeError(f"burley needs a BurleyMaterial, got {type(material).__name__}")
-    if "sta" in techniques and sta is None:
-        raise SSSInputError("the STA needs its parameters and light: sta=(STAParams, DirectionalLight) "
-                            "(on the command line --light-dir X,Y,Z)")
-    accepted = inspect.signature(burley).parameters
-    burley_options = dict(burley_options or {})
-    extra = sorted(set(burley_options) - {k for k, p in accepted.items() if p.kind == p.KEYWORD_ONLY} - {"samples"})
-    if extra or "samples" in burley_options:
-        raise ValueError(f"burley_options {extra or ['samples']} not accepted here; sss_jax.burley takes "
-                         f"{', '.join(k for k, p in accepted.items() if p.kind == p.KEYWORD_ONLY and k != 'samples')}"
-                         " (samples come from `samples`)")
+    sep_material = material if separable_material is None else separable_material
+    # the material each technique takes: the separable's own kernels and the STA's parameters where given
+    own = {"separable": sep_material, "sta": sta}
+    materials = [own.get(t.name, material) for t in objects]
+    for t, m in zip(objects, materials):
+        if m is None:
+            raise SSSInputError(f"the {t.name} technique needs its material (sta=STAParams(...)) and light "
+                                "(light=DirectionalLight(...); on the command line --light-dir X,Y,Z)")
+        t.check_material(m)
     paths = expand_inputs(inputs)
     if not paths:
         raise SSSInputError("no input frames")
@@ -227,18 +275,19 @@ def evaluate_frames(
 
     # ---- rendering and timing
     cache = None if cache_dir is None else pathlib.Path(cache_dir)
-    sep_material = material if separable_material is None else separable_material
-    table = np.asarray(material.albedo, np.float32).reshape(-1, 3)
-    # the STA takes one albedo where the buffers carry none: the material's when there is one material
-    sta_albedo = table[0] if table.shape[0] == 1 else None
-    configs: list[tuple[str, int | None]] = [("sta", None)] if "sta" in techniques else []
-    configs += [("separable", n) for n in taps] + [("burley", n) for n in samples]
+    # one run per technique and count: (technique object, its material, the count or None)
+    configs: list[tuple[AbstractTechnique, Any, int | None]] = []
+    for t, m in zip(objects, materials):
+        if t.count_option in counts:
+            configs += [(t.replace(**{t.count_option: n}), m, n) for n in counts[t.count_option]]
+        else:
+            configs.append((t, m, None))
     bar = tqdm(total=len(frames) * (1 + len(configs)), desc="sss-jax report", unit="run", file=sys.stderr,
                disable=not progress, dynamic_ncols=True)
     reading = {"channel_map": json.dumps(channel_map, sort_keys=True, default=str) if channel_map else None,
                "depth_kind": depth_kind, "use_albedo_pass": use_albedo_pass}
-    images: dict[tuple[str, int | None], list[np.ndarray]] = {c: [] for c in configs}
-    seconds: dict[tuple[str, int | None], list[float]] = {c: [] for c in configs}
+    images: list[list[np.ndarray]] = [[] for _ in configs]
+    seconds: list[list[float]] = [[] for _ in configs]
     frame_images, inputs_info, notes, ref_images, ref_seconds = [], [], [], [], []
     try:
         for f in frames:
@@ -269,18 +318,11 @@ def evaluate_frames(
             bar.update(1)
             ref_images.append(finish(ref))
             ref_seconds.append(ref_s)
-            for tech, n in configs:
-                bar.set_postfix_str(f"{name}: {tech}" + ("" if n is None else f" {n}"))
-                if tech == "sta":
-                    params, light = sta
-                    fn = lambda: translucency(b, params, cam, light, albedo=sta_albedo, thickness=sta_thickness)
-                elif tech == "separable":
-                    fn = lambda n=n: separable(b, sep_material, cam, taps=n)
-                else:
-                    fn = lambda n=n: burley(b, material, cam, samples=n, **burley_options)
-                img, s, _ = time_call(fn, repeats)
-                images[(tech, n)].append(finish(img))
-                seconds[(tech, n)].append(s)
+            for k, (tech, tech_material, n) in enumerate(configs):
+                bar.set_postfix_str(f"{name}: {tech.name}" + ("" if n is None else f" {n}"))
+                img, sec, _ = time_call(lambda: tech(b, tech_material, cam), repeats)
+                images[k].append(finish(img))
+                seconds[k].append(sec)
                 bar.update(1)
             frame_images.append(FrameImages(name=name, shaded=shaded, reference=ref_images[-1], material_id=ids,
                                             truth=truth_images[len(frame_images)] if truth_images else None,
@@ -292,17 +334,17 @@ def evaluate_frames(
     finally:
         bar.close()
 
-    runs = tuple(TechniqueRun(t, n, 1e3 * float(np.mean(seconds[(t, n)])), tuple(images[(t, n)]),
-                              options=dict(burley_options) if t == "burley" else {}) for t, n in configs)
+    runs = tuple(TechniqueRun(t.name, n, 1e3 * float(np.mean(seconds[k])), tuple(images[k]),
+                              options=_changed_options(t), conserves_energy=t.conserves_energy)
+                 for k, (t, _, n) in enumerate(configs))
     ref_run = TechniqueRun("reference", None, 1e3 * float(np.mean(ref_seconds)), tuple(ref_images))
     info = {"albedo": _tidy(material.albedo)}
     if isinstance(material, BurleyMaterial):
         info["d_mm"] = _tidy(material.d_mm)
     info["separable_kernel"] = ("two-Gaussian" if isinstance(sep_material, TwoGaussianMaterial)
                                 else "pre-integrated profile")
-    if "sta" in techniques:
-        params, light = sta
-        info["sta"] = {**{k: _tidy(v) for k, v in _leaves(params).items()}, "light_direction": _tidy(light.direction),
+    if any(isinstance(m, STAParams) for m in materials):
+        info["sta"] = {**{k: _tidy(v) for k, v in _leaves(sta).items()}, "light_direction": _tidy(light.direction),
                        "light_colour": _tidy(light.colour), "thickness_units": sta_thickness}
     if burley_options:
         info["burley_options"] = {k: str(v) for k, v in burley_options.items()}

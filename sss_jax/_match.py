@@ -41,11 +41,12 @@ import numpy as np
 from ._io import SSSInputError, display_transform, read_channels, read_frame, write_bytes_atomic
 from ._materials import BurleyMaterial, DirectionalLight, STAParams, TwoGaussianMaterial
 from ._scene import Buffers, Camera
+from ._techniques._base import AbstractTechnique
 
 __all__ = ["MATCH_TECHNIQUES", "MATCH_LOSSES", "MatchFrame", "MatchResult", "match_frame", "load_match_frame",
            "read_truth", "match_render", "match_report_html", "write_match_html"]
 
-MATCH_TECHNIQUES = ("burley", "separable", "sta")
+MATCH_TECHNIQUES = ("burley", "separable", "sta")  # the registry names of the classes in _FITS (a test checks)
 MATCH_LOSSES = ("huber", "l2")
 METRIC = "rel_l2 = ||out - truth||_2 / ||truth||_2 over RGB on the material's SSS pixels (finite depth, id == k; " \
          "'all': id > 0), pooled over the frames"
@@ -171,40 +172,6 @@ def _logit(x) -> np.ndarray:
     return np.log(p / (1 - p))
 
 
-def _start_params(technique: str, material, count: int, fit_albedo: bool) -> tuple[dict, np.ndarray]:
-    """Unconstrained start and the ``(count, 3)`` albedo table, from the starting material."""
-    if technique == "burley":
-        if not isinstance(material, BurleyMaterial):
-            raise TypeError(f"technique 'burley' starts from a BurleyMaterial, got {type(material).__name__}")
-        albedo = _rows(material.albedo, count, "albedo")
-        y = {"log_d_mm": _log(_rows(material.d_mm, count, "d_mm"))}
-    elif technique == "separable":
-        if isinstance(material, BurleyMaterial):
-            material = _two_gaussian_from_burley(material, count)
-        if not isinstance(material, TwoGaussianMaterial):
-            raise TypeError("technique 'separable' starts from a TwoGaussianMaterial or a BurleyMaterial, got "
-                            f"{type(material).__name__}")
-        albedo = _rows(material.albedo, count, "albedo")
-        y = {"logit_w": _logit(_rows(material.w, count, "w")),
-             "log_sigma_near_mm": _log(_rows(material.sigma_near_mm, count, "sigma_near_mm")),
-             "log_sigma_far_mm": _log(_rows(material.sigma_far_mm, count, "sigma_far_mm"))}
-    elif technique == "sta":
-        if not (isinstance(material, tuple) and len(material) == 2 and isinstance(material[0], STAParams)):
-            raise TypeError("technique 'sta' starts from (STAParams, albedo (3,) or (M, 3))")
-        params, alb = material
-        albedo = _rows(alb, count, "albedo")
-        one = lambda v: np.broadcast_to(np.asarray(v, np.float64), (count,)).copy()
-        y = {"log_distortion": _log(one(params.distortion)), "log_power": _log(one(params.power)),
-             "log_scale": _log(_rows(params.scale, count, "scale")),
-             "log_ambient": _log(_rows(params.ambient, count, "ambient")),
-             "log_thickness_mm": _log(_rows(params.thickness_mm, count, "thickness_mm"))}
-    else:
-        raise ValueError(f"unknown technique {technique!r}; valid techniques to fit: {', '.join(MATCH_TECHNIQUES)}")
-    if fit_albedo:
-        y["logit_albedo"] = _logit(albedo)
-    return y, albedo
-
-
 def _two_gaussian_from_burley(material: BurleyMaterial, count: int) -> TwoGaussianMaterial:
     """The start of a separable fit from a Burley material: the profile-space two-Gaussian fit per row."""
     from ._fitting import fit_two_gaussian_to_burley
@@ -222,26 +189,121 @@ def _two_gaussian_from_burley(material: BurleyMaterial, count: int) -> TwoGaussi
                                rows["sigma_far_mm"])
 
 
-def _natural(technique: str, y: Mapping[str, Any], albedo) -> dict[str, Any]:
+class _AbstractFit:
+    """How a technique's material is fitted: its unconstrained parameters (``start``), their natural values
+    (``natural``), the material they make (``material``), a render with it (``render``) and what the result records
+    (``record``). One subclass per technique class (``_FITS``); the fit asks it, never the technique's name."""
+
+    # options the fit needs of a technique built from its name (continuous fetches: smooth in the parameters)
+    build: Mapping[str, Any] = {}
+
+    def start(self, material, count: int) -> tuple[dict, np.ndarray]:
+        raise NotImplementedError
+
+    def natural(self, y: Mapping[str, Any], albedo, xp) -> dict[str, Any]:
+        return {"albedo": albedo, **{k[4:]: xp.exp(v) for k, v in y.items() if k.startswith("log_")}}
+
+    def material(self, p: Mapping[str, Any]):
+        raise NotImplementedError
+
+    def render(self, technique, frame, p: Mapping[str, Any]):
+        return technique(frame.buffers, self.material(p), frame.camera)
+
+    def record(self, technique, p_fit: Mapping[str, Any], ids) -> tuple[dict, dict | None]:
+        """The technique's options the fit was for, and the engines' blocks of the fitted material (or None)."""
+        count = technique.count_option
+        return ({} if count is None else {count: int(getattr(technique, count))}), None
+
+
+class _BurleyFit(_AbstractFit):
+    build = {"interpolation": "bilinear"}
+
+    def start(self, material, count):
+        if not isinstance(material, BurleyMaterial):
+            raise TypeError(f"technique 'burley' starts from a BurleyMaterial, got {type(material).__name__}")
+        return {"log_d_mm": _log(_rows(material.d_mm, count, "d_mm"))}, _rows(material.albedo, count, "albedo")
+
+    def material(self, p):
+        return BurleyMaterial(p["albedo"], p["d_mm"])
+
+    def record(self, technique, p_fit, ids):
+        from .engines import engine_blocks
+
+        options, _ = super().record(technique, p_fit, ids)
+        return options, {f"id{k}": engine_blocks(albedo=p_fit["albedo"][k - 1], d_mm=p_fit["d_mm"][k - 1])
+                         for k in ids}
+
+
+class _SeparableFit(_AbstractFit):
+    build = {"interpolation": "linear"}
+
+    def start(self, material, count):
+        if isinstance(material, BurleyMaterial):
+            material = _two_gaussian_from_burley(material, count)
+        if not isinstance(material, TwoGaussianMaterial):
+            raise TypeError("technique 'separable' starts from a TwoGaussianMaterial or a BurleyMaterial, got "
+                            f"{type(material).__name__}")
+        return ({"logit_w": _logit(_rows(material.w, count, "w")),
+                 "log_sigma_near_mm": _log(_rows(material.sigma_near_mm, count, "sigma_near_mm")),
+                 "log_sigma_far_mm": _log(_rows(material.sigma_far_mm, count, "sigma_far_mm"))},
+                _rows(material.albedo, count, "albedo"))
+
+    def natural(self, y, albedo, xp):
+        return {"albedo": albedo, "w": 1 / (1 + xp.exp(-y["logit_w"])), "sigma_near_mm": xp.exp(y["log_sigma_near_mm"]),
+                "sigma_far_mm": xp.exp(y["log_sigma_far_mm"])}
+
+    def material(self, p):
+        return TwoGaussianMaterial(p["albedo"], p["w"], p["sigma_near_mm"], p["sigma_far_mm"])
+
+
+class _TranslucencyFit(_AbstractFit):
+    def start(self, material, count):
+        if isinstance(material, STAParams):  # the albedo: white where the buffers carry none
+            material = (material, np.ones(3))
+        if not (isinstance(material, tuple) and len(material) == 2 and isinstance(material[0], STAParams)):
+            raise TypeError("technique 'sta' starts from STAParams or (STAParams, albedo (3,) or (M, 3))")
+        params, alb = material
+        one = lambda v: np.broadcast_to(np.asarray(v, np.float64), (count,)).copy()
+        return ({"log_distortion": _log(one(params.distortion)), "log_power": _log(one(params.power)),
+                 "log_scale": _log(_rows(params.scale, count, "scale")),
+                 "log_ambient": _log(_rows(params.ambient, count, "ambient")),
+                 "log_thickness_mm": _log(_rows(params.thickness_mm, count, "thickness_mm"))},
+                _rows(alb, count, "albedo"))
+
+    def material(self, p):
+        return [STAParams(distortion=p["distortion"][k], power=p["power"][k], scale=p["scale"][k],
+                          ambient=p["ambient"][k], thickness_mm=p["thickness_mm"][k])
+                for k in range(p["scale"].shape[0])]
+
+    def render(self, technique, frame, p):
+        out = frame.buffers.irradiance
+        with_albedo = technique.replace(albedo=p["albedo"])
+        for k, params in enumerate(self.material(p)):  # STA parameters are one set per call: one pass per id
+            o = with_albedo(frame.buffers, params, frame.camera)
+            out = jnp.where((frame.ids == k + 1)[..., None], o, out)
+        return out
+
+    def record(self, technique, p_fit, ids):
+        light = technique.light
+        return ({"thickness": technique.thickness, "light_direction": np.asarray(light.direction).tolist(),
+                 "light_colour": np.asarray(light.colour).tolist()}, None)
+
+
+def _fits():
+    from ._techniques import Burley, Separable, Translucency
+
+    return {Burley: _BurleyFit(), Separable: _SeparableFit(), Translucency: _TranslucencyFit()}
+
+
+# the fit of each technique class that can be fitted to a render
+_FITS: dict[type, _AbstractFit] = _fits()
+
+
+def _natural(fit: _AbstractFit, y: Mapping[str, Any], albedo) -> dict[str, Any]:
     """Natural parameters from unconstrained ones (works on traced arrays and on NumPy)."""
     xp = jnp if any(isinstance(v, jax.Array) for v in y.values()) else np
-    sig = lambda v: 1 / (1 + xp.exp(-v))
-    a = sig(y["logit_albedo"]) if "logit_albedo" in y else albedo
-    if technique == "burley":
-        return {"albedo": a, "d_mm": xp.exp(y["log_d_mm"])}
-    if technique == "separable":
-        return {"albedo": a, "w": sig(y["logit_w"]), "sigma_near_mm": xp.exp(y["log_sigma_near_mm"]),
-                "sigma_far_mm": xp.exp(y["log_sigma_far_mm"])}
-    return {"albedo": a, **{k[4:]: xp.exp(v) for k, v in y.items() if k.startswith("log_")}}
-
-
-def _material_of(technique: str, p: Mapping[str, Any]):
-    if technique == "burley":
-        return BurleyMaterial(p["albedo"], p["d_mm"])
-    if technique == "separable":
-        return TwoGaussianMaterial(p["albedo"], p["w"], p["sigma_near_mm"], p["sigma_far_mm"])
-    return [STAParams(distortion=p["distortion"][k], power=p["power"][k], scale=p["scale"][k],
-                      ambient=p["ambient"][k], thickness_mm=p["thickness_mm"][k]) for k in range(p["scale"].shape[0])]
+    a = 1 / (1 + xp.exp(-y["logit_albedo"])) if "logit_albedo" in y else albedo
+    return fit.natural(y, a, xp)
 
 
 # ------------------------------------------------------------------------------------------------------------------
@@ -262,31 +324,15 @@ class _Problem(eqx.Module):
     frames: tuple
     albedo: jax.Array  # (M, 3): used where the albedo is not fitted
     gain: jax.Array  # () constant factor on the residual: puts J^T J near 1 for the solver's first damping
-    light: DirectionalLight | None
-    technique: str = eqx.field(static=True)
-    samples: int = eqx.field(static=True)
-    taps: int = eqx.field(static=True)
-    thickness: float | None = eqx.field(static=True)
+    technique: Any  # the technique object (its options; the STA's light and thickness)
+    fit: _AbstractFit = eqx.field(static=True)
     loss: str = eqx.field(static=True)
     huber_delta: float = eqx.field(static=True)
 
 
 def _render(problem: _Problem, frame: _FrameData, y) -> jax.Array:
-    from ._techniques import burley, separable, translucency
-
     y = jax.tree_util.tree_map(lambda v: jnp.asarray(v, problem.albedo.dtype), y)
-    p = _natural(problem.technique, y, problem.albedo)
-    material = _material_of(problem.technique, p)
-    if problem.technique == "burley":
-        return burley(frame.buffers, material, frame.camera, samples=problem.samples, interpolation="bilinear")
-    if problem.technique == "separable":
-        return separable(frame.buffers, material, frame.camera, taps=problem.taps, interpolation="linear")
-    out = frame.buffers.irradiance
-    for k, params in enumerate(material):  # STA parameters are one set per call: one pass per material id
-        o = translucency(frame.buffers, params, frame.camera, problem.light, albedo=p["albedo"],
-                         thickness=problem.thickness)
-        out = jnp.where((frame.ids == k + 1)[..., None], o, out)
-    return out
+    return problem.fit.render(problem.technique, frame, _natural(problem.fit, y, problem.albedo))
 
 
 def _huber_residual(e: jax.Array, delta: float) -> jax.Array:
@@ -418,7 +464,30 @@ def _result_name(result) -> tuple[str, str]:
     return "unknown", str(optx.RESULTS[result]).strip()
 
 
-def _table(technique: str, p: Mapping[str, Any], ids: Sequence[int]) -> dict[str, dict[str, Any]]:
+def _fit_technique(technique: str | AbstractTechnique, **available) -> tuple[AbstractTechnique, _AbstractFit]:
+    """The technique object to fit and its fit: ``technique`` itself, or the class registered under that name built
+    with the fit's own options and those of ``available`` it has fields for."""
+    from ._techniques import TECHNIQUES
+
+    names = [cls.name for cls in _FITS]
+    if not isinstance(technique, AbstractTechnique):
+        cls = TECHNIQUES.get(technique) if isinstance(technique, str) else None
+        if cls not in _FITS:
+            raise ValueError(f"unknown technique {technique!r}; valid techniques to fit: {', '.join(names)}")
+        fields = {f.name: f for f in dataclasses.fields(cls)}
+        options = {k: v for k, v in available.items() if k in fields and v is not None}
+        missing = [n for n, f in fields.items() if n not in options and f.default is dataclasses.MISSING
+                   and f.default_factory is dataclasses.MISSING]
+        if missing:
+            raise ValueError(f"technique {technique!r} needs {', '.join(f'{n}=' for n in missing)}"
+                             "DirectionalLight(direction, colour)")
+        technique = cls(**_FITS[cls].build, **options)
+    if type(technique) not in _FITS:
+        raise ValueError(f"technique {technique.name!r} cannot be fitted; valid techniques to fit: {', '.join(names)}")
+    return technique, _FITS[type(technique)]
+
+
+def _table(p: Mapping[str, Any], ids: Sequence[int]) -> dict[str, dict[str, Any]]:
     return {f"id{k}": {name: np.asarray(v)[k - 1].tolist() for name, v in p.items()} for k in ids}
 
 
@@ -426,7 +495,7 @@ def match_render(
     frames: MatchFrame | Sequence[MatchFrame],
     material,
     *,
-    technique: str = "burley",
+    technique: str | AbstractTechnique = "burley",
     holdout: Sequence[MatchFrame] = (),
     samples: int = 32,
     taps: int = 25,
@@ -442,6 +511,10 @@ def match_render(
 ) -> MatchResult:
     """Fit ``technique``'s material per material id so its output on ``frames`` matches their truth renders.
 
+    ``technique``: a name of ``MATCH_TECHNIQUES``, built with ``samples``/``taps``/``light``/``thickness`` where it
+    has such an option, or a technique object (``sj.Burley(samples=16)``, ``sj.Translucency(light)``), fitted with
+    its own options.
+
     ``material``: the start, one row for every id or one per id 1..M: a ``BurleyMaterial`` (``burley``; for
     ``separable`` it is turned into the two-Gaussian kernel by the profile-space fit), a ``TwoGaussianMaterial``
     (``separable``) or ``(STAParams, albedo (3,) or (M, 3))`` (``sta``, which also needs ``light`` and takes
@@ -456,8 +529,6 @@ def match_render(
     holdout = list(holdout)
     if not frames:
         raise ValueError("match_render needs at least one frame to fit")
-    if technique not in MATCH_TECHNIQUES:
-        raise ValueError(f"unknown technique {technique!r}; valid techniques to fit: {', '.join(MATCH_TECHNIQUES)}")
     if loss not in MATCH_LOSSES:
         raise ValueError(f"unknown loss {loss!r}; valid losses: {', '.join(MATCH_LOSSES)}")
     if not (huber_delta > 0):
@@ -468,8 +539,8 @@ def match_render(
         raise ValueError(f"taps must be an odd positive integer, got {taps!r}")
     if not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
         raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
-    if technique == "sta" and not isinstance(light, DirectionalLight):
-        raise ValueError("technique 'sta' needs light=DirectionalLight(direction, colour)")
+    technique, fit = _fit_technique(technique, samples=int(samples), taps=int(taps), light=light,
+                                    thickness=None if thickness is None else float(thickness))
     for f in frames + holdout:
         if not isinstance(f, MatchFrame):
             raise TypeError(f"frames must be MatchFrame (match_frame / load_match_frame), got {type(f).__name__}")
@@ -480,14 +551,16 @@ def match_render(
         if extra:
             raise ValueError(f"held-back frame {f.name} has material id(s) {extra} that no fitted frame has: "
                              "nothing is fitted for them")
-    y0, albedo = _start_params(technique, material, count, fit_albedo)
+    y0, albedo = fit.start(material, count)
+    if fit_albedo:
+        y0["logit_albedo"] = _logit(albedo)
     # one dtype for parameters and images (lineax wants the Jacobian's input and output to agree): JAX's default
     # float, float32 unless x64 is on
     dtype = jnp.result_type(float)
     norms, means = _pooled_stats(frames, ids)
     data = tuple(_frame_data(f, norms, means, dtype) for f in frames)
-    problem = _Problem(data, jnp.asarray(albedo, dtype), jnp.asarray(gain, dtype), light, technique, int(samples), int(taps),
-                       None if thickness is None else float(thickness), loss, float(huber_delta))
+    problem = _Problem(data, jnp.asarray(albedo, dtype), jnp.asarray(gain, dtype), technique, fit, loss,
+                       float(huber_delta))
     y0 = {k: jnp.asarray(v, dtype) for k, v in y0.items()}
 
     t0 = time.perf_counter()
@@ -515,18 +588,10 @@ def match_render(
         images += [(f.name, "holdout", f.truth, b, a, f.material_id) for f, b, a in zip(holdout, hb, ha)]
 
     host = lambda yy: {k: np.asarray(v, np.float64) for k, v in yy.items()}
-    p_start = _natural(technique, host(y0), np.asarray(albedo))
-    p_fit = _natural(technique, host(y), np.asarray(albedo))
-    engines = None
-    if technique == "burley":
-        from .engines import engine_blocks
-
-        engines = {f"id{k}": engine_blocks(albedo=p_fit["albedo"][k - 1], d_mm=p_fit["d_mm"][k - 1]) for k in ids}
-    fitted = _material_of(technique, {k: jnp.asarray(v, dtype) for k, v in p_fit.items()})
-    options = {"samples": int(samples)} if technique == "burley" else (
-        {"taps": int(taps)} if technique == "separable" else {"thickness": thickness,
-                                                               "light_direction": np.asarray(light.direction).tolist(),
-                                                               "light_colour": np.asarray(light.colour).tolist()})
+    p_start = _natural(fit, host(y0), np.asarray(albedo))
+    p_fit = _natural(fit, host(y), np.asarray(albedo))
+    fitted = fit.material({k: jnp.asarray(v, dtype) for k, v in p_fit.items()})
+    options, engines = fit.record(technique, p_fit, ids)
     options["fit_albedo"] = bool(fit_albedo)
     loss_info = {"name": loss, "note": "plain least squares on rel_l2 per material" if loss == "l2" else
                  "Huber on each pixel's residual in units of its material's mean truth value (quadratic up to "
@@ -534,8 +599,8 @@ def match_render(
     if loss == "huber":
         loss_info["huber_delta"] = float(huber_delta)
     return MatchResult(
-        technique=technique, material=fitted, parameters=_table(technique, p_fit, ids),
-        start=_table(technique, p_start, ids), ids=tuple(ids), options=options, loss=loss_info,
+        technique=technique.name, material=fitted, parameters=_table(p_fit, ids),
+        start=_table(p_start, ids), ids=tuple(ids), options=options, loss=loss_info,
         solver={"name": "optimistix.LevenbergMarquardt", "rtol": rtol, "atol": atol, "max_steps": int(max_steps),
                 "result": name, "message": message, "iterations": int(sol.stats["num_steps"]),
                 "seconds": round(seconds, 3), "parameters": sorted(y0)},

@@ -105,8 +105,8 @@ def load_preset(name_or_path: str | os.PathLike) -> Preset:
                       for f in ("w", "sigma_near_mm", "sigma_far_mm")]
             tg = TwoGaussianMaterial(albedo, *fields)
         sta = None
-        if "sta" in data:
-            s = data["sta"]
+        s = data.get("sta", sta)
+        if s is not None:
             if not isinstance(s, dict):
                 raise SSSInputError(f"{path}: sta must be an object of STA parameters")
             allowed = {"distortion", "power", "scale", "ambient", "thickness_mm"}
@@ -125,14 +125,27 @@ def load_preset(name_or_path: str | os.PathLike) -> Preset:
                   raw=data, medium=medium)
 
 
-def material_for(technique: str, preset: Preset, *, albedo=None):
-    """The parameters a technique takes from a preset (``albedo`` (3,) overrides the preset's)."""
-    if technique == "sta":
-        if preset.sta is None:
-            raise SSSInputError(f"{preset.path}: preset has no sta parameters")
-        return preset.sta
-    if technique == "separable" and preset.two_gaussian is not None:
-        tg = preset.two_gaussian
-        return tg if albedo is None else TwoGaussianMaterial(albedo, tg.w, tg.sigma_near_mm, tg.sigma_far_mm)
-    b = preset.burley
-    return b if albedo is None else BurleyMaterial(albedo, b.d_mm)
+def material_for(technique, preset: Preset, *, albedo=None):
+    """The material ``technique`` (a technique object, or its registry name: its default options) takes from a
+    preset: the first of the preset's STA parameters, two-Gaussian kernel, measured medium and Burley material that
+    the technique accepts (so the separable prefers the fitted two-Gaussian kernel to the pre-integrated profile).
+    ``albedo`` (3,) overrides the preset's."""
+    from ._techniques import AbstractTechnique, get_technique
+
+    if isinstance(technique, AbstractTechnique):
+        name, accepts = technique.name, technique.takes
+    else:
+        cls = get_technique(technique)
+        name, accepts = cls.name, cls.accepts
+    for material in (preset.sta, preset.two_gaussian, preset.medium, preset.burley):
+        if material is not None and accepts(material):
+            break
+    else:
+        raise SSSInputError(f"{preset.path}: preset has no {name} parameters")
+    if albedo is None:
+        return material
+    if isinstance(material, TwoGaussianMaterial):
+        return TwoGaussianMaterial(albedo, material.w, material.sigma_near_mm, material.sigma_far_mm)
+    if isinstance(material, BurleyMaterial):
+        return BurleyMaterial(albedo, material.d_mm)
+    return material

@@ -13,6 +13,7 @@ import pathlib
 import numpy as np
 
 from ._report import Page, new_figure, report
+from ._techniques._registry import ENERGY_CONSERVING
 
 __all__ = ["write_demo_report", "demo_sections"]
 
@@ -94,7 +95,8 @@ def demo_sections(result, montecarlo=None) -> list[tuple[str, str, dict]]:
                       "Separable and Burley redistribute light (1 up to image borders and depth edges); STA adds "
                       "light through thickness by design and does not conserve energy.")
     rep.table(sec, [dict(technique=n, R=float(e[0]), G=float(e[1]), B=float(e[2]),
-                         conserves="no (adds light)" if n == "sta" else "yes")
+                         conserves="yes" if (result.runs[n][2] if n in result.runs else ENERGY_CONSERVING.get(n, True))
+                         else "no (adds light)")
                     for n, e in result.energy.items() if n != "local"], "energy ratio", key="energy")
 
     # Burley's sampling error: samples x frames, bias and noise over seeds (issue #18)

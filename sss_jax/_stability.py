@@ -26,7 +26,7 @@ from ._kernels import separable_kernel_from_profile, spiral_samples, two_gaussia
 from ._materials import BurleyMaterial, DirectionalLight, STAParams, TwoGaussianMaterial
 from ._profiles import BurleyProfile, burley_cdf, burley_inverse_cdf, burley_R
 from ._scene import Buffers, Camera, validate_buffers
-from ._techniques import burley, reference, separable, translucency
+from ._techniques import AbstractTechnique, Burley, Reference, Separable, Translucency
 
 __all__ = ["run_sweep", "sweep_cases", "Case"]
 
@@ -142,30 +142,58 @@ def _finite(tree) -> bool:
 _COMPILED: dict[tuple, Callable] = {}
 
 
+_burley_material = lambda p: BurleyMaterial(p["albedo"], p["d_mm"])
+
+
+@dataclasses.dataclass(frozen=True)
+class _Component:
+    """A technique as the stability sweep runs it: the technique (from the sweep's small counts), the material it
+    takes from a case's parameters (traced or not), and those parameters from a case's (host side)."""
+
+    technique: Callable[[int, int, int], AbstractTechnique]  # (samples, taps, radius) -> technique
+    material: Callable[[dict], Any]
+    params: Callable[[dict], dict]
+
+
+def _burley_params(p):
+    return dict(albedo=np.full((3,), p["albedo"], np.float32), d_mm=np.full((3,), p["d_mm"], np.float32))
+
+
+def _two_gaussian_params(p):
+    return dict(albedo=np.full((3,), 0.7, np.float32), w=np.full((3,), p["w"], np.float32),
+                sigma_near_mm=np.full((3,), p["sigma_near_mm"], np.float32),
+                sigma_far_mm=np.full((3,), p["sigma_far_mm"], np.float32))
+
+
+_TECHNIQUE_COMPONENTS: dict[str, _Component] = {
+    "burley": _Component(lambda n, taps, radius: Burley(samples=n), _burley_material, _burley_params),
+    "separable_burley": _Component(lambda n, taps, radius: Separable(taps=taps), _burley_material, _burley_params),
+    "reference": _Component(lambda n, taps, radius: Reference(radius_px=radius, near_subsamples=2), _burley_material,
+                            _burley_params),
+    "separable_two_gaussian": _Component(
+        lambda n, taps, radius: Separable(taps=taps),
+        lambda p: TwoGaussianMaterial(p["albedo"], p["w"], p["sigma_near_mm"], p["sigma_far_mm"]), _two_gaussian_params),
+    "sta": _Component(
+        lambda n, taps, radius: Translucency(DirectionalLight(jnp.asarray([0.2, -0.3, 0.9], jnp.float32)),
+                                             thickness=0.05),
+        lambda p: STAParams(distortion=p["distortion"], power=p["power"], scale=1.0, ambient=0.1,
+                            thickness_mm=p["thickness_mm"]),
+        lambda p: {k: np.asarray(p[k], np.float32) for k in ("power", "distortion", "thickness_mm")}),
+}
+
+
 def _technique_fn(component: str, samples: int = 4, taps: int = 5, radius: int = 3) -> Callable:
     """Batched (irradiance, depth, params) -> ((objective, output), grads w.r.t. irradiance and params): one vmapped
     jitted call serves every case of a (component, dtype, size) group."""
     key = (component, samples, taps, radius)
     if key in _COMPILED:
         return _COMPILED[key]
+    spec = _TECHNIQUE_COMPONENTS[component]
+    technique = spec.technique(samples, taps, radius)
 
     def forward(irradiance, depth, params):
         b = Buffers(irradiance=irradiance, depth=depth)
-        if component == "burley":
-            out = burley(b, BurleyMaterial(params["albedo"], params["d_mm"]), CAMERA, samples=samples)
-        elif component == "separable_burley":
-            out = separable(b, BurleyMaterial(params["albedo"], params["d_mm"]), CAMERA, taps=taps)
-        elif component == "reference":
-            out = reference(b, BurleyMaterial(params["albedo"], params["d_mm"]), CAMERA, radius_px=radius,
-                            near_subsamples=2)
-        elif component == "separable_two_gaussian":
-            mat = TwoGaussianMaterial(params["albedo"], params["w"], params["sigma_near_mm"], params["sigma_far_mm"])
-            out = separable(b, mat, CAMERA, taps=taps)
-        else:
-            sta = STAParams(distortion=params["distortion"], power=params["power"], scale=1.0, ambient=0.1,
-                            thickness_mm=params["thickness_mm"])
-            light = DirectionalLight(jnp.asarray([0.2, -0.3, 0.9], jnp.float32))
-            out = translucency(b, sta, CAMERA, light, thickness=0.05)
+        out = technique(b, spec.material(params), CAMERA)
         # a scale-free objective: finite for inputs of any magnitude
         scale = jax.lax.stop_gradient(1.0 + jnp.max(jnp.abs(irradiance.astype(jnp.float32))))
         return jnp.sum(out.astype(jnp.float32)) / scale, out
@@ -182,19 +210,11 @@ def _prepare_technique_case(case: Case):
     shape = tuple(p["size"])
     e = _irradiance(p["irradiance"], shape, dtype)
     z = _depth(p["depth"], shape, dtype)
+    spec = _TECHNIQUE_COMPONENTS[case.component]
     try:
         validate_buffers(Buffers(irradiance=jnp.asarray(e), depth=jnp.asarray(z)))
-        if case.component in ("burley", "separable_burley", "reference"):
-            params = dict(albedo=np.full((3,), p["albedo"], np.float32), d_mm=np.full((3,), p["d_mm"], np.float32))
-            BurleyMaterial(params["albedo"], params["d_mm"])  # host-side range checks
-        elif case.component == "separable_two_gaussian":
-            params = dict(albedo=np.full((3,), 0.7, np.float32), w=np.full((3,), p["w"], np.float32),
-                          sigma_near_mm=np.full((3,), p["sigma_near_mm"], np.float32),
-                          sigma_far_mm=np.full((3,), p["sigma_far_mm"], np.float32))
-            TwoGaussianMaterial(**params)
-        else:
-            params = {k: np.asarray(p[k], np.float32) for k in ("power", "distortion", "thickness_mm")}
-            STAParams(**params)
+        params = spec.params(p)
+        spec.material(params)  # host-side range checks
     except (ValueError, TypeError) as exc:
         case.outcome, case.message = "handled_error", str(exc)
         return None
@@ -222,7 +242,7 @@ def _run_technique_group(cases: list[Case]) -> None:
         if not all(np.all(np.isfinite(g[i])) for g in jax.tree.leaves(grads)):
             case.outcome = "nonfinite_gradient"
             continue
-        if case.component != "sta":
+        if _TECHNIQUE_COMPONENTS[case.component].technique(1, 1, 1).conserves_energy:
             # redistribution creates no light: every output is a convex combination of inputs times albedo <= 1,
             # so no pixel exceeds the brightest input, and the total stays within the border effects of a gather
             tol = 2e-2 if dtype == np.float16 else 1e-4
@@ -336,13 +356,18 @@ def _limit_step() -> Buffers:
     return Buffers(irradiance=jnp.asarray(e), depth=jnp.ones((12, 16)))
 
 
+# the techniques of the limit checks; Burley with four frames of rotations: the sampling noise well below the
+# tolerances
+_LIMIT_TECHNIQUES: dict[str, AbstractTechnique] = {
+    "burley": Burley(samples=16, frames=4),
+    "separable_burley": Separable(taps=25),
+    "reference": Reference(radius_px=15, near_subsamples=2),
+}
+
+
 def _limit_run(technique: str, b: Buffers, d_mm: float):
     mat = BurleyMaterial(albedo=(1.0, 1.0, 1.0), d_mm=(d_mm,) * 3)
-    if technique == "burley":  # four frames of rotations: the sampling noise well below the tolerances
-        return np.asarray(burley(b, mat, _LIMIT_CAMERA, samples=16, frames=4), np.float64)
-    if technique == "separable_burley":
-        return np.asarray(separable(b, mat, _LIMIT_CAMERA, taps=25), np.float64)
-    return np.asarray(reference(b, mat, _LIMIT_CAMERA, radius_px=15, near_subsamples=2), np.float64)
+    return np.asarray(_LIMIT_TECHNIQUES[technique](b, mat, _LIMIT_CAMERA), np.float64)
 
 
 def _jump(out) -> float:
@@ -385,7 +410,7 @@ def _run_limit_case(case: Case) -> None:
         colour = (2.0, 2.0, 2.0)
         for theta in (0.0, 1.0, 2.5):
             lit = DirectionalLight((math.sin(theta), 0.0, math.cos(theta)), colour)
-            out = np.asarray(translucency(b, sta, _LIMIT_CAMERA, lit, thickness=1.0), np.float64)
+            out = np.asarray(Translucency(lit, thickness=1.0)(b, sta, _LIMIT_CAMERA), np.float64)
             bound = e + 2.0 * (scale + ambient)
             if np.any(out > bound * (1 + 1e-6)) or np.any(out < e * (1 - 1e-6)):
                 problem = f"light at {theta} rad: output outside [E, E + light (scale + ambient)]"

@@ -234,3 +234,62 @@ def test_a_tile_cannot_be_placed_by_a_function_without_origin():
         return None
 
     assert base.tile_options(placed, b, (4, 2), (H + 4, W + 2)) == {"origin": (4, 2), "frame_shape": (H + 4, W + 2)}
+
+
+def test_callers_ask_the_objects():
+    from sss_jax._match import _FITS, MATCH_TECHNIQUES
+
+    # the fit's techniques are the registry's classes it has a fit for
+    assert set(MATCH_TECHNIQUES) == {cls.name for cls in _FITS}
+    # what a report sweeps: Burley's samples, the separable's taps; the STA and the reference have no count
+    assert (sj.Burley.count_option, sj.Separable.count_option) == ("samples", "taps")
+    assert sj.Translucency.count_option is None and sj.Reference.count_option is None
+    assert sj.Burley(samples=8).replace(samples=64).samples == 64
+    # the STA's material follows its model
+    assert sj.Translucency.accepts(STA) and not sj.Translucency.accepts(BURLEY)
+    assert sj.Translucency(LIGHT, model="thin").takes(BURLEY)
+    assert sj.Separable.accepts(TWO_G) and sj.Separable.accepts(BURLEY) and not sj.Burley.accepts(TWO_G)
+
+
+def test_material_for_asks_the_technique(tmp_path):
+    import json
+
+    from sss_jax._presets import load_preset, material_for
+
+    path = tmp_path / "p.json"
+    path.write_text(json.dumps({"name": "p", "albedo": [0.8, 0.7, 0.6], "burley": {"d_mm": [3.0, 2.0, 1.0]},
+                                "separable": {"two_gaussian": {"w": [0.5, 0.5, 0.5], "sigma_near_mm": [1.0] * 3,
+                                                               "sigma_far_mm": [4.0] * 3}}}))
+    preset = load_preset(path)
+    assert isinstance(material_for("separable", preset), sj.TwoGaussianMaterial)  # the fitted kernel first
+    assert isinstance(material_for(sj.Burley(), preset), sj.BurleyMaterial)
+    assert isinstance(material_for("reference", preset), sj.BurleyMaterial)
+    assert isinstance(material_for(sj.Translucency(LIGHT, model="thin"), preset), sj.BurleyMaterial)
+    np.testing.assert_allclose(np.asarray(material_for("burley", preset, albedo=[0.1, 0.2, 0.3]).albedo)[0],
+                               [0.1, 0.2, 0.3], rtol=1e-6)
+    with pytest.raises(sj.SSSInputError, match="p.json: preset has no sta parameters"):
+        material_for("sta", preset)
+
+
+def test_errors_are_defined_once():
+    import sss_jax._io as io
+    from sss_jax import _errors
+    from sss_jax._techniques import _common, _reference as ref
+
+    assert sj.SSSInputError is _errors.SSSInputError is io.SSSInputError and issubclass(sj.SSSInputError, ValueError)
+    assert sj.SamplingWarning is _errors.SamplingWarning is _common.SamplingWarning
+    assert sj.ReferenceWindowWarning is _errors.ReferenceWindowWarning is ref.ReferenceWindowWarning
+
+
+def test_the_wrappers_reuse_objects_but_not_across_types(as_users_run_it):
+    from sss_jax._techniques._base import built
+
+    assert built(sj.Burley, {"samples": 8}) is built(sj.Burley, {"samples": 8})
+    assert built(sj.Burley, {"samples": 8}) is not built(sj.Burley, {"samples": 16})
+    assert built(sj.Burley, {"frames": 1}).frames is not True
+    # a bool is not the integer it equals: the function's own check still sees it
+    with pytest.raises(ValueError, match="frames must be a positive integer, got True"):
+        sj.burley(frame(), BURLEY, CAM, frames=True)
+    # an unhashable option is built afresh
+    seed = jnp.asarray(3, jnp.uint32)
+    assert built(sj.Burley, {"seed": seed}).seed is seed

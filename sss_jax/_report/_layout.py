@@ -112,8 +112,10 @@ def report(data: ReportData, out_dir: str | pathlib.Path, *,
     truths = [f.truth for f in frames] if has_truth else None
     de_cache: dict = {}
 
+    target_images = {"reference": refs, "truth": truths}  # what each comparison is against
+
     def metrics(run: TechniqueRun, which: str):
-        targets = refs if which == "reference" else truths
+        targets = target_images[which]
         des = _delta_e_values(run.images, targets, frames, exposure, de_cache, (run.label, which))
         return compare(run.images, targets, masks, des)
 
@@ -186,14 +188,14 @@ def report(data: ReportData, out_dir: str | pathlib.Path, *,
         for fi, f in enumerate(frames):
             if len(frames) > 1:
                 page.raw(sec, f"<h3>{html.escape(f.name)}</h3>")
-            tgt = f.reference if which == "reference" else f.truth
+            tgt = target_images[which][fi]
             cmp_runs = ([data.reference_run] if which == "truth" and data.reference_run is not None else []) + shown
             diffs, des = {}, {}
             for run in cmp_runs:
                 diffs[run.label] = np.abs(np.asarray(run.images[fi], np.float64) - tgt).mean(-1) * f.mask
-                des[run.label] = _delta_e_values(run.images, refs if which == "reference" else truths, frames,
+                des[run.label] = _delta_e_values(run.images, target_images[which], frames,
                                                  exposure, de_cache, (run.label, which))[fi]
-            sta = [r.label for r in cmp_runs if r.technique == "sta"]
+            sta = [r.label for r in cmp_runs if r.adds_light]  # kept apart: it adds light by design
             rest = [k for k in diffs if k not in sta]
             page.raw(sec, "<div class=grid>")
             for run in cmp_runs:

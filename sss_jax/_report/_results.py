@@ -66,6 +66,17 @@ class TechniqueRun:
     ms_per_frame: float | None
     images: tuple[np.ndarray, ...]
     options: dict[str, Any] = dataclasses.field(default_factory=dict)
+    # whether the technique redistributes light (None: as the registry's class of ``technique`` says)
+    conserves_energy: bool | None = None
+
+    @property
+    def adds_light(self) -> bool:
+        """The technique adds light (the STA): the report keeps such runs apart from those that redistribute it."""
+        if self.conserves_energy is not None:
+            return not self.conserves_energy
+        from .._techniques._registry import ENERGY_CONSERVING
+
+        return not ENERGY_CONSERVING.get(self.technique, True)
 
     @property
     def label(self) -> str:

@@ -23,8 +23,9 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+import functools
 import inspect
-from typing import Any, Callable
+from typing import Any, Callable, ClassVar
 
 import equinox as eqx
 from jaxtyping import Array, Float
@@ -57,13 +58,14 @@ class AbstractTechnique(eqx.Module):
     name: eqx.AbstractClassVar[str]  # the registry's name
     conserves_energy: eqx.AbstractClassVar[bool]  # redistributes light (True) or adds it (False)
     material_type: eqx.AbstractClassVar[type | tuple[type, ...]]  # the material class(es) it takes
+    # the option whose value is the technique's sample count, which a report sweeps ("samples", "taps"; None: none)
+    count_option: ClassVar[str | None] = None
 
     def __check_init__(self):
-        for field in self.option_fields():
-            choices = field.metadata.get("choices")
-            value = getattr(self, field.name)
-            if choices is not None and value not in choices:
-                raise ValueError(f"{self.name}: {field.name}={value!r} is not one of {choices}")
+        for name, choices in _choices_of(type(self)):
+            value = getattr(self, name)
+            if value not in choices:
+                raise ValueError(f"{self.name}: {name}={value!r} is not one of {choices}")
 
     @abc.abstractmethod
     def __call__(self, buffers: Buffers, material: Any, camera: Camera, *, origin: tuple[int, int] = (0, 0),
@@ -85,16 +87,69 @@ class AbstractTechnique(eqx.Module):
         """The technique's options (the fields declared with ``option``), in declaration order."""
         return tuple(f for f in dataclasses.fields(cls) if "help" in f.metadata)
 
+    @classmethod
+    def option_fields_names(cls) -> tuple[str, ...]:
+        return _option_names(cls)
+
     def options(self) -> dict[str, Any]:
         """The options' values by name (what a report or a manifest records)."""
-        return {f.name: getattr(self, f.name) for f in self.option_fields()}
+        return {name: getattr(self, name) for name in _option_names(type(self))}
+
+    def replace(self, **changes: Any) -> "AbstractTechnique":
+        """This technique with some options changed (``t.replace(samples=64)``)."""
+        return dataclasses.replace(self, **changes)
+
+    @classmethod
+    def accepts(cls, material: Any, **options: Any) -> bool:
+        """Whether the technique with ``options`` (its defaults elsewhere) takes ``material``; host side, without
+        building the technique."""
+        return isinstance(material, cls.material_type)
+
+    def takes(self, material: Any) -> bool:
+        """Whether ``material`` is one this technique (with its options) takes (``accepts`` with its options: a
+        technique whose material depends on an option overrides both)."""
+        return isinstance(material, self.material_type)
 
     def check_material(self, material: Any) -> None:
-        """A ``TypeError`` naming the technique and the material classes it takes, unless ``material`` is one."""
-        if not isinstance(material, self.material_type):
+        """A ``TypeError`` naming the technique and the material classes it takes, unless it takes ``material``."""
+        if not type(self).takes(self, material):
             kinds = self.material_type if isinstance(self.material_type, tuple) else (self.material_type,)
             raise TypeError(f"{self.name} needs a {' or '.join(k.__name__ for k in kinds)}, "
                             f"got {type(material).__name__}")
+
+
+@functools.lru_cache(maxsize=None)
+def _option_names(cls: type) -> tuple[str, ...]:
+    """The option fields' names of a technique class (cached: asked on every call)."""
+    return tuple(f.name for f in dataclasses.fields(cls) if "help" in f.metadata)
+
+
+@functools.lru_cache(maxsize=None)
+def _choices_of(cls: type) -> tuple[tuple[str, tuple], ...]:
+    """(name, choices) of a technique class's options with a closed set of values (cached)."""
+    return tuple((f.name, f.metadata["choices"]) for f in dataclasses.fields(cls) if "choices" in f.metadata)
+
+
+@functools.lru_cache(maxsize=256)
+def _built(cls: type, key: tuple) -> AbstractTechnique:
+    return cls(**{name: value for name, _, value in key})
+
+
+def built(cls: type, options: dict[str, Any]) -> AbstractTechnique:
+    """``cls(**options)``, the same object again for the same hashable options (the wrappers build one per call;
+    building an equinox Module costs ~0.1-0.3 ms). Types are part of the key: ``True`` is not ``1``."""
+    try:
+        return _built(cls, tuple((k, type(v), v) for k, v in sorted(options.items())))
+    except TypeError:  # an unhashable option (an array seed, a tracer): built afresh, its errors raised as they are
+        return cls(**options)
+
+
+def call_options(technique: AbstractTechnique, material: Any) -> dict[str, Any]:
+    """The per-call path of ``__call__``: ``material`` checked, the options by name. Through the class, not the
+    instance: equinox builds a bound-method Module on each method access (~0.1 ms each on a loaded CPU)."""
+    cls = type(technique)
+    cls.check_material(technique, material)
+    return {name: getattr(technique, name) for name in _option_names(cls)}
 
 
 def tile_options(function: Callable, buffers: Buffers, origin: tuple[int, int],

@@ -33,18 +33,8 @@ from ._common import (
     _sss_mask,
     _work_dtype,
 )
+from ._burley_spec import _BURLEY_R99, _burley_weight_kernel
 from ._dispatch import resolve_impl
-
-
-def _burley_weight_kernel(x: Array) -> Array:
-    """``(exp(-x) + exp(-x/3)) / x``: the Burley profile at ``r = x d`` up to the factor ``8 pi d^2`` that cancels in
-    the per-channel normalisation. ``x = inf`` (d = 0 or no overlap) gives 0; x is never 0 here (r > 0)."""
-    finite = jnp.isfinite(x) & (x > 0)
-    xs = jnp.where(finite, x, 1.0)
-    e3 = jnp.exp(-xs / 3)  # exp(-x) = e3^3: one exponential, not two
-    return jnp.where(finite, e3 * (e3 * e3 + 1) / xs, 0.0)
-
-
 
 
 BURLEY_PATTERNS = ("rotated", "fixed")
@@ -95,9 +85,6 @@ def _unit_radius_for_cdf(u: Array) -> Array:
     far = burley_inverse_ccdf(1 - jnp.where(small, 0.75, u), jnp.ones_like(u))
     return jnp.where(small, near, far)
 
-
-# radius holding 99% of a Burley profile's energy, in units of d (the footprint the skip and compaction test)
-_BURLEY_R99 = float(np.asarray(burley_inverse_ccdf(np.float64(0.01), np.float64(1.0))))
 
 
 @eqx.filter_jit
@@ -346,7 +333,7 @@ def burley(
                              "pattern='fixed', border='renormalise', frames=1, or impl='auto'/'xla-cpu'")
         which = "xla-cpu"  # the formulation above runs on every backend
     if which != "xla-cpu":  # no host count, no host read of d: nothing waits for the device
-        from ._burley_gpu import burley_gpu_impl
+        from ._whole_frame import burley_gpu_impl
 
         return burley_gpu_impl(buffers, material, camera, int(samples), albedo_mode, interpolation,
                                float(min_footprint_px), 3, which)

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import math
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array
@@ -24,8 +23,8 @@ from .._materials import BurleyMaterial
 from .._profiles import burley_cdf, burley_inverse_ccdf
 from .._scene import Buffers, Camera
 from .._units import px_per_mm
-from ._burley import _BURLEY_R99, _burley_weight_kernel
-from ._common import _finish, _prepare, _safe_sqrt, _work_dtype
+from ._burley_spec import _BURLEY_R99, _burley_weight_kernel
+from ._common import _safe_sqrt
 
 
 def sample_pattern(samples: int, dtype) -> tuple[Array, Array]:
@@ -132,25 +131,3 @@ def pixel_planes(buffers: Buffers, material: BurleyMaterial, camera: Camera, pre
            "inv_d": [flat(inv_d[..., c]) for c in range(weight_channels)],
            "ok_d": [flat(ok_d[..., c]) for c in range(weight_channels)]}
     return pix, active
-
-
-@eqx.filter_jit
-def burley_gpu_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, samples: int, albedo_mode: str,
-                    interpolation: str, min_footprint_px: float, weight_channels: int, impl: str) -> Array:
-    """``burley`` in the whole-frame formulation: ``impl`` "xla-gpu" (``gather_burley``) or "pallas"."""
-    dtype = _work_dtype(buffers.irradiance.dtype)
-    prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
-    h, w = buffers.depth.shape
-    pix, active = pixel_planes(buffers, material, camera, prep, min_footprint_px, weight_channels, dtype)
-    sample_u, sample_theta = sample_pattern(samples, dtype)
-    kw = dict(height=h, width=w, mm_per_unit=camera.mm_per_unit.astype(dtype), interpolation=interpolation,
-              weight_channels=weight_channels)
-    if impl == "pallas":
-        from ._pallas import burley_pallas
-
-        out = burley_pallas(pix, active.reshape(h * w), sample_u, sample_theta, **kw)
-    else:
-        out = gather_burley(pix, sample_u, sample_theta, **kw)
-    scattered = jnp.stack(out, axis=-1).reshape(h, w, 3)
-    scattered = jnp.where(active[..., None], scattered, prep.irradiance)
-    return _finish(buffers, prep, scattered)

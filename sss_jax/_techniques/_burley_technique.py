@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
+import inspect
 import math
 from typing import ClassVar
 
-import jax
 import numpy as np
 from jaxtyping import Array, Float
 
@@ -14,7 +14,7 @@ from .._materials import BurleyMaterial
 from .._profiles import burley_inverse_ccdf
 from .._scene import Buffers, Camera
 from . import _burley
-from ._base import AbstractTechnique, default_of, option, tile_options
+from ._base import AbstractTechnique, built, call_options, default_of, option, tile_options
 from ._common import ALBEDO_MODES, BORDERS
 from ._dispatch import IMPLS
 
@@ -46,6 +46,7 @@ class Burley(AbstractTechnique):
 
     name: ClassVar[str] = "burley"
     conserves_energy: ClassVar[bool] = True
+    count_option: ClassVar[str | None] = "samples"
     material_type: ClassVar[type] = BurleyMaterial
 
     samples: int = option(default_of(_f, "samples"), "spiral samples per pixel (per frame)")
@@ -70,8 +71,8 @@ class Burley(AbstractTechnique):
     def __call__(self, buffers: Buffers, material: BurleyMaterial, camera: Camera, *,
                  origin: tuple[int, int] = (0, 0),
                  frame_shape: tuple[int, int] | None = None) -> Float[Array, "H W 3"]:
-        self.check_material(material)
-        return _f(buffers, material, camera, **self.options(), **tile_options(_f, buffers, origin, frame_shape))
+        options = call_options(self, material)
+        return _f(buffers, material, camera, **options, **tile_options(_f, buffers, origin, frame_shape))
 
     def reach_px(self, buffers: Buffers, material: BurleyMaterial, camera: Camera) -> int:
         """The farthest sample: the largest stratified CDF value ``(n - 1/2) / n`` of the widest channel's profile
@@ -91,7 +92,9 @@ class Burley(AbstractTechnique):
 
 
 def burley(buffers: Buffers, material: BurleyMaterial, camera: Camera, **options) -> Float[Array, "H W 3"]:
-    return Burley(**options)(buffers, material, camera)
+    return built(Burley, options)(buffers, material, camera)
 
 
+# the function's own docstring and signature (its options, their defaults): help() and inspect read them
 burley.__doc__ = _f.__doc__
+burley.__signature__ = inspect.signature(_f)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 from typing import ClassVar
 
 from jaxtyping import Array, Float
@@ -10,7 +11,7 @@ from .._errors import ReferenceWindowWarning
 from .._materials import BurleyMaterial, ProfileMaterial
 from .._scene import Buffers, Camera
 from . import _reference
-from ._base import AbstractTechnique, default_of, option, tile_options
+from ._base import AbstractTechnique, built, call_options, default_of, option, tile_options
 from ._common import ALBEDO_MODES, BORDERS
 
 _f = _reference.reference
@@ -49,8 +50,8 @@ class Reference(AbstractTechnique):
     def __call__(self, buffers: Buffers, material: BurleyMaterial | ProfileMaterial, camera: Camera, *,
                  origin: tuple[int, int] = (0, 0),
                  frame_shape: tuple[int, int] | None = None) -> Float[Array, "H W 3"]:
-        self.check_material(material)
-        return _f(buffers, material, camera, **self.options(), **tile_options(_f, buffers, origin, frame_shape))
+        options = call_options(self, material)
+        return _f(buffers, material, camera, **options, **tile_options(_f, buffers, origin, frame_shape))
 
     def window_px(self, buffers: Buffers, material: BurleyMaterial | ProfileMaterial, camera: Camera) -> int:
         """Host side: the window radius a call uses (``radius_px``, or the default for these buffers)."""
@@ -70,7 +71,9 @@ class Reference(AbstractTechnique):
 
 def reference(buffers: Buffers, material: BurleyMaterial | ProfileMaterial, camera: Camera,
               **options) -> Float[Array, "H W 3"]:
-    return Reference(**options)(buffers, material, camera)
+    return built(Reference, options)(buffers, material, camera)
 
 
+# the function's own docstring and signature (its options, their defaults): help() and inspect read them
 reference.__doc__ = _f.__doc__
+reference.__signature__ = inspect.signature(_f)

@@ -34,7 +34,7 @@ from ._common import (
     _work_dtype,
 )
 from ._dispatch import resolve_impl
-from ._separable_gpu import separable_gpu_impl
+from ._whole_frame import separable_gpu_impl
 
 # Pixel-scale levels of the separable pass: each level is one shifted-slice pass at a constant reach; a pixel
 # blends the two levels that bracket its own reach (in log scale), so the result stays continuous in d and depth.

@@ -25,7 +25,6 @@ from jaxtyping import Array, Bool, Float, Int
 from .._kernels import centre_first, unit_tap_offsets
 from .._scene import Buffers, Camera
 from .._units import px_per_mm
-from ._common import _finish, _prepare, _work_dtype
 
 # Taps unrolled per step of the tap loop: a step is one fused kernel over the frame, so this many taps share one
 # read and write of the accumulator, while the compile time stays bounded (it grows with the step, not the taps).
@@ -146,22 +145,3 @@ def pass_inputs(buffers: Buffers, material, camera: Camera, prep, taps: int, min
                       scale=mm_per_unit * inv_reach_mm, skip=~active, rows=rows,
                       w_table=jnp.moveaxis(weights, -1, 1),
                       unit_offsets=jnp.asarray(unit_tap_offsets(taps)[centre_first(taps)], dtype))
-
-
-@eqx.filter_jit
-def separable_gpu_impl(buffers: Buffers, material, camera: Camera, taps: int, albedo_mode: str,
-                       follow_surface: bool, interpolation: str, min_footprint_px: float,
-                       kernel_groups: tuple[int, ...] | None, impl: str) -> Array:
-    """``separable`` in the whole-frame formulation: ``impl`` "xla-gpu" (``gather_pass``) or "pallas"."""
-    dtype = _work_dtype(buffers.irradiance.dtype)
-    prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
-    p = pass_inputs(buffers, material, camera, prep, taps, min_footprint_px, kernel_groups, dtype)
-    if impl == "pallas":
-        from ._pallas import separable_pass_pallas as run_pass
-    else:
-        run_pass = gather_pass
-    e = p.e
-    for axis in (2, 1):  # horizontal, then vertical
-        e = run_pass(e, p.z, p.reach_px, p.scale, p.skip, p.rows, p.w_table, p.unit_offsets, axis=axis,
-                     follow_surface=follow_surface, interpolation=interpolation)
-    return _finish(buffers, prep, jnp.moveaxis(e, 0, -1))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 import math
 from typing import ClassVar
 
@@ -14,7 +15,7 @@ from .._errors import SamplingWarning
 from .._materials import BurleyMaterial, ProfileMaterial, TwoGaussianMaterial
 from .._scene import Buffers, Camera
 from . import _separable
-from ._base import AbstractTechnique, default_of, option, tile_options
+from ._base import AbstractTechnique, built, call_options, default_of, option, tile_options
 from ._common import ALBEDO_MODES, BORDERS, SAMPLING_ERROR_LIMIT, _material_rows, _sss_mask
 from ._dispatch import IMPLS
 
@@ -39,6 +40,7 @@ class Separable(AbstractTechnique):
 
     name: ClassVar[str] = "separable"
     conserves_energy: ClassVar[bool] = True
+    count_option: ClassVar[str | None] = "taps"
     material_type: ClassVar[tuple[type, ...]] = (TwoGaussianMaterial, BurleyMaterial, ProfileMaterial)
 
     taps: int = option(default_of(_f, "taps"), "taps per 1D pass (odd)")
@@ -59,8 +61,8 @@ class Separable(AbstractTechnique):
     def __call__(self, buffers: Buffers, material: TwoGaussianMaterial | BurleyMaterial | ProfileMaterial,
                  camera: Camera, *, origin: tuple[int, int] = (0, 0),
                  frame_shape: tuple[int, int] | None = None) -> Float[Array, "H W 3"]:
-        self.check_material(material)
-        return _f(buffers, material, camera, **self.options(), **tile_options(_f, buffers, origin, frame_shape))
+        options = call_options(self, material)
+        return _f(buffers, material, camera, **options, **tile_options(_f, buffers, origin, frame_shape))
 
     def reach_px(self, buffers: Buffers, material: TwoGaussianMaterial | BurleyMaterial | ProfileMaterial,
                  camera: Camera) -> int:
@@ -94,7 +96,9 @@ class Separable(AbstractTechnique):
 
 def separable(buffers: Buffers, material: TwoGaussianMaterial | BurleyMaterial | ProfileMaterial, camera: Camera,
               **options) -> Float[Array, "H W 3"]:
-    return Separable(**options)(buffers, material, camera)
+    return built(Separable, options)(buffers, material, camera)
 
 
+# the function's own docstring and signature (its options, their defaults): help() and inspect read them
 separable.__doc__ = _f.__doc__
+separable.__signature__ = inspect.signature(_f)

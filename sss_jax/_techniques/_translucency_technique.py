@@ -7,6 +7,7 @@ poses as a material.
 
 from __future__ import annotations
 
+import inspect
 from typing import ClassVar
 
 from jaxtyping import Array, Float
@@ -16,7 +17,7 @@ from .._materials import BurleyMaterial, DirectionalLight, STAParams
 from .._scene import Buffers, Camera
 from .._slab import MediumMaterial
 from . import _translucency
-from ._base import AbstractTechnique, default_of, option
+from ._base import AbstractTechnique, call_options, default_of, option
 
 _f = _translucency.translucency
 
@@ -41,6 +42,13 @@ class Translucency(AbstractTechnique):
     model: str = option(default_of(_f, "model"), "the STA ('sta'), HDRP's thin-object transmission ('thin') or "
                         "slab transport ('slab')", choices=_translucency.TRANSLUCENCY_MODELS)
 
+    @classmethod
+    def accepts(cls, material, **options) -> bool:
+        return isinstance(material, _MODEL_MATERIALS[options.get("model", default_of(_f, "model"))])
+
+    def takes(self, material) -> bool:
+        return isinstance(material, _MODEL_MATERIALS[self.model])
+
     def check_material(self, material) -> None:
         kinds = _MODEL_MATERIALS[self.model]
         if not isinstance(material, kinds):
@@ -50,9 +58,8 @@ class Translucency(AbstractTechnique):
     def __call__(self, buffers: Buffers, material: STAParams | BurleyMaterial | MediumMaterial, camera: Camera, *,
                  origin: tuple[int, int] = (0, 0),
                  frame_shape: tuple[int, int] | None = None) -> Float[Array, "H W 3"]:
-        self.check_material(material)
         del origin, frame_shape  # a local pass: a tile with its halo needs no placing in the frame
-        return _f(buffers, material, camera, self.light, **self.options())
+        return _f(buffers, material, camera, self.light, **call_options(self, material))
 
     def reach_px(self, buffers: Buffers, material: STAParams | BurleyMaterial | MediumMaterial,
                  camera: Camera) -> int:
@@ -65,4 +72,6 @@ def translucency(buffers: Buffers, params: STAParams | BurleyMaterial | MediumMa
     return Translucency(light, **options)(buffers, params, camera)
 
 
+# the function's own docstring and signature (its options, their defaults): help() and inspect read them
 translucency.__doc__ = _f.__doc__
+translucency.__signature__ = inspect.signature(_f)
