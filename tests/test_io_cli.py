@@ -451,11 +451,13 @@ def test_report_without_a_light_says_sta_was_left_out(tmp_path, capsys, as_users
     a = tmp_path / "a.exr"
     synthetic_frame(a, focal=200.0)
     rc = main(["report", str(a), "--out", str(tmp_path / "rep"), "--d-mm", "1,0.5,0.25", "--mm-per-unit", "10",
-               "--taps", "9", "--samples", "8", "--repeats", "0", "--no-images", "--no-progress"])
+               "--taps", "9", "--samples", "8", "--repeats", "0", "--no-images", "--no-progress",
+               "--border", "renormalise", "--pattern", "fixed"])  # technique options reach the report's runs
     err = capsys.readouterr().err
     assert rc == 0, err
     assert "STA left out" in err
-    notes = json.loads((tmp_path / "rep" / "report.json").read_text())["notes"]
+    doc = json.loads((tmp_path / "rep" / "report.json").read_text())
+    notes = doc["notes"]
     assert any("STA left out" in n and "--light-dir" in n for n in notes)
 
 
