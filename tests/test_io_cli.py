@@ -328,6 +328,28 @@ def test_uint32_id_channel_reads_as_integers_and_apply_scatters_the_object(tmp_p
     assert "no pixel to scatter" not in capsys.readouterr().err
 
 
+def test_multipart_exr_with_a_uint32_id_part(tmp_path):
+    """Multi-part EXR as compositors and some renderers write it: colour (half), depth (float) and the id (uint32),
+    each in its own part."""
+    import OpenEXR
+
+    h, w = 6, 8
+    ids = np.ones((h, w), np.uint32)
+    ids[:, :2] = 0
+    ids[0, 7] = 3
+    head = {"type": OpenEXR.scanlineimage, "compression": OpenEXR.ZIP_COMPRESSION}
+    # (each part its own header: OpenEXR writes the part's name into it)
+    parts = [OpenEXR.Part(dict(head), {c: np.full((h, w), 0.5, np.float16) for c in "RGB"}, name="rgba"),
+             OpenEXR.Part(dict(head), {"Z": np.full((h, w), 3.0, np.float32)}, name="depth"),
+             OpenEXR.Part(dict(head), {"id": ids}, name="objectid")]
+    path = tmp_path / "parts.exr"
+    with OpenEXR.File(parts) as f:
+        f.write(str(path))
+    frame = _io.read_frame(path)
+    np.testing.assert_array_equal(frame.material_id, ids.astype(np.int32))
+    assert frame.sss_pixels == h * (w - 2)
+
+
 def test_uint16_channels_keep_their_values(tmp_path):
     """A 16-bit id (a TIFF, as some G-buffer dumps write it): the stored integers, not value / 65535."""
     ids = np.array([[0, 1, 2], [3, 65535, 1]], np.uint16)
@@ -338,8 +360,9 @@ def test_uint16_channels_keep_their_values(tmp_path):
     assert out.open(str(path), spec) and out.write_image(ids[..., None])
     out.close()
     floats, integers, _, _ = _io._read_image(path)
-    np.testing.assert_array_equal(integers["id"], ids.astype(np.int64))
-    np.testing.assert_allclose(floats["id"], ids / 65535.0, rtol=1e-6)  # OpenImageIO's normalised view, for colour
+    (name,) = floats  # TIFF names its one channel itself
+    np.testing.assert_array_equal(integers[name], ids.astype(np.int64))
+    np.testing.assert_allclose(floats[name], ids / 65535.0, rtol=1e-6)  # OpenImageIO's normalised view, for colour
 
 
 def test_a_frame_without_sss_pixels_warns(tmp_path, capsys, as_users_run_it):
@@ -428,11 +451,13 @@ def test_report_without_a_light_says_sta_was_left_out(tmp_path, capsys, as_users
     a = tmp_path / "a.exr"
     synthetic_frame(a, focal=200.0)
     rc = main(["report", str(a), "--out", str(tmp_path / "rep"), "--d-mm", "1,0.5,0.25", "--mm-per-unit", "10",
-               "--taps", "9", "--samples", "8", "--repeats", "0", "--no-images", "--no-progress"])
+               "--taps", "9", "--samples", "8", "--repeats", "0", "--no-images", "--no-progress",
+               "--border", "renormalise", "--pattern", "fixed"])  # technique options reach the report's runs
     err = capsys.readouterr().err
     assert rc == 0, err
     assert "STA left out" in err
-    notes = json.loads((tmp_path / "rep" / "report.json").read_text())["notes"]
+    doc = json.loads((tmp_path / "rep" / "report.json").read_text())
+    notes = doc["notes"]
     assert any("STA left out" in n and "--light-dir" in n for n in notes)
 
 

@@ -136,6 +136,29 @@ def materials(args):
     return mat, sep, sta, info
 
 
+def _with_options(evaluate_frames, techniques: list[str], options: dict[str, dict], sta):
+    """``(techniques, keyword arguments)`` for ``evaluate_frames`` with the given technique options: technique objects
+    built from the registry for the techniques that have options given, where it takes objects; else the options
+    as its keywords take them (``option_arguments``)."""
+    import dataclasses
+    import inspect
+
+    accepted = inspect.signature(evaluate_frames).parameters
+    if "AbstractTechnique" not in str(accepted["techniques"].annotation):
+        return techniques, option_arguments_for(evaluate_frames, options, "report")
+    from .._techniques import TECHNIQUES, technique
+
+    built = []
+    for name in techniques:
+        if not options.get(name):
+            built.append(name)
+            continue
+        fields = {f.name for f in dataclasses.fields(TECHNIQUES[name])}
+        extra = {"light": sta[1]} if "light" in fields and sta is not None else {}
+        built.append(technique(name, **extra, **options[name]))
+    return built, {}
+
+
 def _warn_sta_thickness(args, params) -> None:
     """STA's thickness far outside its falloff on a frame (it would add nothing, or not depend on the thickness)."""
     import warnings
@@ -181,14 +204,15 @@ def run(args) -> int:
             techniques.remove("sta")
             notes.append("STA left out: it needs the back light's direction (--light-dir X,Y,Z).")
         options = {t: technique_options(args, t, others=techniques) for t in techniques}
-        option_arguments = option_arguments_for(evaluate_frames, options, "report")
+        run_sta = "sta" in techniques
+        techniques, option_arguments = _with_options(evaluate_frames, techniques, options, sta)
         # the reference cache lives in OUT/cache; on a first run it is built in a scratch folder and moved in only
         # when the report is complete, so bad input or an interruption leaves nothing in OUT
         cache = args.out / "cache"
         scratch = None if cache.is_dir() else pathlib.Path(tempfile.mkdtemp(prefix="sss-jax-report-"))
         try:
             with shown:
-                if sta is not None and "sta" in techniques:
+                if sta is not None and run_sta:
                     _warn_sta_thickness(args, sta[0])
                 data = evaluate_frames(
                     args.inputs, mat, truth=args.truth, truth_channels=args.truth_channels, techniques=techniques,
