@@ -152,7 +152,7 @@ def pass_inputs(buffers: Buffers, material, camera: Camera, prep, taps: int, min
 def separable_gpu_impl(buffers: Buffers, material, camera: Camera, taps: int, albedo_mode: str,
                        follow_surface: bool, interpolation: str, min_footprint_px: float,
                        kernel_groups: tuple[int, ...] | None, impl: str) -> Array:
-    """``separable`` in the whole-frame formulation: ``impl`` "xla-gpu" (``gather_pass``) or "pallas"."""
+    """``separable`` in the whole-frame formulation: ``impl`` "gather" (``gather_pass``) or "pallas"."""
     dtype = _work_dtype(buffers.irradiance.dtype)
     prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
     p = pass_inputs(buffers, material, camera, prep, taps, min_footprint_px, kernel_groups, dtype)
