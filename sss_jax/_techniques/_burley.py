@@ -158,9 +158,10 @@ def burley(
     if which == "pallas":  # no host count, no host read of d: nothing waits for the device
         return burley_pallas_impl(buffers, material, camera, int(samples), albedo_mode, interpolation,
                                   float(min_footprint_px), 3, **common)
-    capacity, truncate, weight_channels = None, None, 3
+    capacity, truncate = None, None
+    # concrete d (under jit too): channels with one d share one kernel evaluation (a host read: compacted only)
+    weight_channels = weight_channel_count(material.d_mm) if which == "compacted" else 3
     if which == "compacted" and _is_concrete(buffers, material, camera):
-        weight_channels = weight_channel_count(material.d_mm)
         count, widest_d_px = _burley_active(buffers, material, camera, float(min_footprint_px))
         truncate = needs_truncation(widest_d_px, frame_shape)
         if compact is not False:
