@@ -169,7 +169,7 @@ def jax_tree_crop(b, a0, a1, b0, b1):
                       material_id=b.material_id[a0:a1, b0:b1])
 
 
-def test_tile_arguments_are_checked():
+def test_tile_arguments_are_checked(as_users_run_it):
     b, mat, *_ = _case()
     with pytest.raises(ValueError, match="does not lie inside frame_shape"):
         sj.burley(b, mat, CAM, origin=(5, 0), frame_shape=(12, 12))
