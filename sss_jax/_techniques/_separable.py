@@ -337,12 +337,13 @@ def separable(
     (``separable_edge_error``). ``border="renormalise"`` counts off-image taps as the centre instead (Jimenez's
     shader; the kernel cut at the frame renormalised), as if the surface beyond looked like the inside.
 
-    ``impl`` (``_dispatch``): "auto" runs the formulation above on a CPU backend ("xla-cpu") and the whole-frame one
-    elsewhere ("xla-gpu": per tap a gather at each pixel's own offset, Jimenez's shader, so no reach levels and no
-    level error; ``scale_levels`` is unused); "pallas" is that as a Pallas kernel per pass. The whole-frame
-    formulations count off-image taps as the centre and do not cut wide kernels at the frame (the rules before
-    issue #18), so they run only when named (with ``border="renormalise"``); "auto" keeps the formulation above,
-    which runs on every backend.
+    ``impl`` (``_dispatch``): "banded" is the formulation above (what "auto" runs on every backend so far);
+    "gather" is the whole frame with per tap a gather at each pixel's own offset (Jimenez's shader, so no reach
+    levels and no level error; ``scale_levels`` unused), "pallas" that as a Pallas kernel per pass. The whole-frame
+    formulations count off-image taps as the centre and do not cut wide kernels at the frame yet (the rules before
+    issue #18), so they run only when named, with ``border="renormalise"``. "xla-cpu"/"xla-gpu" are the old names
+    of "banded"/"gather". Host work per eager call: the sampling check (``separable_edge_error``, NumPy, the
+    material's kernels built once per parameters and taps) and ``kernel_groups``.
     """
     _check_border(border)
     _check_albedo_mode(albedo_mode)
