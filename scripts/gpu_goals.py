@@ -3,11 +3,13 @@
     python scripts/gpu_goals.py [--size 1920x1080] [--repeats 30] [--impl auto] [--reference-size 640x360] [--json OUT]
 
 Each row: compile seconds (first call minus a timed call) and the median of ``--repeats`` timed calls after it
-(``block_until_ready``), demo scene, float32. ``--impl`` picks the formulation (auto, xla-gpu, pallas, xla-cpu); run
-it once per formulation to compare them on the same warm machine. The whole-frame formulations have Burley's fixed
-spiral and the renormalised frame border so far: every row runs with those options (``--semantics defaults`` runs
-the library's defaults instead, which "auto" keeps on the XLA-CPU formulation). Needs neither OpenCV nor
-colour-science.
+(``block_until_ready``), demo scene, float32. ``--impl`` picks the formulation (auto, gather, pallas, or a CPU one:
+compacted/banded via xla-cpu); run it once per formulation to compare them on the same warm machine.
+``--semantics defaults`` (the default) runs the library's defaults through the public functions (Burley: the rotated
+spiral and the leaving border, which every Burley formulation implements; separable: the gather runs only with the
+renormalised border so far, so its rows run with it whenever a whole-frame formulation is named or picked);
+``--semantics gpu`` runs Burley's fixed spiral and the renormalised border (the rows of issue #17). Needs neither
+OpenCV nor colour-science.
 """
 
 import argparse
@@ -30,10 +32,10 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--size", default="1920x1080")
     ap.add_argument("--repeats", type=int, default=30)
-    ap.add_argument("--impl", default="auto", choices=["auto", "xla-cpu", "xla-gpu", "pallas"])
+    ap.add_argument("--impl", default="auto", choices=["auto", "gather", "pallas", "xla-cpu", "xla-gpu"])
     ap.add_argument("--reference-size", default="640x360")
-    ap.add_argument("--semantics", default="gpu", choices=["gpu", "defaults"],
-                    help="gpu: pattern='fixed', border='renormalise' (what the whole-frame formulations implement)")
+    ap.add_argument("--semantics", default="defaults", choices=["defaults", "gpu"],
+                    help="defaults: the library's defaults; gpu: pattern='fixed', border='renormalise' (issue #17)")
     ap.add_argument("--json")
     args = ap.parse_args()
     w, h = (int(v) for v in args.size.lower().split("x"))
@@ -45,7 +47,8 @@ def main() -> int:
     small = sj.demo_scene(rh, rw)
     batch = jax.tree.map(lambda a: jnp.stack([a] * 8), b)
     impl = args.impl
-    sep_opts = dict(border="renormalise") if args.semantics == "gpu" else {}
+    whole_frame = impl in ("gather", "pallas", "xla-gpu") or (impl == "auto" and jax.default_backend() != "cpu")
+    sep_opts = dict(border="renormalise") if args.semantics == "gpu" or whole_frame else {}
     bur_opts = dict(pattern="fixed", border="renormalise") if args.semantics == "gpu" else {}
     rows = {
         "separable 25": lambda: sj.separable(b, mat, cam, taps=25, impl=impl, **sep_opts),

@@ -78,7 +78,8 @@ def machine() -> dict[str, Any]:
     device = jax.devices()[0]
     return {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
             "backend": jax.default_backend(), "device": getattr(device, "device_kind", str(device)),
-            "devices": [str(d) for d in jax.devices()], "impl": resolve_impl("auto"), "jax": jax.__version__}
+            "devices": [str(d) for d in jax.devices()], "jax": jax.__version__,
+            "impl": f"burley {resolve_impl('auto', 'burley')}, separable {resolve_impl('auto', 'separable')}"}
 
 
 def _median_time(fn: Callable[[], Any], repeats: int) -> float:

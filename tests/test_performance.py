@@ -27,9 +27,8 @@ from sss_jax._techniques import (
     weight_channel_count,
 )
 from sss_jax._techniques._burley import _burley_impl
-from sss_jax._techniques._burley_gpu import gather_burley, pixel_planes, sample_pattern
 from sss_jax._techniques._common import _prepare
-from sss_jax._techniques._pallas import burley_pallas, separable_pass_pallas
+from sss_jax._techniques._pallas import separable_pass_pallas
 from sss_jax._techniques._separable import _separable_impl, _separable_pass
 from sss_jax._techniques._separable_gpu import gather_pass
 from sss_jax.cli import main
@@ -121,22 +120,23 @@ def test_grey_channels_share_one_kernel_evaluation():
     # the per-sample kernel (one exponential per pixel, corner and channel plane) is evaluated on one channel for the
     # grey material, on three otherwise: two fewer per corner, four corners (bilinear); and the weight of the part of
     # a fetch outside the frame (light that leaves) needs the kernel on each of the three planes, none for grey
-    # (there it is the sampled profile's own R/pdf, 1)
+    # (there it is the sampled profile's own R/pdf, 1). Traced, the truncation is decided on the device: both branches
+    # of its cond are in the computation, each with those exponentials
     n = 24 * 32
     bilinear = dict(samples=8, compact=False, interpolation="bilinear")
     grey_exps = _exp_shapes(lambda bb: sj.burley(bb, grey, CAM, **bilinear), b)
     rgb_exps = _exp_shapes(lambda bb: sj.burley(bb, MAT, CAM, **bilinear), b)
-    assert grey_exps.count((n,)) >= 4 and rgb_exps.count((n,)) - grey_exps.count((n,)) == 2 * 4 + 3
+    assert grey_exps.count((n,)) >= 4 and rgb_exps.count((n,)) - grey_exps.count((n,)) == 2 * (2 * 4 + 3)
     # and the image is the one the three-channel evaluation gives
     shared = np.asarray(sj.burley(b, grey, CAM, **bilinear))
     per_channel = np.asarray(_burley_impl(b, grey, CAM, samples=8, albedo_mode="post", interpolation="bilinear",
-                                          capacity=None, min_footprint_px=0.5, weight_channels=3, truncate=True))
+                                          capacity=None, min_footprint_px=0.5, weight_channels=3, truncate=False))
     np.testing.assert_allclose(shared, per_channel, rtol=1e-12, atol=1e-14)
     assert np.abs(shared - 0.9 * np.asarray(b.irradiance)[..., :1]).max() > 1e-3  # it did scatter
 
 
 def test_untruncated_frames_share_the_sample_radii():
-    # a wide frame against a small d: the profile's tail beyond the image diagonal rounds away, so the per-pixel
+    # a wide frame against a small d: the tail beyond the image diagonal is below TRUNCATION_ENERGY, so the per-pixel
     # truncated sampling and the shared radii give the same image; where the diagonal cuts the profile (large d) the
     # truncated sampling is kept, and it matters there
     b = _scene(coverage_rows=24, h=24, w=32)
@@ -413,26 +413,38 @@ def _burley_case(h=9, w=11):
     return b, mat
 
 
-@pytest.mark.parametrize("impl", ["xla", "pallas"])
+@pytest.mark.parametrize("impl", ["compacted", "gather", "pallas"])
 @pytest.mark.parametrize("linear", [True, False])
-def test_gather_burley_matches_a_pixel_by_pixel_loop(impl, linear):
+def test_burley_formulations_match_a_pixel_by_pixel_loop(impl, linear):
+    # the fixed spiral and the renormalised border: what _numpy_burley writes (tests/test_oracle.py checks the
+    # rotated pattern, the frames, the leaving border and tiles against its own loop)
     b, mat = _burley_case()
     h, w = b.depth.shape
-    prep = _prepare(b, mat.albedo, "post", jnp.float64)
-    pix, active = pixel_planes(b, mat, CAM, prep, 0.5, 3, jnp.float64)
-    u, theta = sample_pattern(8, jnp.float64)
-    kw = dict(height=h, width=w, mm_per_unit=jnp.asarray(10.0), interpolation="bilinear" if linear else "nearest",
-              weight_channels=3)
-    run = gather_burley if impl == "xla" else functools.partial(burley_pallas, active=active.reshape(-1), block=32)
-    got = np.stack([np.asarray(c) for c in run(pix, sample_u=u, sample_theta=theta, **kw)], -1).reshape(h, w, 3)
+    got = np.asarray(sj.burley(b, mat, CAM, samples=8, impl=impl, pattern="fixed", border="renormalise",
+                               interpolation="bilinear" if linear else "nearest", albedo_mode="post"))
     ids = np.asarray(b.material_id)
     valid = ids > 0
     d = np.where(valid[..., None], np.asarray(mat.d_mm)[np.maximum(ids - 1, 0)], 0.0)
     ppm = np.where(valid, 100.0 / (np.asarray(b.depth) * 10.0), 0.0)
-    act = np.asarray(active)
-    expected = _numpy_burley(np.asarray(b.irradiance), np.asarray(b.depth), valid, d, act, ppm, 8, 10.0, linear)
+    act = valid & (d.max(-1) * ppm * _R99 >= 0.5)
+    albedo = np.asarray(mat.albedo)[np.maximum(ids - 1, 0)]
+    expected = albedo * _numpy_burley(np.asarray(b.irradiance), np.asarray(b.depth), valid, d, act, ppm, 8, 10.0,
+                                      linear)
     np.testing.assert_allclose(got[act], expected[act], rtol=1e-10, atol=1e-12)
     assert act.sum() > 40 and np.abs(expected - np.asarray(b.irradiance))[act].max() > 0.05  # it scattered
+
+
+# radius holding 99% of the Burley profile's energy, units of d (the footprint skip): the root of
+# (exp(-x) + 3 exp(-x/3)) / 4 = 0.01, by bisection
+def _r99():
+    lo, hi = 0.0, 100.0
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if (np.exp(-mid) + 3 * np.exp(-mid / 3)) / 4 > 0.01 else (lo, mid)
+    return lo
+
+
+_R99 = _r99()
 
 
 class _HostRead(Exception):
@@ -463,28 +475,25 @@ def no_host_reads(monkeypatch):
 @pytest.mark.parametrize("interpolation", ["bilinear", "nearest"])
 def test_burley_formulations_agree_and_the_gpu_ones_never_read_the_device(interpolation, no_host_reads):
     b, mat = _burley_case()
-    # what the whole-frame formulations implement so far: the fixed spiral, the kernel renormalised at the border
-    gpu = dict(pattern="fixed", border="renormalise")
-    cpu = np.asarray(sj.burley(b, mat, CAM, samples=8, interpolation=interpolation, impl="xla-cpu", compact=False,
-                               **gpu))
-    with no_host_reads():
-        outs = {impl: sj.burley(b, mat, CAM, samples=8, interpolation=interpolation, impl=impl, **gpu)
-                for impl in ("xla-gpu", "pallas")}
-    for out in outs.values():
-        np.testing.assert_allclose(np.asarray(out), cpu, rtol=1e-12, atol=1e-13)
+    for opts in (dict(), dict(pattern="fixed", border="renormalise"), dict(frames=2, seed=7)):  # defaults first
+        cpu = np.asarray(sj.burley(b, mat, CAM, samples=8, interpolation=interpolation, impl="compacted",
+                                   compact=False, **opts))
+        with no_host_reads():
+            outs = {impl: sj.burley(b, mat, CAM, samples=8, interpolation=interpolation, impl=impl, **opts)
+                    for impl in ("gather", "pallas", "xla-gpu")}
+        for out in outs.values():
+            np.testing.assert_allclose(np.asarray(out), cpu, rtol=1e-12, atol=1e-13)
     with pytest.raises(_HostRead), no_host_reads():
-        sj.burley(b, mat, CAM, samples=8, impl="xla-cpu")  # the CPU formulation counts on the host: the guard sees it
+        sj.burley(b, mat, CAM, samples=8, impl="compacted")  # the CPU formulation counts on the host: the guard sees it
     with pytest.raises(ValueError, match="impl='cuda' is not one of"):
         sj.burley(b, mat, CAM, impl="cuda")
-    with pytest.raises(ValueError, match="fixed spiral and the renormalised border only so far"):
-        sj.burley(b, mat, CAM, impl="xla-gpu")  # the defaults (rotated, leaves) are not in that formulation yet
 
 
 def test_burley_pallas_gradient_is_the_xla_formulations():
     b, mat = _burley_case(h=6, w=7)
     loss = lambda impl: lambda d: jnp.sum(jnp.sin(sj.burley(b, sj.BurleyMaterial(mat.albedo, d), CAM, samples=4,
-                                                            impl=impl, pattern="fixed", border="renormalise")))
-    g_xla, g_pallas = (np.asarray(jax.grad(loss(impl))(mat.d_mm)) for impl in ("xla-gpu", "pallas"))
+                                                            impl=impl)))
+    g_xla, g_pallas = (np.asarray(jax.grad(loss(impl))(mat.d_mm)) for impl in ("gather", "pallas"))
     np.testing.assert_allclose(g_pallas, g_xla, rtol=1e-12, atol=1e-14)
     assert np.abs(g_xla).max() > 1e-4
 

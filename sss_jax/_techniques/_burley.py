@@ -2,221 +2,33 @@
 
 from __future__ import annotations
 
-import functools
 import math
 import warnings
 
-import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._checks import checked
-from .._kernels import spiral_samples
 from .._materials import BurleyMaterial
-from .._profiles import burley_cdf, burley_inverse_ccdf
 from .._scene import Buffers, Camera
-from .._units import px_per_mm
+from ._burley_gpu import _burley_impl as _burley_impl
+from ._burley_spec import BURLEY_R95, BURLEY_R99, burley_reach_px, needs_truncation
+from ._burley_spec import burley_weight_kernel as _burley_weight_kernel  # noqa: F401  (the spec's, re-exported)
+from ._burley_spec import spiral_rotation as spiral_rotation
 from ._common import (
     MIN_FOOTPRINT_PX,
     SamplingWarning,
     _check_albedo_mode,
     _check_border,
-    _corners,
-    _finish,
     _is_concrete,
     _material_rows,
-    _pack,
-    _prepare,
-    _safe_sqrt,
     _sss_mask,
-    _work_dtype,
 )
-from ._burley_spec import _BURLEY_R99, _burley_weight_kernel
-from ._dispatch import resolve_impl
-
+from ._dispatch import check_tile, resolve_impl
+from ._pallas import burley_pallas_impl
 
 BURLEY_PATTERNS = ("rotated", "fixed")
-
-
-def _hash_u32(x: Array) -> Array:
-    """A 32-bit integer hash (Wellons' ``lowbias32``): consecutive inputs give unrelated outputs."""
-    x = x.astype(jnp.uint32)
-    x = x ^ (x >> 16)
-    x = x * jnp.uint32(0x7FEB352D)
-    x = x ^ (x >> 15)
-    x = x * jnp.uint32(0x846CA68B)
-    return x ^ (x >> 16)
-
-
-def spiral_rotation(rows: Array, cols: Array, frame: Array | int, seed: Array | int, *, per_pixel: bool = True,
-                    dtype=jnp.float32) -> Array:
-    """Angle (radians, in [0, 2 pi)) by which pixel (``rows``, ``cols``: integer-valued arrays) turns the golden-angle
-    spiral in ``frame`` of a sequence, for ``seed``: a hash of the four, so neighbouring pixels and successive frames
-    get unrelated angles (HDRP and EEVEE Next rotate the sample pattern per pixel and per frame and leave the noise to
-    TAA). ``per_pixel=False`` turns every pixel by the same angle (the frame's), and frame 0 by none: the fixed
-    pattern. The angle depends on no material parameter, so gradients in the material are those of the radii."""
-    frame = jnp.asarray(frame).astype(jnp.uint32)
-    seed = jnp.asarray(seed).astype(jnp.uint32)
-    key = _hash_u32(seed * jnp.uint32(0x9E3779B9) + frame * jnp.uint32(0x85EBCA6B) + jnp.uint32(0x27D4EB2F))
-    if per_pixel:
-        r = jnp.asarray(rows).astype(jnp.int32).astype(jnp.uint32)
-        c = jnp.asarray(cols).astype(jnp.int32).astype(jnp.uint32)
-        key = _hash_u32(_hash_u32(r * jnp.uint32(0x68E31DA4) ^ key) + c * jnp.uint32(0xB5297A4D))
-    else:
-        key = jnp.where(frame > 0, key, jnp.uint32(0))
-        key = jnp.broadcast_to(key, jnp.shape(rows))
-    unit = (key >> 8).astype(dtype) * (1.0 / (1 << 24))  # 24 bits: exact in float32
-    return unit * (2 * math.pi)
-
-
-def _unit_radius_for_cdf(u: Array) -> Array:
-    """Radius (units of d) holding the fraction ``u`` in (0, 1) of a Burley profile's energy, with full relative
-    precision for tiny ``u`` (a kernel far wider than the image keeps only ~r/(2d) of its energy there; ``1 - u``
-    would round to 1). With ``s = 1 - exp(-r/(3d))`` the CDF is ``(6s - 3s^2 + s^3)/4``: Newton from ``2u/3`` where u
-    is small, the closed form (``burley_inverse_ccdf``) elsewhere."""
-    small = u < 0.5
-    us = jnp.where(small, u, 0.25)
-    s = 2 * us / 3
-    for _ in range(4):  # f' = 3 s^2 - 6 s + 6 >= 3: Newton converges fast from 2u/3 for u < 0.5
-        s = s - (s * (6 - 3 * s + s * s) - 4 * us) / (3 * s * s - 6 * s + 6)
-    near = -3 * jnp.log1p(-s)
-    far = burley_inverse_ccdf(1 - jnp.where(small, 0.75, u), jnp.ones_like(u))
-    return jnp.where(small, near, far)
-
-
-
-@eqx.filter_jit
-def _burley_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, samples: int, albedo_mode: str,
-                 interpolation: str, capacity: int | None, min_footprint_px: float, weight_channels: int = 3,
-                 truncate: bool = True, pattern: str = "rotated", frames: int = 1, seed: Array | int = 0,
-                 border: str = "leaves") -> Array:
-    dtype = _work_dtype(buffers.irradiance.dtype)
-    d_table = checked(material.d_mm.astype(dtype), "d_mm")
-    prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
-    h, w = buffers.depth.shape
-    mm_per_unit = camera.mm_per_unit.astype(dtype)
-    d_pix = jnp.where(prep.valid[..., None], d_table[prep.rows], 0.0)  # (H, W, 3)
-    d_max = jnp.max(d_pix, axis=-1)
-    ppm = px_per_mm(prep.depth, focal_px=camera.focal_px.astype(dtype), mm_per_unit=mm_per_unit)
-    ppm = jnp.where(prep.valid, ppm, 0.0)
-    # pixels whose footprint is below min_footprint_px keep their local shading (no samples are taken for them)
-    active = prep.valid & (d_max * ppm * _BURLEY_R99 >= min_footprint_px)
-    flat = _pack(prep.irradiance, prep.depth, prep.valid)
-    # Cost follows the scene: with a capacity, only the active pixels (compacted into a buffer of that many slots,
-    # unused slots pointing past the image) are computed and scattered back; without one every pixel is.
-    if capacity is None:
-        idx = jnp.arange(h * w, dtype=jnp.int32)
-        take = lambda a: a.reshape(h * w, *a.shape[2:])
-    else:
-        idx = jnp.nonzero(active.reshape(-1), size=capacity, fill_value=h * w)[0].astype(jnp.int32)
-        take = lambda a: jnp.take(a.reshape(h * w, *a.shape[2:]), idx, axis=0, mode="fill", fill_value=0)
-    e_c, z, d_c, ppm_c, dmax_c = take(prep.irradiance), take(prep.depth), take(d_pix), take(ppm), take(d_max)
-    rows_int, cols_int = idx // w, idx % w
-    rows_i = rows_int.astype(dtype)
-    cols_i = cols_int.astype(dtype)
-    # Samples beyond the image diagonal can never land: sample the profile truncated there (huge d clamps to the
-    # image instead of losing every sample); the energy beyond it leaves the frame (out_of_frame_mass below).
-    diag_px = math.hypot(h, w)
-    r_clip = jnp.where(ppm_c > 0, diag_px / jnp.where(ppm_c > 0, ppm_c, 1.0), jnp.inf)
-    inside_fraction = jnp.where(dmax_c > 0, burley_cdf(jnp.minimum(r_clip, 1e30), dmax_c), 1.0)
-    # channels with one d (grey materials) share one weight: the kernel is evaluated once, not per channel
-    d_w = d_c[..., :weight_channels]
-    ok_d = d_w > 0
-    inv_d = jnp.where(ok_d, 1.0 / jnp.where(ok_d, d_w, 1.0), 0.0)
-    ok_dmax = dmax_c > 0
-    inv_dmax = jnp.where(ok_dmax, 1.0 / jnp.where(ok_dmax, dmax_c, 1.0), 0.0)
-    leaves = border == "leaves"
-    beyond = out_of_frame_mass(d_w, dmax_c, inv_dmax, r_clip, inside_fraction, samples) if truncate and leaves else None
-
-    # channel planes: every per-pixel quantity below is a 1D array over the pixels, which XLA vectorises along
-    # (an (N, 3) layout leaves 3 lanes in the minor dimension)
-    inv_d_planes = [inv_d[:, c] for c in range(weight_channels)]
-    ok_d_planes = [ok_d[:, c] for c in range(weight_channels)]
-
-    spiral = spiral_samples(samples, dtype=dtype)  # the one owner of the sample pattern
-
-    def one_frame(cos_phi, sin_phi):
-        def body(i, acc):
-            num, den = acc
-            if truncate:
-                u = spiral.cdf[i] * inside_fraction  # stratified CDF, truncated to the image
-                rho = _unit_radius_for_cdf(u)  # radius in units of d_max
-            else:  # no profile reaches past the image diagonal by more than rounding (decided on the host): every
-                # pixel shares the sample radius, one scalar inverse CDF per sample, not one per pixel and sample
-                rho = burley_inverse_ccdf(1 - spiral.cdf[i], jnp.ones((), dtype))
-            r_mm = rho * dmax_c
-            off = r_mm * ppm_c
-            theta = spiral.angles[i]
-            # the spiral turned by the pixel's angle: cos/sin of the sum, one scalar pair per sample
-            cos_t = jnp.cos(theta) * cos_phi - jnp.sin(theta) * sin_phi
-            sin_t = jnp.sin(theta) * cos_phi + jnp.cos(theta) * sin_phi
-            # 1 / pdf of this sample (area density of the d_max profile at r), up to the per-pixel factor 8 pi d_max^2
-            inv_pdf = rho / (jnp.exp(-rho) + jnp.exp(-rho / 3))
-            # each pixel the fetch reads is its own point on the surface, with its own depth: weighting the corners
-            # separately keeps light from leaking across a depth step through the interpolation
-            num, den = list(num), list(den)
-            in_frame = 0.0
-            for val, bw in _corners(flat, h, w, rows_i + off * sin_t, cols_i + off * cos_t,
-                                    interpolation=interpolation):
-                in_frame = in_frame + bw
-                v_q = val[..., 4] * bw
-                dz_mm = jnp.where(v_q > 0, (val[..., 3] - z) * mm_per_unit, 0.0)
-                r3 = _safe_sqrt(r_mm * r_mm + dz_mm * dz_mm)
-                base = v_q * inv_pdf
-                wgt = [base * _burley_weight_kernel(jnp.where(ok_d_planes[c], r3 * inv_d_planes[c], jnp.inf))
-                       for c in range(weight_channels)]
-                for c in range(3):
-                    num[c] = num[c] + wgt[min(c, weight_channels - 1)] * val[..., c]
-                for c in range(weight_channels):
-                    den[c] = den[c] + wgt[c]
-            # the part of the fetch that fell outside the frame: dark surface at the pixel's own depth (light that
-            # scatters out of the frame leaves; it is not pushed back onto the pixels inside)
-            if leaves and weight_channels == 1:  # grey: the weight at dz = 0 is R/pdf of the sampled profile itself, 1
-                den[0] = den[0] + (1 - in_frame) * ok_d_planes[0]
-            elif leaves:
-                out_w = (1 - in_frame) * inv_pdf
-                for c in range(weight_channels):
-                    den[c] = den[c] + out_w * _burley_weight_kernel(
-                        jnp.where(ok_d_planes[c], r_mm * inv_d_planes[c], jnp.inf))
-            return tuple(num), tuple(den)
-
-        zeros = jnp.zeros(e_c.shape[:1], dtype)
-        num, den = jax.lax.fori_loop(0, samples, body, ((zeros,) * 3, (zeros,) * weight_channels))
-        num, den = jnp.stack(num, axis=-1), jnp.stack(den, axis=-1)
-        if beyond is not None:
-            den = den + beyond
-        ok = jnp.broadcast_to(den > 0, num.shape)
-        return jnp.where(ok, num / jnp.where(ok, den, 1.0), e_c)
-
-    def frame_result(k):
-        phi = spiral_rotation(rows_int, cols_int, k, seed, per_pixel=pattern == "rotated", dtype=dtype)
-        return one_frame(jnp.cos(phi), jnp.sin(phi))
-
-    if frames == 1:
-        result = frame_result(0)
-    else:  # temporal accumulation: the mean of ``frames`` frames, each with its own rotations (converged TAA)
-        result = jax.lax.fori_loop(0, frames, lambda k, acc: acc + frame_result(k), jnp.zeros_like(e_c)) / frames
-    if capacity is None:
-        scattered = result.reshape(h, w, 3)
-    else:
-        scattered = prep.irradiance.reshape(h * w, 3).at[idx].set(result, mode="drop").reshape(h, w, 3)
-    scattered = jnp.where(active[..., None], scattered, prep.irradiance)
-    return _finish(buffers, prep, scattered)
-
-
-def out_of_frame_mass(d_w: Array, d_max: Array, inv_d_max: Array, r_clip: Array, inside_fraction: Array,
-                      samples: int) -> Array:
-    """The energy of each channel's profile beyond ``r_clip`` (the image diagonal, mm: it lands outside the frame
-    from every pixel), in the units of the sample weights' sum: the weights of ``samples`` samples drawn from the
-    d_max profile truncated at ``r_clip`` (which holds ``inside_fraction`` of its energy) are ``R_c / pdf`` times
-    ``(d_c / d_max)^2`` (the kernel drops the factor ``8 pi d^2``), so a mass m counts as
-    ``m samples / inside_fraction (d_c / d_max)^2``."""
-    leave = 1 - burley_cdf(jnp.minimum(r_clip, 1e30)[:, None], d_w)
-    ok = inside_fraction > 0
-    per_weight = samples / jnp.where(ok, inside_fraction, 1.0)
-    return jnp.where(ok[:, None], leave * per_weight[:, None] * (d_w * inv_d_max[:, None]) ** 2, 0.0)
+_BURLEY_R99 = BURLEY_R99
 
 
 def compaction_capacity(active_count: int, pixels: int, *, minimum: int = 256) -> int | None:
@@ -242,7 +54,7 @@ def _burley_active(buffers: Buffers, material: BurleyMaterial, camera: Camera, m
     safe = np.where(valid & np.isfinite(depth) & (depth > 0), depth, np.inf)
     ppm = float(camera.focal_px) / (safe * float(camera.mm_per_unit))
     d_px = d[rows] * ppm
-    active = valid & (d_px * _BURLEY_R99 >= min_footprint_px)
+    active = valid & (d_px * BURLEY_R99 >= min_footprint_px)
     return int(np.count_nonzero(active)), float(np.max(d_px, where=active, initial=0.0))
 
 
@@ -261,6 +73,8 @@ def burley(
     frames: int = 1,
     seed: int | Array = 0,
     border: str = "leaves",
+    origin: tuple[int, int] = (0, 0),
+    frame_shape: tuple[int, int] | None = None,
 ) -> Float[Array, "H W 3"]:
     """Screen-space Christensen–Burley normalised diffusion (one pass, ``samples`` spiral samples per pixel).
 
@@ -301,12 +115,22 @@ def burley(
     ``border="renormalise"`` drops the samples outside instead (the kernel renormalised over the frame, as if the
     surface beyond looked like the inside: the behaviour before, right where a lit surface is cut by the frame).
 
-    ``impl`` (``_dispatch``): "auto" runs the formulation above on a CPU backend ("xla-cpu") and elsewhere the
-    whole-frame one with no host round trip ("xla-gpu": every pixel computed and masked, ``compact`` unused, three
-    kernel evaluations per sample); "pallas" is that as one Pallas kernel (blocks without active pixels skip it).
-    The whole-frame formulations have the fixed spiral and the renormalised border so far (``pattern="fixed"``,
-    ``border="renormalise"``, one frame): with other options "auto" keeps the formulation above on any backend,
-    and naming "xla-gpu" or "pallas" is an error.
+    The samples' radii: where the widest active profile has more than ``TRUNCATION_ENERGY`` (1e-4) of its energy
+    beyond the frame's diagonal, each pixel's profile is sampled truncated there (a per-pixel inversion of the
+    truncated CDF, and that energy counted as leaving with ``border="leaves"``); elsewhere every pixel shares the
+    samples' unit radii (one scalar inverse CDF per sample), which moves no pixel by more than that energy.
+
+    Tiles: ``origin=(row0, col0)`` is this buffer's top-left pixel in the whole frame and ``frame_shape=(H, W)`` the
+    frame's size (``None``: the buffer is the frame). The rotation hash, the border rule and the diagonal's
+    truncation follow the frame, so a tile with a halo of ``burley_halo_px`` pixels gives the untiled frame's pixels
+    (a fetch inside the frame but outside the buffer is dropped from the normalisation).
+
+    ``impl`` (``_dispatch``): every formulation implements every option above; "auto" picks "compacted" on a CPU
+    backend (the host counts and compacts the active pixels, decides the truncation and the shared channels; the
+    sampling warning) and "gather" elsewhere (every pixel computed and masked, decided on the device: no host round
+    trip, ``compact`` unused, no warning); "pallas" is the gather as one Pallas kernel (blocks without active pixels
+    skip it). "xla-cpu" and "xla-gpu" are the old names of "compacted" and "gather". Host work per eager call of
+    "compacted": reading depth, ids and d to count the active pixels and to check the sampling.
     """
     _check_albedo_mode(albedo_mode)
     if interpolation not in ("bilinear", "nearest"):
@@ -325,24 +149,21 @@ def burley(
     if _is_concrete(seed) and not (np.ndim(seed) == 0 and float(seed) == int(seed) and 0 <= int(seed) < 2**32):
         raise ValueError(f"seed must be an integer in [0, 2**32), got {seed!r}")
     seed = jnp.asarray(np.uint32(int(seed)) if _is_concrete(seed) else seed).astype(jnp.uint32)
-    which = resolve_impl(impl)
-    gpu_semantics = pattern == "fixed" and border == "renormalise" and frames == 1
-    if which != "xla-cpu" and not gpu_semantics:
-        if impl != "auto":
-            raise ValueError(f"impl={impl!r} has the fixed spiral and the renormalised border only so far: pass "
-                             "pattern='fixed', border='renormalise', frames=1, or impl='auto'/'xla-cpu'")
-        which = "xla-cpu"  # the formulation above runs on every backend
-    if which != "xla-cpu":  # no host count, no host read of d: nothing waits for the device
-        from ._whole_frame import burley_gpu_impl
-
-        return burley_gpu_impl(buffers, material, camera, int(samples), albedo_mode, interpolation,
-                               float(min_footprint_px), 3, which)
-    capacity, truncate = None, True
-    weight_channels = weight_channel_count(material.d_mm)
-    if _is_concrete(buffers, material, camera):
-        h, w = buffers.depth.shape[-2:]
-        count, reach_px = _burley_active(buffers, material, camera, float(min_footprint_px))
-        truncate = reach_px * _untruncated_radius(buffers.irradiance.dtype) > math.hypot(h, w)
+    h, w = buffers.depth.shape[-2:]
+    origin, frame_shape = check_tile((h, w), origin, frame_shape)
+    options = dict(pattern=pattern, border=border, frames=int(frames), interpolation=interpolation)
+    which = resolve_impl(impl, "burley", options)
+    common = dict(pattern=pattern, frames=int(frames), seed=seed, border=border, origin=origin,
+                  frame_shape=frame_shape)
+    if which == "pallas":  # no host count, no host read of d: nothing waits for the device
+        return burley_pallas_impl(buffers, material, camera, int(samples), albedo_mode, interpolation,
+                                  float(min_footprint_px), 3, **common)
+    capacity, truncate = None, None
+    # concrete d (under jit too): channels with one d share one kernel evaluation (a host read: compacted only)
+    weight_channels = weight_channel_count(material.d_mm) if which == "compacted" else 3
+    if which == "compacted" and _is_concrete(buffers, material, camera):
+        count, widest_d_px = _burley_active(buffers, material, camera, float(min_footprint_px))
+        truncate = needs_truncation(widest_d_px, frame_shape)
         if compact is not False:
             capacity = compaction_capacity(count, h * w)
             if compact and capacity is None:
@@ -359,8 +180,16 @@ def burley(
                               f"{implied:.2f} of an edge's contrast); more samples or frames", SamplingWarning,
                               stacklevel=2)
     return _burley_impl(buffers, material, camera, int(samples), albedo_mode, interpolation, capacity,
-                        float(min_footprint_px), weight_channels, bool(truncate), pattern, int(frames), seed,
-                        border)
+                        float(min_footprint_px), weight_channels, truncate, **common)
+
+
+def burley_halo_px(buffers: Buffers, material: BurleyMaterial, camera: Camera, *, samples: int = 32,
+                   min_footprint_px: float = MIN_FOOTPRINT_PX, frame_shape: tuple[int, int] | None = None) -> int:
+    """Host side: the halo (px) a tile of ``buffers`` needs around it so that ``burley`` gives the untiled frame's
+    pixels there: how far the outermost sample of the widest active profile lands (at most the frame's diagonal)."""
+    frame_shape = tuple(buffers.depth.shape[-2:]) if frame_shape is None else tuple(frame_shape)
+    _, widest_d_px = _burley_active(buffers, material, camera, float(min_footprint_px))
+    return burley_reach_px(widest_d_px, frame_shape, int(samples))
 
 
 def burley_channel_samples(d_mm, samples: int):
@@ -373,23 +202,12 @@ def burley_channel_samples(d_mm, samples: int):
     ok = d > 0
     if not ok.any():
         return None
-    r95 = _BURLEY_R95 * d
+    r95 = BURLEY_R95 * d
     x = np.where(ok, r95 / np.where(d_max > 0, d_max, 1.0), 0.0)
     share = 1 - np.exp(-x) / 4 - 3 * np.exp(-x / 3) / 4  # Burley's CDF (Christensen & Burley 2015)
     n_eff = np.where(ok, samples * share, np.inf)
     m, c = np.unravel_index(np.argmin(n_eff), n_eff.shape)
     return float(n_eff[m, c]), int(m), int(c)
-
-
-_BURLEY_R95 = float(np.asarray(burley_inverse_ccdf(np.float64(0.05), np.float64(1.0))))
-
-
-@functools.lru_cache(maxsize=None)
-def _untruncated_radius(dtype) -> float:
-    """Radius (units of d) beyond which the Burley profile's remaining energy rounds away in ``dtype``: a pixel
-    whose image diagonal is farther than this needs no truncated sampling."""
-    eps = float(jnp.finfo(_work_dtype(dtype)).eps)
-    return float(np.asarray(burley_inverse_ccdf(np.float64(eps / 4), np.float64(1.0))))
 
 
 def weight_channel_count(d_mm) -> int:

@@ -1,133 +1,105 @@
-"""``burley`` as a GPU runs it: every pixel of the frame in one fused loop over the samples, masked, no host sync.
+"""``burley``'s XLA formulations: the spec's sample loop (``_burley_spec.sample_term``) over two layouts of pixels.
 
-The CPU formulation counts the active pixels on the host and compacts them; on a GPU that round trip costs more than
-the pixels it saves. Here every pixel runs the sample loop and the inactive ones are masked at the end (the Pallas
-kernel skips the loop for a block of pixels with none active: the cost follows the scene on the device). The sample
-pattern is an input: ``sample_u (S,)`` (stratified positions in the profile's CDF, truncated per pixel to the image
-diagonal) and ``sample_theta (S,)`` (angles), plus a per-pixel rotation ``phi (H, W)`` added to every angle (0:
-the golden-angle spiral shared by all pixels), so another sampling pattern (a per-pixel hash rotation, a pattern per
-frame) is a change of inputs, not of the kernel.
+- ``"compacted"``: the active pixels, counted on the host and compacted into a buffer of the next power-of-two size
+  (one compilation per size bucket), computed and scattered back; the host also decides whether the samples need
+  the truncated inverse CDF and whether the material's channels share one kernel. Fastest on a CPU, where the
+  pixels skipped pay more than the host round trip.
+- ``"gather"``: every pixel of the frame in one fused loop over the samples, masked at the end, decided on the
+  device (no host read: the truncation is a ``lax.cond`` on the frame's widest profile). What a GPU runs; under
+  ``jit``/``vmap`` the compacted layout becomes this one (nothing can be counted there).
+
+The spiral's rotation (per pixel and frame, from ``seed``), ``frames`` (the mean of K rotated frames), the border
+rule and the tile's place in its frame are the spec's, the same in every layout.
 """
 
 from __future__ import annotations
 
-import math
-
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._checks import checked
-from .._kernels import spiral_samples
 from .._materials import BurleyMaterial
-from .._profiles import burley_cdf, burley_inverse_ccdf
 from .._scene import Buffers, Camera
-from .._units import px_per_mm
-from ._burley_spec import _BURLEY_R99, _burley_weight_kernel
-from ._common import _safe_sqrt
+from ._burley_spec import TRUNCATION_ENERGY, frame_rotation, normalise, pixel_planes, sample_term
+from ._common import _finish, _prepare, _work_dtype
 
 
-def sample_pattern(samples: int, dtype) -> tuple[Array, Array]:
-    """The golden-angle spiral (``spiral_samples``): stratified CDF positions ``(i + 1/2) / S`` and angles
-    ``i * GOLDEN_ANGLE``."""
-    spiral = spiral_samples(samples, dtype=dtype)
-    return spiral.cdf, spiral.angles
-
-
-def sample_term(u: Array, theta: Array, pix: dict, fetch, *, height: int, width: int, mm_per_unit: Array,
-                interpolation: str, inverse_ccdf, weight_channels: int) -> tuple[list[Array], list[Array]]:
-    """What one sample adds to each pixel's numerator (3 channels) and denominator (``weight_channels``).
-
-    ``pix``: per-pixel planes (``row``, ``col`` as floats, ``e`` (3 planes), ``z``, ``dmax``, ``ppm``,
-    ``inside`` (the profile's fraction within the image diagonal), ``phi``, ``inv_d``/``ok_d`` (per weight channel)).
-    ``fetch(idx)``: the channels and depth at flat pixel index ``idx`` (row-major, clipped into the frame).
-    Layout-free (a frame or a block of pixels): the XLA loop and the Pallas kernel share it."""
-    rho = inverse_ccdf(1 - u * pix["inside"])  # radius in units of d_max
-    r_mm = rho * pix["dmax"]
-    off = r_mm * pix["ppm"]
-    angle = theta + pix["phi"]
-    y, x = pix["row"] + off * jnp.sin(angle), pix["col"] + off * jnp.cos(angle)
-    # 1 / pdf of this sample (area density of the d_max profile at r), up to the per-pixel factor 8 pi d_max^2
-    inv_pdf = rho / (jnp.exp(-rho) + jnp.exp(-rho / 3))
-    # clip first: huge or NaN offsets must not overflow the integer cast
-    x = jnp.clip(jnp.where(jnp.isnan(x), -4.0, x), -4.0, width + 3.0)
-    y = jnp.clip(jnp.where(jnp.isnan(y), -4.0, y), -4.0, height + 3.0)
-    if interpolation == "nearest":
-        corners = [(jnp.round(y), jnp.round(x), None)]
-    else:
-        x0, y0 = jnp.floor(x), jnp.floor(y)
-        fx, fy = x - x0, y - y0
-        corners = [(y0, x0, (1 - fy) * (1 - fx)), (y0, x0 + 1, (1 - fy) * fx), (y0 + 1, x0, fy * (1 - fx)),
-                   (y0 + 1, x0 + 1, fy * fx)]
-    num, den = [0.0] * 3, [0.0] * weight_channels
-    for yi, xi, corner_weight in corners:
-        inside = (xi >= 0) & (xi <= width - 1) & (yi >= 0) & (yi <= height - 1)
-        idx = jnp.clip(yi, 0, height - 1).astype(jnp.int32) * width + jnp.clip(xi, 0, width - 1).astype(jnp.int32)
-        *eq, zq = fetch(idx)
-        # each pixel the fetch reads is its own point on the surface, with its own depth (no interpolated depth
-        # across a step); validity travels in the depth (0 where a pixel takes no part)
-        ok = inside & (zq > 0)
-        v_q = jnp.where(ok, 1.0 if corner_weight is None else corner_weight, 0.0)
-        dz_mm = jnp.where(ok, (zq - pix["z"]) * mm_per_unit, 0.0)
-        r3 = _safe_sqrt(r_mm * r_mm + dz_mm * dz_mm)
-        base = v_q * inv_pdf
-        wgt = [base * _burley_weight_kernel(jnp.where(pix["ok_d"][c], r3 * pix["inv_d"][c], jnp.inf))
-               for c in range(weight_channels)]
-        num = [num[c] + wgt[min(c, weight_channels - 1)] * eq[c] for c in range(3)]
-        den = [den[c] + wgt[c] for c in range(weight_channels)]
-    return num, den
-
-
-def normalise(num: list[Array], den: list[Array], e: list[Array]) -> list[Array]:
-    """Each channel's weighted mean; a pixel no sample reached keeps its own value."""
-    out = []
-    for c in range(3):
-        d = den[min(c, len(den) - 1)]
-        ok = d > 0
-        out.append(jnp.where(ok, num[c] / jnp.where(ok, d, 1.0), e[c]))
-    return out
-
-
-def gather_burley(pix: dict, sample_u: Array, sample_theta: Array, *, height: int, width: int,
-                  mm_per_unit: Array, interpolation: str, weight_channels: int) -> list[Array]:
-    """The sample loop over flat per-pixel planes (N = H W), XLA formulation: the scattered channels (3 planes)."""
-    packed = jnp.stack([*pix["e"], pix["z"]], axis=-1)  # (N, 4): one gather per corner fetches all four
-    fetch = lambda idx: list(jnp.moveaxis(jnp.take(packed, idx, axis=0), -1, 0))
-    inverse_ccdf = lambda v: burley_inverse_ccdf(v, jnp.ones_like(v))
+def frame_result(pix: dict, fetch, cos_phi: Array, sin_phi: Array, *, samples: int, truncate: bool, border: str,
+                 weight_channels: int, **kw) -> list[Array]:
+    """One frame's scattered channels (3 planes over the layout's pixels), the spiral turned by ``cos_phi``,
+    ``sin_phi``: ``samples`` samples, each channel normalised by its weights (plus, with truncated sampling and
+    ``border="leaves"``, the energy beyond the frame's diagonal, which leaves)."""
+    zeros = jnp.zeros_like(pix["z"])
 
     def body(i, acc):
-        num, den = sample_term(sample_u[i], sample_theta[i], pix, fetch, height=height, width=width,
-                               mm_per_unit=mm_per_unit, interpolation=interpolation, inverse_ccdf=inverse_ccdf,
-                               weight_channels=weight_channels)
+        num, den = sample_term(i, samples, cos_phi, sin_phi, pix, fetch, truncate=truncate, border=border,
+                               weight_channels=weight_channels, **kw)
         return tuple(a + b for a, b in zip(acc[0], num)), tuple(a + b for a, b in zip(acc[1], den))
 
-    zeros = jnp.zeros_like(pix["z"])
-    num, den = jax.lax.fori_loop(0, sample_u.shape[0], body, ((zeros,) * 3, (zeros,) * weight_channels))
-    return normalise(list(num), list(den), pix["e"])
+    num, den = jax.lax.fori_loop(0, samples, body, ((zeros,) * 3, (zeros,) * weight_channels))
+    den = list(den)
+    if truncate and border == "leaves":
+        den = [den[c] + samples * pix["leave"][c] for c in range(weight_channels)]
+    return normalise(list(num), den, pix["e"])
 
 
-def pixel_planes(buffers: Buffers, material: BurleyMaterial, camera: Camera, prep, min_footprint_px: float,
-                 weight_channels: int, dtype) -> tuple[dict, Array]:
-    """The flat per-pixel planes ``sample_term`` reads, and the active mask (H, W), as ``burley`` defines them."""
-    d_table = checked(material.d_mm.astype(dtype), "d_mm")
+def frames_mean(one_frame, frames: int, zeros: Array) -> list[Array]:
+    """``one_frame(k)`` for k = 0, or the mean over ``frames`` frames (each with its own rotations: converged TAA)."""
+    if frames == 1:
+        return list(one_frame(0))
+    total = jax.lax.fori_loop(0, frames, lambda k, acc: tuple(a + b for a, b in zip(acc, one_frame(k))),
+                              (zeros,) * 3)
+    return [t / frames for t in total]
+
+
+def sample_loop(pix: dict, fetch, *, frames: int, seed: Array, pattern: str, **kw) -> list[Array]:
+    """The scattered channels over the layout's pixels, ``frames`` frames averaged (``frame_result``)."""
+    return frames_mean(lambda k: frame_result(pix, fetch, *frame_rotation(pix, k, seed, pattern=pattern), **kw),
+                       frames, jnp.zeros_like(pix["z"]))
+
+
+def needs_truncation_on_device(pix: dict, active: Array) -> Array:
+    """Whether any active pixel's widest profile has more than ``TRUNCATION_ENERGY`` beyond the frame's diagonal
+    (``_burley_spec.needs_truncation``, decided on the device)."""
+    return jnp.any(active.reshape(-1) & (1 - pix["inside"] > TRUNCATION_ENERGY))
+
+
+@eqx.filter_jit
+def _burley_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, samples: int, albedo_mode: str,
+                 interpolation: str, capacity: int | None, min_footprint_px: float, weight_channels: int = 3,
+                 truncate: bool | None = None, pattern: str = "rotated", frames: int = 1, seed: Array | int = 0,
+                 border: str = "leaves", origin: tuple[int, int] = (0, 0),
+                 frame_shape: tuple[int, int] | None = None) -> Array:
+    """The XLA formulations: ``capacity`` slots of compacted active pixels ("compacted"), or ``None`` for every
+    pixel ("gather"); ``truncate`` decided on the host (a bool) or on the device (``None``)."""
+    dtype = _work_dtype(buffers.irradiance.dtype)
+    prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
     h, w = buffers.depth.shape
-    mm_per_unit = camera.mm_per_unit.astype(dtype)
-    d_pix = jnp.where(prep.valid[..., None], d_table[prep.rows], 0.0)  # (H, W, 3)
-    d_max = jnp.max(d_pix, axis=-1)
-    ppm = px_per_mm(prep.depth, focal_px=camera.focal_px.astype(dtype), mm_per_unit=mm_per_unit)
-    ppm = jnp.where(prep.valid, ppm, 0.0)
-    active = prep.valid & (d_max * ppm * _BURLEY_R99 >= min_footprint_px)
-    # samples beyond the image diagonal can never land: the profile is sampled truncated there
-    r_clip = jnp.where(ppm > 0, math.hypot(h, w) / jnp.where(ppm > 0, ppm, 1.0), jnp.inf)
-    inside = jnp.where(d_max > 0, burley_cdf(jnp.minimum(r_clip, 1e30), d_max), 1.0)
-    d_w = d_pix[..., :weight_channels]
-    ok_d = d_w > 0
-    inv_d = jnp.where(ok_d, 1.0 / jnp.where(ok_d, d_w, 1.0), 0.0)
-    flat = lambda a: a.reshape(h * w)
-    idx = jnp.arange(h * w, dtype=jnp.int32)
-    pix = {"row": (idx // w).astype(dtype), "col": (idx % w).astype(dtype),
-           "e": [flat(prep.irradiance[..., c]) for c in range(3)], "z": flat(prep.depth), "dmax": flat(d_max),
-           "ppm": flat(ppm), "inside": flat(inside), "phi": jnp.zeros(h * w, dtype),
-           "inv_d": [flat(inv_d[..., c]) for c in range(weight_channels)],
-           "ok_d": [flat(ok_d[..., c]) for c in range(weight_channels)]}
-    return pix, active
+    frame_shape = (h, w) if frame_shape is None else tuple(frame_shape)
+    pix, active = pixel_planes(buffers, material, camera, prep, min_footprint_px=min_footprint_px,
+                               weight_channels=weight_channels, dtype=dtype, origin=tuple(origin),
+                               frame_shape=frame_shape)
+    packed = jnp.stack([*pix["e"], pix["z"]], axis=-1)  # (N, 4): one gather per corner fetches all four
+    fetch = lambda idx: list(jnp.moveaxis(jnp.take(packed, idx, axis=0), -1, 0))
+    if capacity is not None:  # cost follows the scene: only the active pixels (unused slots past the image)
+        idx = jnp.nonzero(active.reshape(-1), size=capacity, fill_value=h * w)[0].astype(jnp.int32)
+        take = lambda a: jnp.take(a, idx, axis=0, mode="fill", fill_value=0)
+        pix = jax.tree.map(take, pix)
+    seed = jnp.asarray(seed).astype(jnp.uint32)
+    kw = dict(samples=samples, frames=frames, seed=seed, pattern=pattern, border=border,
+              weight_channels=weight_channels, buffer_shape=(h, w), origin=tuple(origin), frame_shape=frame_shape,
+              mm_per_unit=camera.mm_per_unit.astype(dtype), interpolation=interpolation)
+    if truncate is None:
+        wide = needs_truncation_on_device(pix, active if capacity is None else idx < h * w)
+        out = jax.lax.cond(wide, lambda: sample_loop(pix, fetch, truncate=True, **kw),
+                           lambda: sample_loop(pix, fetch, truncate=False, **kw))
+    else:
+        out = sample_loop(pix, fetch, truncate=truncate, **kw)
+    result = jnp.stack(out, axis=-1)
+    if capacity is None:
+        scattered = result.reshape(h, w, 3)
+    else:
+        scattered = prep.irradiance.reshape(h * w, 3).at[idx].set(result, mode="drop").reshape(h, w, 3)
+    scattered = jnp.where(active[..., None], scattered, prep.irradiance)
+    return _finish(buffers, prep, scattered)

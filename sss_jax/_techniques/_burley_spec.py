@@ -1,17 +1,44 @@
-"""The Burley technique's spec shared by its formulations (``_burley``'s banded/compacted one, ``_burley_gpu``'s
-whole-frame one): the per-sample weight kernel and the footprint radius. Imports no formulation, so each formulation
-imports it without an import cycle."""
+"""``burley`` written once: the per-sample term, its constants, the inverse CDF, the rotation hash and the reach.
+
+Every formulation of the pass (``_burley_gpu``: the compacted and the whole-frame gather layouts in XLA;
+``_pallas``: blocks of pixels in a Pallas kernel) evaluates ``sample_term`` on its own layout of the per-pixel planes
+``pixel_planes`` builds; they differ in which pixels they hold and how they loop, not in arithmetic.
+
+Positions are frame coordinates: a buffer that is a tile of a larger frame states its top-left pixel in the frame
+(``origin``) and the frame's size (``frame_shape``). The rotation hash, the frame border ("leaves": the part of a
+fetch outside the frame counts as dark surface) and the truncation at the frame's diagonal follow the frame; a fetch
+inside the frame but outside the buffer (a tile without enough halo) is dropped from the normalisation. A tile whose
+halo covers the pass's reach (``burley_reach_px``) gives the untiled frame's pixels.
+"""
 
 from __future__ import annotations
+
+import math
 
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from .._profiles import burley_inverse_ccdf
+from .._checks import checked
+from .._kernels import spiral_sample
+from .._profiles import burley_cdf, burley_inverse_ccdf
+from .._units import px_per_mm
+from ._common import _safe_sqrt
+
+# radius holding 99% (95%) of a Burley profile's energy, in units of d: the footprint the skip and compaction test
+# (the sampling check)
+BURLEY_R99 = float(np.asarray(burley_inverse_ccdf(np.float64(0.01), np.float64(1.0))))
+BURLEY_R95 = float(np.asarray(burley_inverse_ccdf(np.float64(0.05), np.float64(1.0))))
+
+# Truncated sampling (each pixel's profile cut at the frame's diagonal, so huge d spreads over the frame instead of
+# losing its samples) is taken where it changes the result: sampling the whole profile instead leaves the energy
+# beyond the diagonal out of the normalisation, which moves a pixel by at most that energy, relative. Below 1e-4
+# (a fortieth of an 8-bit step at full scale) every pixel shares the sample radii: one scalar inverse CDF per sample
+# instead of a per-pixel inversion of the truncated CDF.
+TRUNCATION_ENERGY = 1e-4
 
 
-def _burley_weight_kernel(x: Array) -> Array:
+def burley_weight_kernel(x: Array) -> Array:
     """``(exp(-x) + exp(-x/3)) / x``: the Burley profile at ``r = x d`` up to the factor ``8 pi d^2`` that cancels in
     the per-channel normalisation. ``x = inf`` (d = 0 or no overlap) gives 0; x is never 0 here (r > 0)."""
     finite = jnp.isfinite(x) & (x > 0)
@@ -20,5 +47,209 @@ def _burley_weight_kernel(x: Array) -> Array:
     return jnp.where(finite, e3 * (e3 * e3 + 1) / xs, 0.0)
 
 
-# radius holding 99% of a Burley profile's energy, in units of d (the footprint the skip and compaction test)
-_BURLEY_R99 = float(np.asarray(burley_inverse_ccdf(np.float64(0.01), np.float64(1.0))))
+def _hash_u32(x: Array) -> Array:
+    """A 32-bit integer hash (Wellons' ``lowbias32``): consecutive inputs give unrelated outputs."""
+    x = x.astype(jnp.uint32)
+    x = x ^ (x >> 16)
+    x = x * jnp.uint32(0x7FEB352D)
+    x = x ^ (x >> 15)
+    x = x * jnp.uint32(0x846CA68B)
+    return x ^ (x >> 16)
+
+
+def spiral_rotation(rows: Array, cols: Array, frame: Array | int, seed: Array | int, *, per_pixel: bool = True,
+                    dtype=jnp.float32) -> Array:
+    """Angle (radians, in [0, 2 pi)) by which pixel (``rows``, ``cols``: integer-valued arrays, frame coordinates)
+    turns the golden-angle spiral in ``frame`` of a sequence, for ``seed``: a hash of the four, so neighbouring pixels
+    and successive frames get unrelated angles (HDRP and EEVEE Next rotate the sample pattern per pixel and per frame
+    and leave the noise to TAA). ``per_pixel=False`` turns every pixel by the same angle (the frame's), and frame 0 by
+    none: the fixed pattern. The angle depends on no material parameter, so gradients in the material are those of
+    the radii."""
+    frame = jnp.asarray(frame).astype(jnp.uint32)
+    seed = jnp.asarray(seed).astype(jnp.uint32)
+    key = _hash_u32(seed * jnp.uint32(0x9E3779B9) + frame * jnp.uint32(0x85EBCA6B) + jnp.uint32(0x27D4EB2F))
+    if per_pixel:
+        r = jnp.asarray(rows).astype(jnp.int32).astype(jnp.uint32)
+        c = jnp.asarray(cols).astype(jnp.int32).astype(jnp.uint32)
+        key = _hash_u32(_hash_u32(r * jnp.uint32(0x68E31DA4) ^ key) + c * jnp.uint32(0xB5297A4D))
+    else:
+        key = jnp.where(frame > 0, key, jnp.uint32(0))
+        key = jnp.broadcast_to(key, jnp.shape(rows))
+    unit = (key >> 8).astype(dtype) * (1.0 / (1 << 24))  # 24 bits: exact in float32
+    return unit * (2 * math.pi)
+
+
+def unit_inverse_ccdf(v: Array) -> Array:
+    """``burley_inverse_ccdf(v, 1)`` from exp, log and sqrt only (what every kernel backend lowers, Triton too):
+    ``asinh(x) = log(x + sqrt(x^2 + 1))`` and ``2 sinh(a) = exp(a) - exp(-a)``; ``v`` lies in [1/(2S), 1] here,
+    where the subtraction loses at most a few bits."""
+    v = jnp.clip(v, jnp.finfo(v.dtype).tiny * 2.0**24, 1.0)
+    a = jnp.log(2 * v + jnp.sqrt(4 * v * v + 1)) / 3
+    return -3 * jnp.log(jnp.minimum(jnp.exp(a) - jnp.exp(-a), 1.0))
+
+
+def unit_radius_for_cdf(u: Array, inverse_ccdf=unit_inverse_ccdf) -> Array:
+    """Radius (units of d) holding the fraction ``u`` in (0, 1) of a Burley profile's energy, with full relative
+    precision for tiny ``u`` (a kernel far wider than the image keeps only ~r/(2d) of its energy there; ``1 - u``
+    would round to 1). With ``s = 1 - exp(-r/(3d))`` the CDF is ``(6s - 3s^2 + s^3)/4``: Newton from ``2u/3`` where u
+    is small, the closed form elsewhere."""
+    small = u < 0.5
+    us = jnp.where(small, u, 0.25)
+    s = 2 * us / 3
+    for _ in range(4):  # f' = 3 s^2 - 6 s + 6 >= 3: Newton converges fast from 2u/3 for u < 0.5
+        s = s - (s * (6 - 3 * s + s * s) - 4 * us) / (3 * s * s - 6 * s + 6)
+    near = -3 * jnp.log(1 - s)  # s <= ~0.3 here: no cancellation
+    far = inverse_ccdf(1 - jnp.where(small, 0.75, u))
+    return jnp.where(small, near, far)
+
+
+def needs_truncation(widest_d_px: float, frame_shape: tuple[int, int]) -> bool:
+    """Host side: whether the widest profile among the active pixels (``widest_d_px``: its d in px) has more than
+    ``TRUNCATION_ENERGY`` of its energy beyond the frame's diagonal (Burley's CCDF ``(exp(-x) + 3 exp(-x/3)) / 4``)."""
+    if not widest_d_px > 0:
+        return False
+    x = math.hypot(*frame_shape) / widest_d_px
+    return (math.exp(-x) + 3 * math.exp(-x / 3)) / 4 > TRUNCATION_ENERGY
+
+
+def pixel_planes(buffers, material, camera, prep, *, min_footprint_px: float, weight_channels: int, dtype,
+                 origin: tuple[int, int], frame_shape: tuple[int, int]) -> tuple[dict, Array]:
+    """The flat per-pixel planes (N = H W of the buffer) ``sample_term`` reads, and the active mask (H, W).
+
+    ``row``/``col``: frame coordinates (floats); ``frow``/``fcol``: the same as integers (the rotation hash);
+    ``e`` (3 planes), ``z`` (0 where the pixel takes no part), ``dmax`` (widest d, mm), ``ppm`` (px per mm),
+    ``inside`` (the d_max profile's energy within the frame's diagonal), ``inv_d``/``ok_d`` and ``leave`` (the energy
+    of each weight channel's profile beyond the diagonal, per sample in the weights' units, for ``border="leaves"``
+    with truncated sampling) per weight channel."""
+    d_table = checked(material.d_mm.astype(dtype), "d_mm")
+    h, w = buffers.depth.shape
+    mm_per_unit = camera.mm_per_unit.astype(dtype)
+    d_pix = jnp.where(prep.valid[..., None], d_table[prep.rows], 0.0)  # (H, W, 3)
+    d_max = jnp.max(d_pix, axis=-1)
+    ppm = px_per_mm(prep.depth, focal_px=camera.focal_px.astype(dtype), mm_per_unit=mm_per_unit)
+    ppm = jnp.where(prep.valid, ppm, 0.0)
+    # pixels whose footprint is below min_footprint_px keep their local shading (no samples are taken for them)
+    active = prep.valid & (d_max * ppm * BURLEY_R99 >= min_footprint_px)
+    # samples beyond the frame's diagonal can never land in it: the profile is sampled truncated there
+    r_clip = jnp.where(ppm > 0, math.hypot(*frame_shape) / jnp.where(ppm > 0, ppm, 1.0), jnp.inf)
+    r_clip = jnp.minimum(r_clip, 1e30)
+    inside = jnp.where(d_max > 0, burley_cdf(r_clip, d_max), 1.0)
+    d_w = d_pix[..., :weight_channels]
+    ok_d = d_w > 0
+    inv_d = jnp.where(ok_d, 1.0 / jnp.where(ok_d, d_w, 1.0), 0.0)
+    ok_dmax = d_max > 0
+    inv_dmax = jnp.where(ok_dmax, 1.0 / jnp.where(ok_dmax, d_max, 1.0), 0.0)
+    # the weights of samples drawn from the d_max profile truncated at r_clip (holding ``inside`` of its energy) are
+    # R_c / pdf times (d_c / d_max)^2 (the kernel drops 8 pi d^2): a mass m counts as m / inside (d_c / d_max)^2
+    ok_in = inside > 0
+    per_sample = jnp.where(ok_in, 1.0 / jnp.where(ok_in, inside, 1.0), 0.0)
+    leave = (1 - burley_cdf(r_clip[..., None], d_w)) * per_sample[..., None] * (d_w * inv_dmax[..., None]) ** 2
+    flat = lambda a: a.reshape(h * w)
+    rows = jnp.broadcast_to(jnp.arange(h, dtype=jnp.int32)[:, None], (h, w)) + origin[0]
+    cols = jnp.broadcast_to(jnp.arange(w, dtype=jnp.int32)[None, :], (h, w)) + origin[1]
+    pix = {"row": flat(rows).astype(dtype), "col": flat(cols).astype(dtype), "frow": flat(rows), "fcol": flat(cols),
+           "e": [flat(prep.irradiance[..., c]) for c in range(3)], "z": flat(prep.depth), "dmax": flat(d_max),
+           "ppm": flat(ppm), "inside": flat(inside),
+           "inv_d": [flat(inv_d[..., c]) for c in range(weight_channels)],
+           "ok_d": [flat(ok_d[..., c]) for c in range(weight_channels)],
+           "leave": [flat(leave[..., c]) for c in range(weight_channels)]}
+    return pix, active
+
+
+def sample_term(i: Array | int, samples: int, cos_phi: Array, sin_phi: Array, pix: dict, fetch, *,
+                buffer_shape: tuple[int, int], origin: tuple[int, int], frame_shape: tuple[int, int],
+                mm_per_unit: Array, interpolation: str, weight_channels: int, truncate: bool, border: str,
+                inverse_ccdf=unit_inverse_ccdf) -> tuple[list[Array], list[Array]]:
+    """What sample ``i`` of ``samples`` adds to each pixel's numerator (3 channels) and denominator
+    (``weight_channels``): the one definition of the pass (Christensen & Burley 2015, screen space).
+
+    The sample's radius is the stratified inverse CDF of the pixel's widest-channel profile (truncated at the frame's
+    diagonal where ``truncate``), its angle the golden-angle spiral's turned by the pixel's rotation (``cos_phi``,
+    ``sin_phi``); it is placed in mm on the surface and projected with the pixel's px/mm. Each pixel q a bilinear
+    (or nearest) fetch reads is its own point on the surface: it adds ``frac_q R_c(sqrt(r^2 + dz^2)) / pdf(r)`` to
+    the channel's denominator and that times ``e_q`` to its numerator (no interpolated depth across a step). Pixels
+    without a surface, and pixels of the frame outside this buffer, add nothing; with ``border="leaves"`` the part of
+    the fetch outside the frame adds the weight of dark surface at the pixel's own depth (``R_c(r) / pdf(r)``) to
+    the denominator only: that light leaves the frame.
+
+    ``pix``: the planes of ``pixel_planes`` for this layout's pixels; ``fetch(idx)``: R, G, B and depth at flat
+    buffer index ``idx`` (row-major, clipped into the buffer). Layout-free (a frame, a compacted set or a Pallas
+    block of pixels)."""
+    dtype = pix["z"].dtype
+    u, theta = spiral_sample(jnp.asarray(i).astype(dtype), samples)
+    if truncate:
+        rho = unit_radius_for_cdf(u * pix["inside"], inverse_ccdf)  # radius in units of d_max, per pixel
+    else:  # the tail beyond the diagonal is negligible (``needs_truncation``): one scalar radius per sample
+        rho = inverse_ccdf(1 - u)
+    r_mm = rho * pix["dmax"]
+    off = r_mm * pix["ppm"]
+    cos_t = jnp.cos(theta) * cos_phi - jnp.sin(theta) * sin_phi  # the spiral turned by the pixel's angle
+    sin_t = jnp.sin(theta) * cos_phi + jnp.cos(theta) * sin_phi
+    # 1 / pdf of this sample (area density of the d_max profile at r), up to the per-pixel factor 8 pi d_max^2
+    inv_pdf = rho / (jnp.exp(-rho) + jnp.exp(-rho / 3))
+    height, width = frame_shape
+    h, w = buffer_shape
+    # frame coordinates; clip first: huge or NaN offsets must not overflow the integer cast
+    y = jnp.clip(jnp.where(jnp.isnan(off), -4.0, pix["row"] + off * sin_t), -4.0, height + 3.0)
+    x = jnp.clip(jnp.where(jnp.isnan(off), -4.0, pix["col"] + off * cos_t), -4.0, width + 3.0)
+    if interpolation == "nearest":
+        corners = [(jnp.round(y), jnp.round(x), None)]
+    else:
+        x0, y0 = jnp.floor(x), jnp.floor(y)
+        fx, fy = x - x0, y - y0
+        corners = [(y0, x0, (1 - fy) * (1 - fx)), (y0, x0 + 1, (1 - fy) * fx), (y0 + 1, x0, fy * (1 - fx)),
+                   (y0 + 1, x0 + 1, fy * fx)]
+    num, den = [0.0] * 3, [0.0] * weight_channels
+    in_frame = 0.0
+    row0, col0 = origin
+    for yi, xi, corner_weight in corners:
+        cw = 1.0 if corner_weight is None else corner_weight
+        framed = (xi >= 0) & (xi <= width - 1) & (yi >= 0) & (yi <= height - 1)
+        ly, lx = yi - row0, xi - col0
+        held = (lx >= 0) & (lx <= w - 1) & (ly >= 0) & (ly <= h - 1)
+        idx = jnp.clip(ly, 0, h - 1).astype(jnp.int32) * w + jnp.clip(lx, 0, w - 1).astype(jnp.int32)
+        *eq, zq = fetch(idx)
+        in_frame = in_frame + jnp.where(framed, cw, 0.0)
+        ok = held & framed & (zq > 0)  # validity travels in the depth (0 where a pixel takes no part)
+        v_q = jnp.where(ok, cw, 0.0)
+        dz_mm = jnp.where(ok, (zq - pix["z"]) * mm_per_unit, 0.0)
+        r3 = _safe_sqrt(r_mm * r_mm + dz_mm * dz_mm)
+        base = v_q * inv_pdf
+        wgt = [base * burley_weight_kernel(jnp.where(pix["ok_d"][c], r3 * pix["inv_d"][c], jnp.inf))
+               for c in range(weight_channels)]
+        num = [num[c] + wgt[min(c, weight_channels - 1)] * eq[c] for c in range(3)]
+        den = [den[c] + wgt[c] for c in range(weight_channels)]
+    if border == "leaves":
+        if weight_channels == 1:  # grey: the weight at dz = 0 is R/pdf of the sampled profile itself, 1
+            den[0] = den[0] + (1 - in_frame) * pix["ok_d"][0]
+        else:
+            out_w = (1 - in_frame) * inv_pdf
+            den = [den[c] + out_w * burley_weight_kernel(jnp.where(pix["ok_d"][c], r_mm * pix["inv_d"][c], jnp.inf))
+                   for c in range(weight_channels)]
+    return num, den
+
+
+def normalise(num: list[Array], den: list[Array], e: list[Array]) -> list[Array]:
+    """Each channel's weighted mean; a pixel no sample reached keeps its own value."""
+    out = []
+    for c in range(3):
+        d = den[min(c, len(den) - 1)]
+        ok = d > 0
+        out.append(jnp.where(ok, num[c] / jnp.where(ok, d, 1.0), e[c]))
+    return out
+
+
+def frame_rotation(pix: dict, frame: Array | int, seed: Array, *, pattern: str) -> tuple[Array, Array]:
+    """cos and sin of each pixel's rotation of the spiral in ``frame`` (``spiral_rotation`` at frame coordinates)."""
+    phi = spiral_rotation(pix["frow"], pix["fcol"], frame, seed, per_pixel=pattern == "rotated",
+                          dtype=pix["z"].dtype)
+    return jnp.cos(phi), jnp.sin(phi)
+
+
+def burley_reach_px(widest_d_px: float, frame_shape: tuple[int, int], samples: int) -> int:
+    """Host side: how far (px) the outermost sample of the widest active profile lands, at most the frame's
+    diagonal: the halo a tile needs so that its pixels are the untiled frame's."""
+    if not widest_d_px > 0:
+        return 0
+    rho = float(np.asarray(burley_inverse_ccdf(np.float64(0.5 / samples), np.float64(1.0))))
+    return int(math.ceil(min(rho * widest_d_px, math.hypot(*frame_shape)))) + 2

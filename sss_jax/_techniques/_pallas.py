@@ -17,12 +17,17 @@ from __future__ import annotations
 
 import functools
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jax.experimental import pallas as pl
 from jaxtyping import Array
 
-from ._burley_gpu import gather_burley, normalise, sample_term
+from .._materials import BurleyMaterial
+from .._scene import Buffers, Camera
+from ._burley_gpu import frame_result, frames_mean, needs_truncation_on_device
+from ._burley_spec import frame_rotation, pixel_planes
+from ._common import _finish, _prepare, _work_dtype
 from ._separable_gpu import gather_pass, tap_term
 
 # Pixels per program: a power of two (Triton's block shapes must be), large enough to fill a GPU's warps.
@@ -132,37 +137,31 @@ def separable_pass_pallas(e: Array, z: Array, reach_px: Array, scale: Array, ski
                            interpolation, int(block))
 
 
-def _inverse_ccdf_unit(v: Array) -> Array:
-    """``burley_inverse_ccdf(v, 1)`` from exp, log and sqrt only (what every kernel backend lowers):
-    ``asinh(x) = log(x + sqrt(x^2 + 1))`` and ``2 sinh(a) = exp(a) - exp(-a)``; ``v`` lies in [1/(2S), 1] here,
-    where the subtraction loses at most a few bits."""
-    v = jnp.clip(v, jnp.finfo(v.dtype).tiny * 2.0**24, 1.0)
-    a = jnp.log(2 * v + jnp.sqrt(4 * v * v + 1)) / 3
-    return -3 * jnp.log(jnp.minimum(jnp.exp(a) - jnp.exp(-a), 1.0))
+_PIXEL_KEYS = ("row", "col", "z", "dmax", "ppm", "inside", "cos_phi", "sin_phi")
 
 
-_PIXEL_KEYS = ("row", "col", "z", "dmax", "ppm", "inside", "phi")
-
-
-def _burley_forward(pix, active, sample_u, sample_theta, height, width, mm_per_unit, interpolation,
-                    weight_channels, block):
-    n_pix = height * width
+def _burley_forward(pix, active, buffer_shape, origin, frame_shape, samples, mm_per_unit, interpolation,
+                    weight_channels, truncate, border, block):
+    h, w = buffer_shape
+    n_pix = h * w
     total = -(-n_pix // block) * block
     dtype = pix["z"].dtype
     flat = lambda a, fill=0: _padded(a, total, fill)
     sources = [flat(pix["e"][c]) for c in range(3)] + [flat(pix["z"])]
+    wc = weight_channels
     per_pixel = ([flat(pix[k]) for k in _PIXEL_KEYS] + [flat(pix["e"][c]) for c in range(3)]
-                 + [flat(pix["inv_d"][c]) for c in range(weight_channels)]
-                 + [flat(pix["ok_d"][c].astype(jnp.int32)) for c in range(weight_channels)]
+                 + [flat(pix["inv_d"][c]) for c in range(wc)]
+                 + [flat(pix["ok_d"][c].astype(jnp.int32)) for c in range(wc)]
+                 + [flat(pix["leave"][c]) for c in range(wc)]
                  + [flat(active.astype(jnp.int32))])
-    small = [sample_u, sample_theta, jnp.reshape(mm_per_unit, (1,)).astype(dtype)]
-    n_keys, wc = len(_PIXEL_KEYS), weight_channels
+    small = [jnp.reshape(mm_per_unit, (1,)).astype(dtype)]
+    n_keys = len(_PIXEL_KEYS)
 
     def kernel(*refs):
         s0, s1, s2, sz = refs[:4]
         blocks = refs[4:4 + len(per_pixel)]
-        u_ref, theta_ref, mpu_ref = refs[4 + len(per_pixel):7 + len(per_pixel)]
-        outs = refs[7 + len(per_pixel):]
+        mpu_ref = refs[4 + len(per_pixel)]
+        outs = refs[5 + len(per_pixel):]
         centre = [blocks[n_keys + c][...] for c in range(3)]
         active_b = blocks[-1][...] != 0
 
@@ -171,21 +170,17 @@ def _burley_forward(pix, active, sample_u, sample_theta, height, width, mm_per_u
             pixel["e"] = centre
             pixel["inv_d"] = [blocks[n_keys + 3 + c][...] for c in range(wc)]
             pixel["ok_d"] = [blocks[n_keys + 3 + wc + c][...] != 0 for c in range(wc)]
-            mpu = mpu_ref[0]
+            pixel["leave"] = [blocks[n_keys + 3 + 2 * wc + c][...] for c in range(wc)]
 
             def fetch(idx):
                 idx = jnp.clip(idx, 0, total - 1)
                 return [s0[idx], s1[idx], s2[idx], sz[idx]]
 
-            def body(i, acc):
-                num, den = sample_term(u_ref[i], theta_ref[i], pixel, fetch, height=height, width=width,
-                                       mm_per_unit=mpu, interpolation=interpolation, inverse_ccdf=_inverse_ccdf_unit,
-                                       weight_channels=wc)
-                return tuple(a + b for a, b in zip(acc[0], num)), tuple(a + b for a, b in zip(acc[1], den))
-
-            zeros = jnp.zeros((block,), dtype)
-            num, den = jax.lax.fori_loop(0, sample_u.shape[0], body, ((zeros,) * 3, (zeros,) * wc))
-            return tuple(normalise(list(num), list(den), centre))
+            # the spec's frame: the XLA layouts' own function, run on this block's pixels
+            return tuple(frame_result(pixel, fetch, pixel["cos_phi"], pixel["sin_phi"], samples=samples,
+                                      truncate=truncate, border=border, weight_channels=wc, buffer_shape=(h, w),
+                                      origin=origin, frame_shape=frame_shape, mm_per_unit=mpu_ref[0],
+                                      interpolation=interpolation))
 
         out = jax.lax.cond(jnp.any(active_b), run, lambda: tuple(centre))
         for ref, o in zip(outs, out):
@@ -195,26 +190,31 @@ def _burley_forward(pix, active, sample_u, sample_theta, height, width, mm_per_u
     return [o[:n_pix] for o in out]
 
 
-@functools.partial(jax.custom_vjp, nondiff_argnums=(4, 5, 7, 8, 9))
-def _burley_pass(pix, active, sample_u, sample_theta, height, width, mm_per_unit, interpolation, weight_channels,
-                 block):
-    return _burley_forward(pix, active, sample_u, sample_theta, height, width, mm_per_unit, interpolation,
-                           weight_channels, block)
+_BURLEY_STATIC = (2, 3, 4, 5, 7, 8, 9, 10, 11)
 
 
-def _burley_fwd(pix, active, sample_u, sample_theta, height, width, mm_per_unit, interpolation, weight_channels,
-                block):
-    out = _burley_forward(pix, active, sample_u, sample_theta, height, width, mm_per_unit, interpolation,
-                          weight_channels, block)
-    return out, (pix, active, sample_u, sample_theta, mm_per_unit)
+@functools.partial(jax.custom_vjp, nondiff_argnums=_BURLEY_STATIC)
+def _burley_pass(pix, active, buffer_shape, origin, frame_shape, samples, mm_per_unit, interpolation,
+                 weight_channels, truncate, border, block):
+    return _burley_forward(pix, active, buffer_shape, origin, frame_shape, samples, mm_per_unit, interpolation,
+                           weight_channels, truncate, border, block)
 
 
-def _burley_bwd(height, width, interpolation, weight_channels, block, residuals, cotangent):
-    pix, active, sample_u, sample_theta, mm_per_unit = residuals
+def _burley_fwd(pix, active, buffer_shape, origin, frame_shape, samples, mm_per_unit, interpolation,
+                weight_channels, truncate, border, block):
+    out = _burley_forward(pix, active, buffer_shape, origin, frame_shape, samples, mm_per_unit, interpolation,
+                          weight_channels, truncate, border, block)
+    return out, (pix, active, mm_per_unit)
 
-    def xla(pix, active, sample_u, sample_theta, mm_per_unit):
-        return gather_burley(pix, sample_u, sample_theta, height=height, width=width, mm_per_unit=mm_per_unit,
-                             interpolation=interpolation, weight_channels=weight_channels)
+
+def _burley_bwd(buffer_shape, origin, frame_shape, samples, interpolation, weight_channels, truncate, border, block,
+                residuals, cotangent):
+    def xla(pix, active, mm_per_unit):  # the gather layout of the same frame: its gradient is the forward's
+        packed = jnp.stack([*pix["e"], pix["z"]], axis=-1)
+        fetch = lambda idx: list(jnp.moveaxis(jnp.take(packed, idx, axis=0), -1, 0))
+        return frame_result(pix, fetch, pix["cos_phi"], pix["sin_phi"], samples=samples, truncate=truncate,
+                            border=border, weight_channels=weight_channels, buffer_shape=buffer_shape, origin=origin,
+                            frame_shape=frame_shape, mm_per_unit=mm_per_unit, interpolation=interpolation)
 
     return jax.vjp(xla, *residuals)[1](cotangent)
 
@@ -222,9 +222,44 @@ def _burley_bwd(height, width, interpolation, weight_channels, block, residuals,
 _burley_pass.defvjp(_burley_fwd, _burley_bwd)
 
 
-def burley_pallas(pix: dict, active: Array, sample_u: Array, sample_theta: Array, *, height: int, width: int,
-                  mm_per_unit: Array, interpolation: str, weight_channels: int, block: int = BLOCK) -> list[Array]:
-    """``_burley_gpu.gather_burley`` as one Pallas kernel; ``active (N,)``: blocks with no active pixel skip the
-    sample loop (their pixels are masked by the caller anyway)."""
-    return _burley_pass(pix, active, sample_u, sample_theta, height, width, mm_per_unit, interpolation,
-                        weight_channels, int(block))
+def burley_pallas_frame(pix: dict, active: Array, *, buffer_shape: tuple[int, int], origin: tuple[int, int],
+                        frame_shape: tuple[int, int], samples: int, mm_per_unit: Array, interpolation: str,
+                        weight_channels: int, truncate: bool, border: str, block: int = BLOCK) -> list[Array]:
+    """``_burley_gpu.frame_result`` over the whole buffer as one Pallas kernel (``pix`` carries the frame's
+    ``cos_phi``/``sin_phi`` planes); ``active (N,)``: blocks with no active pixel skip the sample loop."""
+    pix = {k: v for k, v in pix.items() if k not in ("frow", "fcol")}
+    return _burley_pass(pix, active, tuple(buffer_shape), tuple(origin), tuple(frame_shape), int(samples),
+                        mm_per_unit, interpolation, int(weight_channels), bool(truncate), border, int(block))
+
+
+@eqx.filter_jit
+def burley_pallas_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, samples: int, albedo_mode: str,
+                       interpolation: str, min_footprint_px: float, weight_channels: int = 3,
+                       pattern: str = "rotated", frames: int = 1, seed: Array | int = 0, border: str = "leaves",
+                       origin: tuple[int, int] = (0, 0), frame_shape: tuple[int, int] | None = None,
+                       block: int = BLOCK) -> Array:
+    """``burley``'s "pallas" formulation: the gather layout's frame as Pallas blocks, decided on the device."""
+    dtype = _work_dtype(buffers.irradiance.dtype)
+    prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
+    h, w = buffers.depth.shape
+    frame_shape = (h, w) if frame_shape is None else tuple(frame_shape)
+    pix, active = pixel_planes(buffers, material, camera, prep, min_footprint_px=min_footprint_px,
+                               weight_channels=weight_channels, dtype=dtype, origin=tuple(origin),
+                               frame_shape=frame_shape)
+    seed = jnp.asarray(seed).astype(jnp.uint32)
+    kw = dict(buffer_shape=(h, w), origin=tuple(origin), frame_shape=frame_shape, samples=samples,
+              mm_per_unit=camera.mm_per_unit.astype(dtype), interpolation=interpolation,
+              weight_channels=weight_channels, border=border, block=block)
+    flat_active = active.reshape(-1)
+
+    def one_frame(k):
+        cos_phi, sin_phi = frame_rotation(pix, k, seed, pattern=pattern)
+        planes = dict(pix, cos_phi=cos_phi, sin_phi=sin_phi)
+        return jax.lax.cond(needs_truncation_on_device(pix, active),
+                            lambda: tuple(burley_pallas_frame(planes, flat_active, truncate=True, **kw)),
+                            lambda: tuple(burley_pallas_frame(planes, flat_active, truncate=False, **kw)))
+
+    out = frames_mean(one_frame, frames, jnp.zeros_like(pix["z"]))
+    scattered = jnp.stack(out, axis=-1).reshape(h, w, 3)
+    scattered = jnp.where(active[..., None], scattered, prep.irradiance)
+    return _finish(buffers, prep, scattered)

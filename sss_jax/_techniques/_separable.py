@@ -93,8 +93,9 @@ def _separable_level(fetch: Callable[[Array], tuple[Array, Array, Array]], e: Ar
     return jax.lax.fori_loop(0, chunks, chunk, e * weight_sum)
 
 
-def frame_truncation(unit_offsets: Array, w_table: Array, level_reach_px: Array, extent_px: float
-                     ) -> tuple[Array, Array]:
+def frame_truncation(unit_offsets: Array | np.ndarray, w_table: Array | np.ndarray,
+                     level_reach_px: Array | np.ndarray, extent_px: float
+                     ) -> tuple[Array | np.ndarray, Array | np.ndarray]:
     """Per reach level, the scale of the tap pattern and the tap weights ``(L, M, 3, n)`` of a kernel cut at the
     frame's extent along the pass (``extent_px``: no offset beyond it lands in the frame from any pixel).
 
@@ -114,22 +115,25 @@ def frame_truncation(unit_offsets: Array, w_table: Array, level_reach_px: Array,
         bounds = np.concatenate([[-outer], mids, [outer]])
     else:
         bounds = np.array([-0.5, 0.5])
+    xp = np if isinstance(w_table, np.ndarray) else jnp  # NumPy for the host check: no dispatch per call
     dtype = w_table.dtype
+    edge = float(bounds[-1])
+    bounds = xp.asarray(bounds, dtype)
     sorted_w = w_table[..., np.argsort(order)]  # (M, 3, n), offsets ascending
-    cum = jnp.concatenate([jnp.zeros(sorted_w.shape[:-1] + (1,), dtype), jnp.cumsum(sorted_w, axis=-1)], axis=-1)
-    reach_edge = level_reach_px * float(bounds[-1])  # px, where the outer cells end
+    cum = xp.concatenate([xp.zeros(sorted_w.shape[:-1] + (1,), dtype), xp.cumsum(sorted_w, axis=-1)], axis=-1)
+    reach_edge = level_reach_px * edge  # px, where the outer cells end
     fits = reach_edge <= extent_px
-    scale = jnp.where(fits, 1.0, extent_px / jnp.where(fits, 1.0, reach_edge))  # (L,)
-    bounds = jnp.asarray(bounds, dtype)
-
-    def level_weights(s):
-        at = jnp.clip(s * bounds, bounds[0], bounds[-1])
-        c = jax.vmap(jax.vmap(lambda fp: jnp.interp(at, bounds, fp)))(cum)  # (M, 3, n + 1)
-        return jnp.diff(c, axis=-1)[..., order]
-
-    w_levels = jax.vmap(level_weights)(scale)
+    scale = xp.where(fits, 1.0, extent_px / xp.where(fits, 1.0, reach_edge))  # (L,)
+    # the cumulative weights, linear within a cell, read at the shrunk boundaries: one interpolation index and
+    # fraction per level and boundary, shared by every material and channel (no vmap: NumPy runs it too)
+    at = xp.clip(scale[:, None] * bounds[None, :], bounds[0], bounds[-1])  # (L, n + 1)
+    cell = xp.clip(xp.searchsorted(bounds, at, side="right") - 1, 0, n - 1)
+    frac = (at - bounds[cell]) / (bounds[cell + 1] - bounds[cell])
+    lo, hi = cum[..., cell], cum[..., cell + 1]  # (M, 3, L, n + 1)
+    c = lo + (hi - lo) * frac.astype(dtype)[None, None]
+    w_levels = xp.moveaxis(xp.diff(c, axis=-1)[..., order], 2, 0)  # (L, M, 3, n)
     # untouched levels keep their exact weights (no interpolation rounding)
-    w_levels = jnp.where(fits[:, None, None, None], w_table[None], w_levels)
+    w_levels = xp.where(fits[:, None, None, None], w_table[None], w_levels)
     return scale.astype(dtype), w_levels
 
 
@@ -334,12 +338,13 @@ def separable(
     cut at the frame renormalised), as if the surface beyond looked like the inside; Jimenez's shader does neither:
     its sampler clamps, so an off-image tap reads the edge texel (the ``jimenez`` technique).
 
-    ``impl`` (``_dispatch``): "auto" runs the formulation above on a CPU backend ("xla-cpu") and the whole-frame one
-    elsewhere ("xla-gpu": per tap a gather at each pixel's own offset, Jimenez's shader, so no reach levels and no
-    level error; ``scale_levels`` is unused); "pallas" is that as a Pallas kernel per pass. The whole-frame
-    formulations count off-image taps as the centre and do not cut wide kernels at the frame (the rules before
-    issue #18), so they run only when named (with ``border="renormalise"``); "auto" keeps the formulation above,
-    which runs on every backend.
+    ``impl`` (``_dispatch``): "banded" is the formulation above (what "auto" runs on every backend so far);
+    "gather" is the whole frame with per tap a gather at each pixel's own offset (Jimenez's shader, so no reach
+    levels and no level error; ``scale_levels`` unused), "pallas" that as a Pallas kernel per pass. The whole-frame
+    formulations count off-image taps as the centre and do not cut wide kernels at the frame yet (the rules before
+    issue #18), so they run only when named, with ``border="renormalise"``. "xla-cpu"/"xla-gpu" are the old names
+    of "banded"/"gather". Host work per eager call: the sampling check (``separable_edge_error``, NumPy, the
+    material's kernels built once per parameters and taps) and ``kernel_groups``.
     """
     _check_border(border)
     _check_albedo_mode(albedo_mode)
@@ -355,15 +360,15 @@ def separable(
     if not (float(min_footprint_px) >= 0):
         raise ValueError(f"min_footprint_px must be >= 0, got {min_footprint_px!r}")
     mode = "bilinear" if interpolation == "linear" else "nearest"
-    which = resolve_impl(impl)
-    if which != "xla-cpu" and border != "renormalise" and impl != "auto":
+    which = resolve_impl(impl, "separable", dict(border=border, interpolation=interpolation))
+    if which != "banded" and border != "renormalise":
         raise ValueError(f"impl={impl!r} has the renormalised border only so far: pass border='renormalise', "
-                         "or impl='auto'/'xla-cpu'")
+                         "or impl='auto'/'banded'")
     if impl == "auto":
         # the whole-frame formulation predates the frame-edge rules (frame truncation of wide kernels) and does not
-        # agree with the one above yet: it runs only when named; the one above runs on every backend
-        which = "xla-cpu"
-    if which != "xla-cpu":  # no host read of the parameters (kernel_groups) off the CPU
+        # agree with the banded one yet: it runs only when named; the banded one runs on every backend
+        which = "banded"
+    if which != "banded":  # no host read of the parameters (kernel_groups) off the CPU
         return separable_gpu_impl(buffers, material, camera, int(taps), albedo_mode, bool(follow_surface), mode,
                                   float(min_footprint_px), None, which)
     if _is_concrete(buffers, material, camera):  # a host-side check: the CPU formulation only, which counts anyway
@@ -387,13 +392,12 @@ def separable_edge_error(buffers: Buffers, material, camera: Camera, taps: int,
     valid = np.asarray(_sss_mask(buffers))
     if not valid.any():
         return 0.0, 0.0, 0.0
-    kernels = material.separable_kernels(taps, jax.dtypes.canonicalize_dtype(jnp.float64))
-    offsets, weights = np.asarray(kernels.offsets_mm, np.float64), np.asarray(kernels.weights, np.float64)
+    offsets, weights = _host_kernels(material, taps)
     depth = np.asarray(buffers.depth, np.float64)[valid]
     ppm = float(camera.focal_px) / (float(np.min(depth)) * float(camera.mm_per_unit))
     reach_mm = np.max(np.abs(offsets), axis=-1)  # (M,)
     worst = (0.0, 0.0, 0.0)
-    unit = jnp.asarray(unit_tap_offsets(taps)[centre_first(taps)])
+    unit = unit_tap_offsets(taps)[centre_first(taps)]
     sorted_unit = np.sort(unit_tap_offsets(taps))
     if taps > 1:
         mids = 0.5 * (sorted_unit[1:] + sorted_unit[:-1])
@@ -406,14 +410,36 @@ def separable_edge_error(buffers: Buffers, material, camera: Camera, taps: int,
         if reach_px < min_footprint_px or reach_px <= 0:
             continue
         for extent in set(buffers.depth.shape[-2:]):
-            scale, w_levels = frame_truncation(unit, jnp.asarray(np.moveaxis(weights[m:m + 1], -1, 1)),
-                                               jnp.asarray([reach_px]), float(extent))
-            w_sorted = np.asarray(w_levels)[0, 0][:, order]  # (3, n) ascending offsets
+            scale, w_levels = frame_truncation(unit, np.moveaxis(weights[m:m + 1], -1, 1), np.asarray([reach_px]),
+                                               float(extent))
+            w_sorted = w_levels[0, 0][:, order]  # (3, n) ascending offsets
             cells = np.diff(bounds) * float(scale[0]) * reach_px
             error = float(np.max(w_sorted * np.maximum(0.0, 1 - 1 / np.maximum(cells, 1e-12)) / 2))
             if error > worst[0]:
                 worst = (error, reach_px, float(np.max(cells)))
     return worst
+
+
+_HOST_KERNELS: dict = {}
+
+
+def _host_kernels(material, taps: int) -> tuple[np.ndarray, np.ndarray]:
+    """Host side: the material's separable kernels ``(offsets_mm (M, n), weights (M, n, 3))`` in float64, built once
+    per material parameters and tap count (the sampling check runs on every eager call: building the kernels
+    eagerly each time is ~100 small dispatches)."""
+    params = material.kernel_parameters()
+    key = None
+    if params is not None and _is_concrete(params):
+        key = (type(material).__name__, taps, tuple((np.shape(p), np.asarray(p).tobytes()) for p in params))
+        if key in _HOST_KERNELS:
+            return _HOST_KERNELS[key]
+    kernels = material.separable_kernels(taps, jax.dtypes.canonicalize_dtype(jnp.float64))
+    out = np.asarray(kernels.offsets_mm, np.float64), np.asarray(kernels.weights, np.float64)
+    if key is not None:
+        if len(_HOST_KERNELS) > 256:  # a long fit over many parameters: keep the cache bounded
+            _HOST_KERNELS.clear()
+        _HOST_KERNELS[key] = out
+    return out
 
 
 def kernel_groups(material) -> tuple[int, ...] | None:

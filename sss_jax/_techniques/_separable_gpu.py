@@ -25,6 +25,7 @@ from jaxtyping import Array, Bool, Float, Int
 from .._kernels import centre_first, unit_tap_offsets
 from .._scene import Buffers, Camera
 from .._units import px_per_mm
+from ._common import _finish, _prepare, _work_dtype
 
 # Taps unrolled per step of the tap loop: a step is one fused kernel over the frame, so this many taps share one
 # read and write of the accumulator, while the compile time stays bounded (it grows with the step, not the taps).
