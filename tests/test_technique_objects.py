@@ -226,7 +226,7 @@ def test_a_tile_cannot_be_placed_by_a_function_without_origin():
 
     b = frame(8)
     assert base.tile_options(lambda buffers: None, b, (0, 0), (H, W)) == {}
-    with pytest.raises(ValueError, match="does not fit in frame_shape"):
+    with pytest.raises(ValueError, match="does not lie inside frame_shape"):
         base.tile_options(lambda buffers: None, b, (4, 0), (H, W))
     with pytest.raises(ValueError, match="cannot place a tile"):
         base.tile_options(lambda buffers: None, b, (4, 0), (H + 4, W))

@@ -31,6 +31,7 @@ import equinox as eqx
 from jaxtyping import Array, Float
 
 from .._scene import Buffers, Camera
+from ._dispatch import check_tile
 
 
 def option(default: Any, help: str, *, choices: tuple | None = None, static: bool = True) -> Any:
@@ -157,15 +158,8 @@ def tile_options(function: Callable, buffers: Buffers, origin: tuple[int, int],
     """The keyword options that place ``buffers`` in the whole frame, for ``function``: none where the buffer is the
     whole frame; ``origin``/``frame_shape`` where the function takes them; else an error (it cannot place a tile)."""
     shape = tuple(buffers.depth.shape[-2:])
-    origin = tuple(int(o) for o in origin)
-    if len(origin) != 2 or min(origin) < 0:
-        raise ValueError(f"origin must be (row, col) >= 0, got {origin!r}")
-    if frame_shape is not None:
-        frame_shape = tuple(int(s) for s in frame_shape)
-        if (len(frame_shape) != 2 or origin[0] + shape[0] > frame_shape[0]
-                or origin[1] + shape[1] > frame_shape[1]):
-            raise ValueError(f"a buffer of {shape} at origin {origin} does not fit in frame_shape {frame_shape}")
-    if origin == (0, 0) and frame_shape in (None, shape):
+    origin, frame_shape = check_tile(shape, origin, frame_shape)  # the one check of a tile's place
+    if origin == (0, 0) and frame_shape == shape:
         return {}
     accepted = inspect.signature(function).parameters
     if "origin" not in accepted or "frame_shape" not in accepted:

@@ -91,8 +91,10 @@ class Burley(AbstractTechnique):
                                         frames=int(self.frames), min_footprint_px=float(self.min_footprint_px))
 
 
-def burley(buffers: Buffers, material: BurleyMaterial, camera: Camera, **options) -> Float[Array, "H W 3"]:
-    return built(Burley, options)(buffers, material, camera)
+def burley(buffers: Buffers, material: BurleyMaterial, camera: Camera, *,
+              origin: tuple[int, int] = (0, 0), frame_shape: tuple[int, int] | None = None, **options) -> Float[Array, "H W 3"]:
+    # origin/frame_shape place the buffer in the whole frame (tiles): arguments of the call, not options
+    return built(Burley, options)(buffers, material, camera, origin=origin, frame_shape=frame_shape)
 
 
 # the function's own docstring and signature (its options, their defaults): help() and inspect read them

@@ -13,18 +13,14 @@ import jax.numpy as jnp
 from jaxtyping import Array
 
 from .._scene import Buffers, Camera
+from ._dispatch import check_tile
 
 
 def frame_geometry(buffers: Buffers, camera: Camera, origin, frame_shape):
     """``(rows, cols, frame_h, frame_w, cx, cy)``: the frame row and column (int32, (H, W)) of every pixel of the
     buffer, the frame's size and its principal point (pixels, the image centre unless the camera states one)."""
     h, w = buffers.depth.shape
-    oy, ox = (int(o) for o in origin)
-    if oy < 0 or ox < 0:
-        raise ValueError(f"origin must be (row, col) >= 0, got {tuple(origin)!r}")
-    fh, fw = (int(s) for s in (frame_shape if frame_shape is not None else (h, w)))
-    if oy + h > fh or ox + w > fw:
-        raise ValueError(f"a buffer of {(h, w)} at origin {(oy, ox)} does not fit in frame_shape {(fh, fw)}")
+    (oy, ox), (fh, fw) = check_tile((h, w), origin, frame_shape)
     rows = jnp.broadcast_to(jnp.arange(h, dtype=jnp.int32)[:, None] + oy, (h, w))
     cols = jnp.broadcast_to(jnp.arange(w, dtype=jnp.int32)[None, :] + ox, (h, w))
     cx, cy = camera.principal_point if camera.principal_point is not None else (fw / 2, fh / 2)

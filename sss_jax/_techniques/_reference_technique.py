@@ -69,9 +69,10 @@ class Reference(AbstractTechnique):
         return reference_window_warnings(buffers, material, camera, radius_px=self.window_px(buffers, material, camera))
 
 
-def reference(buffers: Buffers, material: BurleyMaterial | ProfileMaterial, camera: Camera,
-              **options) -> Float[Array, "H W 3"]:
-    return built(Reference, options)(buffers, material, camera)
+def reference(buffers: Buffers, material: BurleyMaterial | ProfileMaterial, camera: Camera, *,
+              origin: tuple[int, int] = (0, 0), frame_shape: tuple[int, int] | None = None, **options) -> Float[Array, "H W 3"]:
+    # origin/frame_shape place the buffer in the whole frame (tiles): arguments of the call, not options
+    return built(Reference, options)(buffers, material, camera, origin=origin, frame_shape=frame_shape)
 
 
 # the function's own docstring and signature (its options, their defaults): help() and inspect read them
