@@ -304,7 +304,7 @@ def separable(
     min_footprint_px: float = MIN_FOOTPRINT_PX,
     scale_levels: int = SCALE_LEVELS,
     impl: str = "auto",
-    border: str = "leaves",
+    border: str = "renormalise",
 ) -> Float[Array, "H W 3"]:
     """Separable subsurface scattering (Jimenez et al. 2015): a horizontal then a vertical 1D pass.
 
@@ -330,8 +330,10 @@ def separable(
     leaves from every pixel) and its taps spread over the frame (``frame_truncation``): as d grows past the frame the
     light spreads over it and out, never back onto its own pixel. With concrete inputs, where the taps' cells at the
     widest reach are too coarse for a hard edge, a ``SamplingWarning`` states the error they imply
-    (``separable_edge_error``). ``border="renormalise"`` counts off-image taps as the centre instead (Jimenez's
-    shader; the kernel cut at the frame renormalised), as if the surface beyond looked like the inside.
+    (``separable_edge_error``). That is ``border="leaves"``; the default, ``border="renormalise"``, counts
+    off-image taps as the centre instead (Jimenez's shader; the kernel cut at the frame renormalised), as if the
+    surface beyond looked like the inside: what engines do, and the better rule on path-traced frames (README,
+    "Defaults on real frames").
 
     ``impl`` (``_dispatch``): "auto" runs the formulation above on a CPU backend ("xla-cpu") and the whole-frame one
     elsewhere ("xla-gpu": per tap a gather at each pixel's own offset, Jimenez's shader, so no reach levels and no
