@@ -339,10 +339,10 @@ def _limit_step() -> Buffers:
 def _limit_run(technique: str, b: Buffers, d_mm: float):
     mat = BurleyMaterial(albedo=(1.0, 1.0, 1.0), d_mm=(d_mm,) * 3)
     if technique == "burley":  # four frames of rotations: the sampling noise well below the tolerances
-        return np.asarray(burley(b, mat, _LIMIT_CAMERA, samples=16, frames=4), np.float64)
+        return np.asarray(burley(b, mat, _LIMIT_CAMERA, samples=16, frames=4, border="leaves"), np.float64)
     if technique == "separable_burley":
-        return np.asarray(separable(b, mat, _LIMIT_CAMERA, taps=25), np.float64)
-    return np.asarray(reference(b, mat, _LIMIT_CAMERA, radius_px=15, near_subsamples=2), np.float64)
+        return np.asarray(separable(b, mat, _LIMIT_CAMERA, taps=25, border="leaves"), np.float64)
+    return np.asarray(reference(b, mat, _LIMIT_CAMERA, radius_px=15, near_subsamples=2, border="leaves"), np.float64)
 
 
 def _jump(out) -> float:
