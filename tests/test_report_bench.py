@@ -34,7 +34,7 @@ def test_demo_report_has_every_section_and_embeds_its_images(tmp_path):
     assert not re.search(r"(src|href)=['\"](http|file:|/)", page)  # self-contained
     data = json.loads((tmp_path / "report.json").read_text())
     # the common schema, with the demo's own sections beside it
-    assert set(data) == {"inputs", "material", "machine", "techniques", "sections"}
+    assert set(data) == {"inputs", "material", "machine", "techniques", "sections", "local_shading", "notes"}
     rows = {(r["technique"], r["count"]): r for r in data["techniques"]}
     assert {("reference", None), ("burley", DEMO_SAMPLES), ("separable", DEMO_TAPS), ("sta", None),
             ("separable_two_gaussian", DEMO_TAPS), ("burley", 64), ("separable", 25)} <= set(rows)
