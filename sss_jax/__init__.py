@@ -92,7 +92,7 @@ from .engines import (
 from ._advise import advise as advise
 from ._batch import BatchResult as BatchResult, FrameResult as FrameResult, process_frames as process_frames
 from ._montecarlo import MCResult as MCResult, simulate as simulate, to_tabulated_profile as to_tabulated_profile
-from ._slab import MediumMaterial as MediumMaterial
+from ._slab import MediumMaterial as MediumMaterial, slab_diffuse_transmittance as slab_diffuse_transmittance
 from ._fitting import (
     fit_burley_from_image as fit_burley_from_image,
     fit_sta as fit_sta,

@@ -36,7 +36,8 @@ from ._materials import BurleyMaterial
 from ._profiles import scaling_searchlight
 
 __all__ = ["TABLE_PATH", "single_scattering_albedo", "slab_transmittance", "slab_transmittance_mfp", "table_stderr",
-           "tau_max", "MEDIUM_TAU_NODES", "MediumMaterial", "medium_slab_table", "unscattered_transmittance_at_zero"]
+           "tau_max", "MEDIUM_TAU_NODES", "MediumMaterial", "medium_slab_table", "unscattered_transmittance_at_zero",
+           "slab_diffuse_transmittance", "unscattered_transmittance", "diffuse_exit"]
 
 TABLE_PATH = "data/slab_transmittance.json"
 
@@ -227,11 +228,109 @@ def slab_transmittance(thickness_mm: ArrayLike, albedo: ArrayLike, d_mm: ArrayLi
     d = 0 gives 0 for t > 0.
     """
     t, A, d = jnp.broadcast_arrays(*(_as_float(x, thickness_mm, albedo, d_mm) for x in (thickness_mm, albedo, d_mm)))
+    return _transmittance_w(_w_from_albedo(A), _tau_of_burley(t, A, d))
+
+
+def _tau_of_burley(t: Array, A: Array, d: Array) -> Array:
     t = jnp.maximum(t, 0.0)
     mfp = d * scaling_searchlight(A)  # l = d s(A): the searchlight fit, as the presets derive the medium
     ok = mfp > 0
-    tau = jnp.where(ok, t / jnp.where(ok, mfp, 1.0), jnp.where(t > 0, jnp.inf, 0.0))
-    return _transmittance_w(_w_from_albedo(A), tau)
+    return jnp.where(ok, t / jnp.where(ok, mfp, 1.0), jnp.where(t > 0, jnp.inf, 0.0))
+
+
+def slab_diffuse_transmittance(thickness_mm: ArrayLike, albedo: ArrayLike, d_mm: ArrayLike) -> Array:
+    """The diffusely transmitted part of ``slab_transmittance``: the total less the unscattered beam ``exp(-tau)``.
+
+    The unscattered (collimated) part keeps the light's direction: it reaches a camera only when the camera looks
+    into the light, so a back-lit surface seen from any other direction shows only this part. Index-matched medium
+    rebuilt from (A, d) as ``slab_transmittance``; elementwise; t = 0 gives 0 (nothing has scattered yet), d = 0
+    gives 0; never negative (the table's interpolation error near tau = 0 is clamped)."""
+    t, A, d = jnp.broadcast_arrays(*(_as_float(x, thickness_mm, albedo, d_mm) for x in (thickness_mm, albedo, d_mm)))
+    tau = _tau_of_burley(t, A, d)
+    total = _transmittance_w(_w_from_albedo(A), tau)
+    finite = jnp.isfinite(tau)
+    ballistic = jnp.where(finite, jnp.exp(-jnp.where(finite, tau, 0.0)), 0.0)
+    return jnp.maximum(total - ballistic, 0.0)
+
+
+def unscattered_transmittance(tau: ArrayLike, eta: ArrayLike) -> Array:
+    """The collimated beam through a slab of ``tau`` mean free paths between two faces of relative index ``eta``, at
+    normal incidence: ``(1 - R)^2 e / (1 - R^2 e^2)``, ``e = exp(-tau)``, ``R = ((eta - 1) / (eta + 1))^2`` (the
+    beam crosses the first face, is attenuated and bounces between the faces; ``unscattered_transmittance_at_zero``
+    at tau = 0). Elementwise; inf gives 0."""
+    tau_a, eta_a = jnp.broadcast_arrays(_as_float(tau, eta), _as_float(eta, tau))
+    finite = jnp.isfinite(tau_a)
+    e = jnp.where(finite, jnp.exp(-jnp.where(finite, jnp.maximum(tau_a, 0.0), 0.0)), 0.0)
+    r = ((eta_a - 1.0) / (eta_a + 1.0)) ** 2
+    return (1.0 - r) ** 2 * e / (1.0 - r * r * e * e)
+
+
+def _safe_sqrt(x: Array) -> Array:
+    """sqrt with a finite (zero) gradient at 0: the double where."""
+    pos = x > 0
+    return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1.0)), 0.0)
+
+
+def _fresnel(cos_i: Array, eta: Array) -> Array:
+    """Unpolarised Fresnel reflectance for light inside a medium of relative index ``eta`` (>= 1) meeting its face at
+    ``cos_i``; 1 beyond the critical angle."""
+    sin2_t = eta * eta * (1.0 - cos_i * cos_i)
+    tir = sin2_t > 1.0
+    cos_t = _safe_sqrt(jnp.where(tir, 0.0, 1.0 - sin2_t))
+    den_s = eta * cos_i + cos_t
+    den_p = eta * cos_t + cos_i
+    ok = (den_s > 0) & (den_p > 0)
+    rs = (eta * cos_i - cos_t) / jnp.where(ok, den_s, 1.0)
+    rp = (eta * cos_t - cos_i) / jnp.where(ok, den_p, 1.0)
+    # no face at all where eta = 1 (grazing included); grazing at a real face reflects everything
+    return jnp.where(eta == 1.0, 0.0, jnp.where(tir | ~ok, 1.0, 0.5 * (rs * rs + rp * rp)))
+
+
+# Gauss-Legendre nodes on [0, 1] for the exit distribution's normalisation (smooth integrand: 48 nodes reach 1e-7)
+_GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(48)
+_GL_X, _GL_W = 0.5 * (_GL_NODES + 1.0), 0.5 * _GL_WEIGHTS
+
+
+def _nodes(like: Array) -> tuple[Array, Array]:
+    """The quadrature nodes and weights on [0, 1], shaped to broadcast against ``like[..., None]`` (same rank)."""
+    shape = (1,) * like.ndim + (_GL_X.size,)
+    return jnp.asarray(_GL_X, like.dtype).reshape(shape), jnp.asarray(_GL_W, like.dtype).reshape(shape)
+
+
+def _exit_unnormalised(mu_out: Array, eta: Array) -> Array:
+    # outside angle -> inside angle (Snell: sin_in = sin_out / eta); inside radiance of the diffusion approximation
+    # at a face with internal diffuse reflectance F_dr: L(mu) ~ 1 + 3 mu / (2 A_b), A_b = (1 + F_dr) / (1 - F_dr)
+    mu_in = _safe_sqrt(jnp.clip(1.0 - (1.0 - mu_out * mu_out) / (eta * eta), 0.0, 1.0))
+    fdr = _internal_diffuse_reflectance(eta)
+    a_b = (1.0 + fdr) / (1.0 - fdr)
+    return (1.0 - _fresnel(mu_in, eta)) * (1.0 + 1.5 * mu_in / a_b)
+
+
+def _internal_diffuse_reflectance(eta: Array) -> Array:
+    """``F_dr = int_0^1 F(mu) 2 mu dmu`` for diffuse light inside the face (quadrature on both sides of the critical
+    cosine, where F has a kink)."""
+    mu_c = _safe_sqrt(jnp.clip(1.0 - 1.0 / (eta * eta), 0.0, 1.0))[..., None]
+    x, w = _nodes(eta)
+    above = mu_c + (1.0 - mu_c) * x
+    part = jnp.sum(w * _fresnel(above, eta[..., None]) * 2 * above, -1) * (1.0 - mu_c[..., 0])
+    return mu_c[..., 0] ** 2 + part  # below the critical cosine F = 1: int_0^mu_c 2 mu dmu
+
+
+def diffuse_exit(mu_view: ArrayLike, eta: ArrayLike) -> Array:
+    """The angular distribution of diffusely transmitted light leaving a face of relative index ``eta`` towards a
+    viewer at ``mu_view = cos(angle to the face's normal)``, relative to a Lambertian exit of the same flux
+    (``int_0^1 P(mu) 2 mu dmu = 1``; P = 1 is Lambertian).
+
+    Inside the face the diffusion approximation's radiance ``1 + 3 mu / (2 A_b)`` (Farrell, Patterson & Wilson 1992;
+    ``A_b = (1 + F_dr) / (1 - F_dr)`` from the face's internal diffuse reflectance F_dr), refracted out through the
+    Fresnel transmittance ``1 - F`` (Snell's law maps the inside cosine to ``mu_view``), normalised by Gauss-Legendre
+    quadrature. Index-matched (eta = 1): ``(1 + 1.5 mu) / 2``, 1.25 at normal view, 0.5 at grazing. Elementwise,
+    jit- and grad-able; mu is clipped to [0, 1]."""
+    mu, e = jnp.broadcast_arrays(_as_float(mu_view, eta), _as_float(eta, mu_view))
+    mu = jnp.clip(mu, 0.0, 1.0)
+    x, w = _nodes(e)
+    norm = jnp.sum(w * _exit_unnormalised(x, e[..., None]) * 2 * x, -1)
+    return _exit_unnormalised(mu, e) / norm
 
 
 # ------------------------------------------------------------------------------------------------------------------
@@ -311,11 +410,16 @@ class MediumMaterial(eqx.Module):
 
     ``thickness_mm``, ``log_T``: ``(M, N, 3)`` table nodes (increasing thicknesses per row and channel, the first 0);
     between nodes log T is linear in t (exponential decay), beyond the last it continues at the last segment's rate.
+    ``mfp_mm`` ``(M, 3)``: the medium's mean free path ``1 / (sigma_s' + sigma_a)``, ``eta`` ``(M,)``: its relative
+    index on both faces -- what the unscattered beam (``unscattered_transmittance``) and the exit distribution
+    (``diffuse_exit``) need.
     """
 
     burley: BurleyMaterial
     thickness_mm: Float[Array, "M N 3"]
     log_T: Float[Array, "M N 3"]
+    mfp_mm: Float[Array, "M 3"]
+    eta: Float[Array, " M"]
 
     def __check_init__(self):
         m = self.burley.d_mm.shape[0]
@@ -323,6 +427,10 @@ class MediumMaterial(eqx.Module):
                 self.thickness_mm.shape[0] not in (1, m) or self.thickness_mm.shape[2] != 3:
             raise ValueError(f"MediumMaterial needs thickness_mm and log_T of shape (M, N, 3) with M = {m} materials; "
                              f"got {self.thickness_mm.shape} and {self.log_T.shape}")
+        rows = self.thickness_mm.shape[0]
+        if self.mfp_mm.shape != (rows, 3) or self.eta.shape != (rows,):
+            raise ValueError(f"MediumMaterial needs mfp_mm of shape ({rows}, 3) and eta of shape ({rows},); got "
+                             f"{self.mfp_mm.shape} and {self.eta.shape}")
 
     @classmethod
     def from_tables(cls, burley: BurleyMaterial, tables: list[dict[str, Any]]) -> "MediumMaterial":
@@ -331,8 +439,19 @@ class MediumMaterial(eqx.Module):
         if len({p[0].shape for p in pairs}) != 1:
             raise ValueError("medium tables must have the same number of thickness nodes")
         dtype = burley.d_mm.dtype
+        mfp, eta = [], []
+        for t in tables:
+            if "eta" not in t or "tau_nodes" not in t:
+                raise ValueError("medium table needs eta and tau_nodes (the medium's index and the thicknesses in "
+                                 "mean free paths), as medium_slab_table writes them")
+            tau = np.asarray(t["tau_nodes"], np.float64)
+            thick = np.asarray(t["thickness_mm"], np.float64)  # (3, N): thickness = tau * mfp per channel
+            k = int(np.argmax(tau > 0))
+            mfp.append(thick[:, k] / tau[k])
+            eta.append(float(t["eta"]))
         return cls(burley, jnp.asarray(np.stack([p[0] for p in pairs]), dtype),
-                   jnp.asarray(np.stack([p[1] for p in pairs]), dtype))
+                   jnp.asarray(np.stack([p[1] for p in pairs]), dtype), jnp.asarray(np.stack(mfp), dtype),
+                   jnp.asarray(eta, dtype))
 
     def transmittance(self, thickness_mm: ArrayLike, rows: ArrayLike | None = None) -> Array:
         """T per channel, ``(..., 3)``, at thicknesses ``(...)`` in mm (>= 0) of material rows ``(...)`` (default 0):
@@ -355,3 +474,23 @@ class MediumMaterial(eqx.Module):
         per = jnp.moveaxis(per, 1, -1)  # (M, ..., 3)
         log_t = jnp.take_along_axis(per, rows[None, ..., None], axis=0)[0]
         return jnp.where(finite[..., None], jnp.exp(log_t), 0.0)
+
+    def _rows(self, t: Array, rows: ArrayLike | None) -> Array:
+        rows = jnp.zeros(t.shape, jnp.int32) if rows is None else jnp.asarray(rows)
+        return jnp.clip(rows, 0, self.log_T.shape[0] - 1)
+
+    def unscattered(self, thickness_mm: ArrayLike, rows: ArrayLike | None = None) -> Array:
+        """The collimated part of ``transmittance``, ``(..., 3)``: the beam that crossed without scattering."""
+        t = jnp.asarray(thickness_mm)
+        t = jnp.maximum(t.astype(jnp.result_type(t.dtype, self.log_T.dtype)), 0.0)
+        r = self._rows(t, rows)
+        mfp = self.mfp_mm.astype(t.dtype)[r]  # (..., 3)
+        eta = self.eta.astype(t.dtype)[r][..., None]
+        finite = jnp.isfinite(t)[..., None]
+        tau = jnp.where(finite, t[..., None], 0.0) / mfp
+        return jnp.where(finite, unscattered_transmittance(tau, eta), 0.0)
+
+    def diffuse_transmittance(self, thickness_mm: ArrayLike, rows: ArrayLike | None = None) -> Array:
+        """The diffusely transmitted part of ``transmittance``, ``(..., 3)``: the total less ``unscattered``, what a
+        camera that does not look into the light sees of a back light (never negative; 0 at t = 0)."""
+        return jnp.maximum(self.transmittance(thickness_mm, rows) - self.unscattered(thickness_mm, rows), 0.0)

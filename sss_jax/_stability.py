@@ -356,12 +356,12 @@ def _limit_step() -> Buffers:
     return Buffers(irradiance=jnp.asarray(e), depth=jnp.ones((12, 16)))
 
 
-# the techniques of the limit checks; Burley with four frames of rotations: the sampling noise well below the
-# tolerances
+# the techniques of the limit checks, with light leaving at the frame (the large-d limit is light leaving, not the
+# in-frame mean); Burley with four frames of rotations: the sampling noise well below the tolerances
 _LIMIT_TECHNIQUES: dict[str, AbstractTechnique] = {
-    "burley": Burley(samples=16, frames=4),
-    "separable_burley": Separable(taps=25),
-    "reference": Reference(radius_px=15, near_subsamples=2),
+    "burley": Burley(samples=16, frames=4, border="leaves"),
+    "separable_burley": Separable(taps=25, border="leaves"),
+    "reference": Reference(radius_px=15, near_subsamples=2, border="leaves"),
 }
 
 

@@ -43,10 +43,22 @@ def test_layout_numbers_match_hand_computation(tmp_path):
         inputs=[{"name": "f"}], material={"albedo": [[1, 1, 1]]}, machine={"cpu": "test"})
     html = sj.report(data, tmp_path / "out").read_text()
     doc = json.loads((tmp_path / "out" / "report.json").read_text())
-    assert set(doc) == {"inputs", "material", "machine", "techniques", "flip", "notes"}  # the issues' schema (#19, #27 notes, #30 flip), nothing else
+    # the issue's schema, and (issue #27) local shading as the floor with the notes that name who falls below it,
+    # and (issue #30) HDR-FLIP's settings
+    assert set(doc) == {"inputs", "material", "machine", "techniques", "local_shading", "notes", "flip"}
     rows = {(r["technique"], r["count"]): r for r in doc["techniques"]}
     assert set(rows) == {("separable", 9), ("burley", 8), ("burley", 16)}
-    assert set(rows[("burley", 8)]) == {"technique", "count", "ms_per_frame", "vs_reference", "vs_truth"}
+    assert set(rows[("burley", 8)]) == {"technique", "count", "ms_per_frame", "vs_reference", "vs_truth",
+                                        "worse_than_local_shading"}
+    # local shading here is r itself: 0 against the reference, ||r - 0.8 r|| / ||0.8 r|| = 0.25 against the truth;
+    # 1.1 r is worse on both (0.1 > 0, 0.375 > 0.25), r itself on neither (equal is not worse)
+    assert doc["local_shading"]["vs_reference"]["rel_l2"] == 0.0
+    assert doc["local_shading"]["vs_truth"]["rel_l2"] == pytest.approx(0.25, rel=1e-12)
+    assert rows[("separable", 9)]["worse_than_local_shading"] == {"vs_reference": True, "vs_truth": True}
+    assert rows[("burley", 8)]["worse_than_local_shading"] == {"vs_reference": False, "vs_truth": False}
+    assert any(n.startswith("separable 9 does worse than local shading against the truth") for n in doc["notes"])
+    assert not any(n.startswith("burley 8 ") for n in doc["notes"])
+    assert "does worse than local shading" in html
     # ||1.1 r - r|| / ||r|| = 0.1 on the masked pixels; the identical image is 0 with no colour difference
     assert rows[("separable", 9)]["vs_reference"]["rel_l2"] == pytest.approx(0.1, rel=1e-12)
     assert rows[("burley", 8)]["vs_reference"] == {"rel_l2": 0.0, "delta_e_mean": 0.0, "delta_e_p95": 0.0,
@@ -112,7 +124,7 @@ def test_blender_frame_report_against_cycles_truth(shared_dir, tmp_path, capsys)
     out = tmp_path / "rep"
     assert main(["report", str(src), "--out", str(out), "--truth", str(truth), *BLENDER_ARGS]) == 0
     doc = json.loads((out / "report.json").read_text())
-    assert set(doc) == {"inputs", "material", "machine", "techniques", "flip", "notes"}
+    assert set(doc) == {"inputs", "material", "machine", "techniques", "flip", "notes", "local_shading"}
     rows = {(r["technique"], r["count"]): r for r in doc["techniques"]}
     assert set(rows) == {("sta", None), ("separable", 9), ("burley", 8), ("reference", None)}
     # independent: Cycles' Combined and the SSS pixels (IndexOB > 0 on a surface; Blender's background depth is 1e10)

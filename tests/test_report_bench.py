@@ -34,7 +34,7 @@ def test_demo_report_has_every_section_and_embeds_its_images(tmp_path):
     assert not re.search(r"(src|href)=['\"](http|file:|/)", page)  # self-contained
     data = json.loads((tmp_path / "report.json").read_text())
     # the common schema, with the demo's own sections beside it
-    assert set(data) == {"inputs", "material", "machine", "techniques", "sections", "flip", "notes"}
+    assert set(data) == {"inputs", "material", "machine", "techniques", "sections", "flip", "local_shading", "notes"}
     # HDR-FLIP beside the other metrics in every row, its exposure range stated (the demo has no truth)
     assert all(0 <= r["vs_reference"]["flip_mean"] <= 1 for r in data["techniques"])
     assert [e["target"] for e in data["flip"]["exposures"]] == ["reference"] and data["flip"]["tonemapper"] == "ACES"

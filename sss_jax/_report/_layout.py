@@ -112,8 +112,11 @@ def report(data: ReportData, out_dir: str | pathlib.Path, *,
 
     ``report.json``: ``{"inputs": [...], "material": {...}, "machine": {...}, "techniques": [{"technique", "count",
     "ms_per_frame", "vs_reference": {"rel_l2", "delta_e_mean", "delta_e_p95", "flip_mean"}, "vs_truth": {...} or
-    null}], "flip": {"tonemapper", "ppd", "exposures": [{"frame", "target", "start", "stop", "count"}]}}`` (plus
-    ``"sections"`` with the data of the extra sections that carry any). ``extra_sections``: ``(title,
+    null, "worse_than_local_shading": {"vs_reference": bool, "vs_truth": bool or null}}], "local_shading":
+    {"vs_reference", "vs_truth"}, "notes": [...], "flip": {"tonemapper", "ppd", "exposures": [{"frame", "target",
+    "start", "stop", "count"}]}}``: local shading (albedo x irradiance) is the floor, every technique doing worse
+    than it is flagged and named in ``notes`` (with the report's own notes: cache use, techniques left out)
+    (plus ``"sections"`` with the data of the extra sections that carry any). ``extra_sections``: ``(title,
     html_fragment)`` or ``(title, html_fragment, data)`` sections from other parts of a workflow (a fit's
     before/after, the demo's profiles), placed after the trade. ``images``: also write every image compared as
     float32 EXR, ``out_dir/images/<frame>/<technique>[_<count>].exr`` (and ``reference.exr``), linear RGB.
@@ -153,6 +156,22 @@ def report(data: ReportData, out_dir: str | pathlib.Path, *,
                         "vs_reference": metrics(run, "reference"),
                         "vs_truth": metrics(run, "truth") if has_truth else None})
     timed = entries[:len(runs)]
+    # local shading (albedo x irradiance, no SSS) is the floor: a technique that does worse than it on this frame
+    # is flagged, against the reference and, when given, against the truth
+    local_run = TechniqueRun("local shading", None, None, tuple(f.shaded for f in frames))
+    local = {"vs_reference": metrics(local_run, "reference"), "vs_truth": metrics(local_run, "truth") if has_truth
+             else None}
+    flag_notes = []
+    for e in timed:
+        worse = {k: (None if local[k] is None else bool(e[k]["rel_l2"] > local[k]["rel_l2"]))
+                 for k in ("vs_reference", "vs_truth")}
+        e["worse_than_local_shading"] = worse
+        for k, what in (("vs_truth", "the truth"), ("vs_reference", "the reference")):
+            if worse[k]:
+                label = e["technique"] + ("" if e["count"] is None else f" {e['count']}")
+                flag_notes.append(f"{label} does worse than local shading against {what} on these frames: rel L2 "
+                                  f"{e[k]['rel_l2']:.4f} against {local[k]['rel_l2']:.4f} (no SSS at all).")
+    notes = tuple(data.notes) + tuple(flag_notes)
     for key in ("vs_reference", "vs_truth"):
         if key == "vs_truth" and not has_truth:
             continue
@@ -187,10 +206,17 @@ def report(data: ReportData, out_dir: str | pathlib.Path, *,
             row.update({"rel L2 vs truth": e["vs_truth"]["rel_l2"], "ΔE mean vs truth": e["vs_truth"]["delta_e_mean"],
                         "ΔE p95 vs truth": e["vs_truth"]["delta_e_p95"], "ꟻLIP vs truth": e["vs_truth"]["flip_mean"]})
         rows.append(row)
+    row = {"technique": "local shading (no SSS)", "count": None, "ms / frame": None,
+           "rel L2 vs ref": local["vs_reference"]["rel_l2"], "ΔE mean vs ref": local["vs_reference"]["delta_e_mean"],
+           "ΔE p95 vs ref": local["vs_reference"]["delta_e_p95"]}
+    if has_truth:
+        row.update({"rel L2 vs truth": local["vs_truth"]["rel_l2"], "ΔE mean vs truth": local["vs_truth"]["delta_e_mean"],
+                    "ΔE p95 vs truth": local["vs_truth"]["delta_e_p95"]})
+    rows.append(row)
     page.table(sec, rows, "time and error per technique and count", key="techniques",
-               highlight=[bool(e.get("pareto_vs_reference")) for e in entries])
-    if data.notes:
-        page.raw(sec, "<ul class=note>" + "".join(f"<li>{html.escape(n)}</li>" for n in data.notes) + "</ul>")
+               highlight=[bool(e.get("pareto_vs_reference")) for e in entries] + [False])
+    if notes:
+        page.raw(sec, "<ul class=note>" + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>")
 
     shown = _best_runs(runs)
     # renders
@@ -297,10 +323,10 @@ def report(data: ReportData, out_dir: str | pathlib.Path, *,
     page.table(sec, [{"what": k, "value": v} for k, v in data.machine.items()], "machine", key="machine")
 
     doc: dict[str, Any] = {"inputs": data.inputs, "material": data.material, "machine": data.machine,
-                           "notes": list(data.notes),  # what was left out and why (issue #27)
                            "techniques": [{k: e[k] for k in ("technique", "count", "ms_per_frame", "vs_reference",
-                                                             "vs_truth")} for e in entries],
-                           "flip": flip_info}
+                                                             "vs_truth", "worse_than_local_shading") if k in e}
+                                          for e in entries],
+                           "local_shading": local, "notes": list(notes), "flip": flip_info}
     extra_data = {t: d for t, _, d in extras if d}
     if extra_data:
         doc["sections"] = extra_data

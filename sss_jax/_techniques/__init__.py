@@ -68,9 +68,8 @@ from ._separable import tap_chunks as tap_chunks
 from ._translucency import (
     TRANSLUCENCY_MODELS as TRANSLUCENCY_MODELS,
 )
-from ._translucency import (
-    slab_transmittance as slab_transmittance,
-)
+from .._slab import slab_diffuse_transmittance as slab_diffuse_transmittance
+from .._slab import slab_transmittance as slab_transmittance
 from ._translucency import (
     sta_term as sta_term,
 )

@@ -72,7 +72,7 @@ def burley(
     pattern: str = "rotated",
     frames: int = 1,
     seed: int | Array = 0,
-    border: str = "leaves",
+    border: str = "renormalise",
     origin: tuple[int, int] = (0, 0),
     frame_shape: tuple[int, int] | None = None,
 ) -> Float[Array, "H W 3"]:
@@ -106,14 +106,18 @@ def burley(
     agree to rounding. Channels that share one d (a grey material, or every material grey) share one kernel
     evaluation per sample instead of three; the result is the same.
 
-    Light that scatters out of the frame leaves: a sample (or the part of a bilinear fetch) landing outside the
-    image counts, in the normalisation, as dark surface at the pixel's own depth, and the profile's energy beyond
-    the image diagonal is counted the same way; samples on pixels without a surface inside the frame are dropped
-    from the normalisation (the light there is taken as if it came from the pixels with a surface). So a lit spot
-    keeps, over the frame, the fraction of its energy whose profile lies inside it, and as d grows past the frame
-    every pixel tends to the same small share of the frame's light (more blur, never a return to the input).
-    ``border="renormalise"`` drops the samples outside instead (the kernel renormalised over the frame, as if the
-    surface beyond looked like the inside: the behaviour before, right where a lit surface is cut by the frame).
+    The frame border (``border``): by default (``"renormalise"``) the samples landing outside the image are dropped
+    and the kernel renormalised over the ones inside, as if the surface beyond looked like the inside -- what every
+    engine does (HDRP skips off-frame samples and divides by the weights it kept), and on path-traced frames the
+    better rule (README, "Defaults on real frames": the Cycles frame 0.95 of local shading's error against 1.03 with
+    ``"leaves"``). With ``border="leaves"``, for a surface that really ends at the frame, light that scatters out of
+    the frame leaves: a sample (or the part of a bilinear fetch) landing outside the image counts, in the
+    normalisation, as dark surface at the pixel's own depth, and the profile's energy beyond the image diagonal is
+    counted the same way; samples on pixels without a surface inside the frame are dropped from the normalisation
+    (the light there is taken as if it came from the pixels with a surface). So a lit spot keeps, over the frame,
+    the fraction of its energy whose profile lies inside it, and as d grows past the frame every pixel tends to the
+    same small share of the frame's light (more blur, never a return to the input). (The renormalised default is
+    right where a lit surface is cut by the frame.)
 
     The samples' radii: where the widest active profile has more than ``TRUNCATION_ENERGY`` (1e-4) of its energy
     beyond the frame's diagonal, each pixel's profile is sampled truncated there (a per-pixel inversion of the

@@ -152,19 +152,21 @@ def reference(
     radius_px: int | None = None,
     albedo_mode: str = "post",
     near_subsamples: int = 6,
-    border: str = "leaves",
+    border: str = "renormalise",
 ) -> Float[Array, "H W 3"]:
     """Ground truth: every pixel within ``radius_px`` contributes the exact mass of the profile over its footprint.
 
     The centre pixel's mass is integrated through the profile's CDF (so r -> 0 is finite); neighbours use a midpoint
-    rule (``near_subsamples``^2 points within two pixels, 2x2 within six, one beyond) at the 3D distance (depth difference
-    included); weights are normalised by the profile's energy over the valid pixels in the window plus its energy
-    beyond the frame, which leaves (it counts as dark surface; light reaching pixels without a surface inside the
-    frame is taken from the pixels with one, as before). ``radius_px`` defaults to the radius holding 99.9% of the
-    widest channel's energy at the nearest SSS pixel, at most the frame's extent (host side; pass it explicitly under
-    ``jit``) and at most 96 px; where the window holds less than 99.9% of the energy (``reference_energy_held``),
-    a ``ReferenceWindowWarning`` says how much. Slow by design: the cost grows with the window's area.
-    ``border="renormalise"``: no energy leaves at the frame (the window's weights renormalised, as before).
+    rule (``near_subsamples``^2 points within two pixels, 2x2 within six, one beyond) at the 3D distance (depth
+    difference included); weights are normalised by the profile's energy over the valid pixels in the window (light
+    reaching pixels without a surface inside the frame is taken from the pixels with one) -- with
+    ``border="leaves"`` plus its energy beyond the frame, which leaves (it counts as dark surface). ``radius_px``
+    defaults to the radius holding 99.9% of the widest channel's energy at the nearest SSS pixel, at most the
+    frame's extent (host side; pass it explicitly under ``jit``) and at most 96 px; where the window holds less than
+    99.9% of the energy (``reference_energy_held``), a ``ReferenceWindowWarning`` says how much. Slow by design: the
+    cost grows with the window's area.
+    ``border="renormalise"`` (the default, as ``burley`` and ``separable``): no energy leaves at the frame (the
+    window's weights renormalised); ``"leaves"`` for a surface that really ends at the frame.
     """
     _check_border(border)
     _check_albedo_mode(albedo_mode)

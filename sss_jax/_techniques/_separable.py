@@ -308,7 +308,7 @@ def separable(
     min_footprint_px: float = MIN_FOOTPRINT_PX,
     scale_levels: int = SCALE_LEVELS,
     impl: str = "auto",
-    border: str = "leaves",
+    border: str = "renormalise",
 ) -> Float[Array, "H W 3"]:
     """Separable subsurface scattering (Jimenez et al. 2015): a horizontal then a vertical 1D pass.
 
@@ -334,9 +334,11 @@ def separable(
     leaves from every pixel) and its taps spread over the frame (``frame_truncation``): as d grows past the frame the
     light spreads over it and out, never back onto its own pixel. With concrete inputs, where the taps' cells at the
     widest reach are too coarse for a hard edge, a ``SamplingWarning`` states the error they imply
-    (``separable_edge_error``). ``border="renormalise"`` counts off-image taps as the centre instead (the kernel
-    cut at the frame renormalised), as if the surface beyond looked like the inside; Jimenez's shader does neither:
-    its sampler clamps, so an off-image tap reads the edge texel (the ``jimenez`` technique).
+    (``separable_edge_error``). That is ``border="leaves"``; the default, ``border="renormalise"``, counts
+    off-image taps as the centre instead (the kernel cut at the frame renormalised), as if the surface beyond looked
+    like the inside: what engines do, and the better rule on path-traced frames (README, "Defaults on real
+    frames"). Jimenez's shader does neither: its sampler clamps, so an off-image tap reads the edge texel (the
+    ``jimenez`` technique).
 
     ``impl`` (``_dispatch``): "banded" is the formulation above (what "auto" runs on every backend so far);
     "gather" is the whole frame with per tap a gather at each pixel's own offset (Jimenez's shader, so no reach

@@ -15,7 +15,7 @@ from .._custom_types import ParamLike
 from .._materials import BurleyMaterial, DirectionalLight, STAParams
 from .._profiles import burley_cdf
 from .._scene import Buffers, Camera, camera_positions, normals_from_depth
-from .._slab import MediumMaterial, slab_transmittance
+from .._slab import MediumMaterial, diffuse_exit, slab_diffuse_transmittance
 from ._common import _is_concrete, _prepare, _work_dtype
 
 
@@ -93,15 +93,18 @@ def _thin_model(thickness_mm: Array, albedo: Array, d_mm: Array) -> Array:
 
 
 # transmittance T(thickness_mm, medium albedo, d_mm) of each physically based model, elementwise per channel
-_TRANSMITTANCE: dict[str, Callable[[Array, Array, Array], Array]] = {"thin": _thin_model, "slab": slab_transmittance}
+# (slab: the diffusely transmitted part only -- the unscattered beam reaches a camera only looking into the light)
+_TRANSMITTANCE: dict[str, Callable[[Array, Array, Array], Array]] = {"thin": _thin_model,
+                                                                      "slab": slab_diffuse_transmittance}
 
 
 @eqx.filter_jit
 def _transmission_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, light: DirectionalLight,
                        thickness: ParamLike | None, model: str, medium: MediumMaterial | None = None) -> Array:
     """``albedo * (irradiance + light * T * max(0, -N . L))`` ("thin", HDRP's convention), or
-    ``albedo * irradiance + light * T * max(0, -N . L)`` ("slab": T already holds all of the medium's absorption; T of
-    ``medium`` where given)."""
+    ``albedo * irradiance + light * T_diffuse * max(0, -N . L) * P(N . V)`` ("slab": T_diffuse, the diffusely
+    transmitted part, already holds all of the medium's absorption; P the exit distribution of the face; of
+    ``medium`` where given, else the index-matched medium)."""
     dtype = _work_dtype(buffers.irradiance.dtype)
     prep = _prepare(buffers, material.albedo, "post", dtype)
     normal = buffers.normal.astype(dtype) if buffers.normal is not None else normals_from_depth(prep.depth, camera)
@@ -110,8 +113,19 @@ def _transmission_impl(buffers: Buffers, material: BurleyMaterial, camera: Camer
     # the medium is the material's (its A and d per material id), not the albedo texture's, which only tints
     medium_albedo = jnp.clip(material.albedo.astype(dtype), 0.0, 1.0)[prep.rows]
     t = jnp.where(jnp.isfinite(thick_mm), thick_mm, 0.0)[..., None]
-    T = _TRANSMITTANCE[model](t, medium_albedo, d) if medium is None else medium.transmittance(t[..., 0], prep.rows)
+    if medium is None:
+        T = _TRANSMITTANCE[model](t, medium_albedo, d)
+    else:
+        T = medium.diffuse_transmittance(t[..., 0], prep.rows)
     transmitted = jnp.where(jnp.isfinite(thick_mm)[..., None], T, 0.0)
+    if model == "slab":
+        # the view-dependent exit of diffuse light through the front face (Fresnel, refraction; Lambertian is 1)
+        pos = camera_positions(prep.depth, camera)
+        view = -pos / jnp.linalg.norm(pos, axis=-1, keepdims=True)
+        mu_view = jnp.clip(jnp.sum(normal * view, axis=-1), 0.0, 1.0)
+        eta = jnp.ones(prep.rows.shape, dtype) if medium is None else medium.eta.astype(dtype)[
+            jnp.clip(prep.rows, 0, medium.eta.shape[0] - 1)]
+        transmitted = transmitted * diffuse_exit(mu_view, eta)[..., None]
     # light reaching the back face: the cosine between the back-facing normal and the light
     back_cos = jnp.clip(jnp.sum(-normal * light.direction.astype(dtype).reshape(1, 1, 3), axis=-1), 0.0, 1.0)
     added = light.colour.astype(dtype).reshape(1, 1, 3) * transmitted * back_cos[..., None]
@@ -145,11 +159,16 @@ def translucency(
       ``albedo * light * thin_transmittance(thickness_mm, d) * max(0, -N . L)`` with ``params`` a ``BurleyMaterial``
       (its d per material id, its albedo where the buffers carry none). HDRP wraps the cosine; this uses the plain
       clamped cosine.
-    - ``model="slab"``: slab transport, ``light * T * max(0, -N . L)`` added to ``albedo * irradiance``: T, the
-      fraction of a normal back light leaving the front face, already holds all absorption (no albedo factor). With
-      ``params`` a ``MediumMaterial`` (a preset that carries its medium: ``load_preset(...).medium``) T is that of the
-      measured medium with its boundaries (``_slab.MediumMaterial``); with a ``BurleyMaterial``,
-      ``slab_transmittance(thickness_mm, A, d)``, the index-matched medium rebuilt from A and d.
+    - ``model="slab"``: slab transport, ``light * T_d * max(0, -N . L) * P(N . V)`` added to ``albedo *
+      irradiance``: T_d, the fraction of a normal back light that leaves the front face after scattering, already
+      holds all absorption (no albedo factor). Only the diffusely transmitted light: the unscattered (collimated)
+      beam keeps the light's direction and reaches the camera only where it looks into the light, which a
+      screen-space pass does not draw. ``P`` (``_slab.diffuse_exit``) spreads it over view directions as the face
+      lets it out (Fresnel and refraction at the medium's eta, diffusion-approximation radiance inside; 1 would be
+      Lambertian), with V towards the camera. With ``params`` a ``MediumMaterial`` (a preset that carries its medium:
+      ``load_preset(...).medium``) T_d is that of the measured medium with its boundaries
+      (``MediumMaterial.diffuse_transmittance``); with a ``BurleyMaterial``, ``slab_diffuse_transmittance(thickness_mm,
+      A, d)``, the index-matched medium rebuilt from A and d (eta 1).
     """
     if model not in TRANSLUCENCY_MODELS:
         raise ValueError(f"model={model!r} is not one of {TRANSLUCENCY_MODELS}")
