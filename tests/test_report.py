@@ -240,3 +240,22 @@ def test_several_presets_through_the_id_channel(tmp_path):
     page = (out / "report.html").read_text()
     assert "<td>skin1</td>" in page and "<td>marble</td>" in page
     assert not (out / "images").exists()
+
+
+def test_trade_figure_gives_every_technique_its_own_colour_and_a_legend():
+    # issue #30: separable and separable_two_gaussian were drawn in the same colour
+    from matplotlib.colors import to_rgba
+
+    from sss_jax._report._plots import trade_figure
+
+    names = ["sta", "separable", "separable_two_gaussian", "burley", "reference", "hdrp", "eevee-next", "jimenez"]
+    rows = [{"technique": n, "count": 8, "ms_per_frame": 1.0 + i, "vs_reference": {"rel_l2": 0.1 / (i + 1)},
+             "pareto_vs_reference": False} for i, n in enumerate(names)]
+    fig = trade_figure(rows, [("vs_reference", "vs reference")])
+    ax = fig.axes[0]
+    colours = {c.get_label(): tuple(to_rgba(c.get_facecolor()[0])) for c in ax.collections}
+    assert set(colours) == set(names)
+    assert len(set(colours.values())) == len(names)  # no two techniques share a colour
+    assert colours["reference"] == to_rgba("black")
+    legend = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert set(names) <= set(legend)

@@ -9,9 +9,22 @@ from matplotlib.ticker import FuncFormatter
 
 from ._page import new_figure
 
-__all__ = ["heatmap", "trade_figure"]
+__all__ = ["heatmap", "technique_colours", "trade_figure"]
 
-TECHNIQUE_COLOURS = {"sta": "tab:orange", "separable": "tab:blue", "burley": "tab:green", "reference": "black"}
+# matplotlib's tab10 without its grey (kept for nothing) and tab20's darker halves after it: distinct hues for the
+# techniques and their variants (separable and separable_two_gaussian are two techniques to the reader)
+_PALETTE = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:olive",
+            "tab:cyan", "#393b79", "#637939", "#8c6d31", "#843c39", "#7b4173")
+
+
+def technique_colours(labels: Sequence[str]) -> dict[str, str]:
+    """One colour per distinct label, in order of first appearance (the reference black); the palette repeats only
+    past 14 techniques."""
+    colours: dict[str, str] = {}
+    for label in dict.fromkeys(labels):
+        colours[label] = "black" if label == "reference" else _PALETTE[
+            sum(1 for k in colours if k != "reference") % len(_PALETTE)]
+    return colours
 
 
 def heatmap(data: np.ndarray, title: str, vmax: float | None = None, cmap: str = "magma", *, width_px: int = 300):
@@ -36,9 +49,10 @@ def trade_figure(rows: Sequence[dict], panels: Sequence[tuple[str, str]]):
     for j, (key, title) in enumerate(panels):
         ax = fig.add_subplot(1, len(panels), j + 1)
         pts = [r for r in rows if r.get(key) and r["ms_per_frame"] is not None]
+        colours = technique_colours([r["technique"] for r in rows])  # the same colours in every panel
         for tech in dict.fromkeys(r["technique"] for r in pts):
             mine = [r for r in pts if r["technique"] == tech]
-            colour = TECHNIQUE_COLOURS.get(tech.split("_")[0], None)
+            colour = colours[tech]
             ax.scatter([r["ms_per_frame"] for r in mine], [max(r[key]["rel_l2"], 1e-6) for r in mine], color=colour,
                        label=tech, s=22, zorder=3)
             for r in mine:
