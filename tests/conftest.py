@@ -66,6 +66,7 @@ def shared_dir() -> pathlib.Path:
     return SHARED
 
 
+@pytest.hookimpl(optionalhook=True)  # a run without pytest-xdist (-p no:xdist) still collects
 def pytest_xdist_auto_num_workers(config):
     """``-n auto`` (the README's test command): one worker per core, as many as memory holds at the suite's peak of
     ~3.4 GB per process (measured with /usr/bin/time -v), so a many-core machine with little memory does not swap."""
