@@ -73,22 +73,39 @@ class Advice:
     choice: Candidate | None
     candidates: list[Candidate]
     reason: str
+    against: str = "reference"  # what delta_e is measured against: "reference" or "truth"
+
+    @property
+    def worse_than_local(self) -> list[Candidate]:
+        """The candidates whose error is above local shading's (no SSS at all) on this scene: the floor."""
+        local = [c for c in self.candidates if c.technique == "local"]
+        if not local:
+            return []
+        return [c for c in self.candidates if c.technique != "local" and c.delta_e > local[0].delta_e]
 
     def table(self) -> str:
         lines = [f"{'candidate':14s} {'ms/frame':>10s} {'(25-75%)':>15s} {'mean dE2000':>12s}  within budget"]
+        worse = self.worse_than_local
         for c in sorted(self.candidates, key=lambda c: c.ms):
             mark = "yes" if c.delta_e <= self.max_delta_e else "no"
             pick = "  <- choice" if c == self.choice else ""
+            flag = "  (worse than local shading)" if c in worse else ""
             lo, hi = c.interval
-            lines.append(f"{c.label:14s} {c.ms:10.2f} {f'{lo:.2f}-{hi:.2f}':>15s} {c.delta_e:12.3f}  {mark}{pick}")
-        return "\n".join(lines + [self.reason])
+            lines.append(f"{c.label:14s} {c.ms:10.2f} {f'{lo:.2f}-{hi:.2f}':>15s} {c.delta_e:12.3f}  "
+                         f"{mark}{pick}{flag}")
+        tail = [self.reason]
+        if worse:
+            tail.append(f"worse than local shading against the {self.against}: "
+                        + ", ".join(c.label for c in worse))
+        return "\n".join(lines + tail)
 
     def to_json(self) -> dict:
         as_dict = lambda c: None if c is None else {"technique": c.technique, "count": c.count, "ms": c.ms,
                                                         "ms_low": c.interval[0], "ms_high": c.interval[1],
                                                         "delta_e": c.delta_e}
         return {"material": self.material, "max_delta_e": self.max_delta_e, "choice": as_dict(self.choice),
-                    "candidates": [as_dict(c) for c in self.candidates], "reason": self.reason}
+                "candidates": [as_dict(c) for c in self.candidates], "reason": self.reason, "against": self.against,
+                "worse_than_local_shading": [c.label for c in self.worse_than_local]}
 
 
 def known_materials() -> list[str]:
@@ -140,10 +157,12 @@ def measure_candidates(material: BurleyMaterial, *, buffers: Buffers | None = No
                        size: tuple[int, int] = (72, 96), scene_scale: float = 1.0,
                        candidates: Sequence[tuple[str, int | None]] = DEFAULT_CANDIDATES, repeats: int = 5,
                        progress: Callable[[str], None] | None = None,
-                       timer: Callable[[Callable[[], jax.Array], int], list[float]] = time_ms) -> list[Candidate]:
-    """Time (median and interquartile range of ``repeats`` runs) and ΔE2000 (against ``reference``) of each
-    candidate on the scene; host-side ΔE via colour-science. ``timer(fn, repeats)`` returns the timings in ms
-    (``time_ms``; tests inject their own)."""
+                       timer: Callable[[Callable[[], jax.Array], int], list[float]] = time_ms,
+                       truth=None) -> list[Candidate]:
+    """Time (median and interquartile range of ``repeats`` runs) and ΔE2000 (against ``reference``, or against
+    ``truth``, an ``(H, W, 3)`` offline render of the given buffers' view, when given) of each candidate on the
+    scene; host-side ΔE via colour-science. ``timer(fn, repeats)`` returns the timings in ms (``time_ms``; tests
+    inject their own)."""
     from ._metrics import delta_e_2000
     from ._techniques._common import _sss_mask
 
@@ -157,8 +176,14 @@ def measure_candidates(material: BurleyMaterial, *, buffers: Buffers | None = No
     mask = np.asarray(_sss_mask(buffers))
     if not mask.any():
         raise ValueError("the scene has no SSS pixels to measure")
-    say(f"reference ({buffers.depth.shape[1]}x{buffers.depth.shape[0]}) ...")
-    ref = np.asarray(reference(buffers, material, camera))
+    if truth is not None:
+        ref = np.asarray(truth, np.float64)
+        if ref.shape != tuple(buffers.depth.shape) + (3,):
+            raise ValueError(f"truth is {ref.shape}, the buffers {tuple(buffers.depth.shape)}: it must be the same "
+                             "view, (H, W, 3)")
+    else:
+        say(f"reference ({buffers.depth.shape[1]}x{buffers.depth.shape[0]}) ...")
+        ref = np.asarray(reference(buffers, material, camera))
     albedo = np.asarray(buffers.albedo if buffers.albedo is not None else
                         np.broadcast_to(np.asarray(material.albedo).reshape(-1, 3)[0], ref.shape))
     local_fn = jax.jit(lambda e, m, a: jnp.where(m[..., None], a * e, e))
@@ -222,18 +247,24 @@ def advise(material: str | BurleyMaterial, *, max_delta_e: float = 1.0, buffers:
            camera: Camera | None = None, size: tuple[int, int] = (72, 96), scene_scale: float = 1.0,
            candidates: Sequence[tuple[str, int | None]] = DEFAULT_CANDIDATES, repeats: int = 5,
            progress: Callable[[str], None] | None = None,
-           measure: Callable[..., list[Candidate]] | None = None) -> Advice:
+           measure: Callable[..., list[Candidate]] | None = None, truth=None) -> Advice:
     """Measure the candidates for ``material`` on the scene and pick the cheapest within ``max_delta_e``.
 
     ``material``: a demo material name (``sss_jax._demo.DEMO_MATERIALS``), a preset name or file, or a
     ``BurleyMaterial``. The scene is the demo scene at ``size`` (H, W) with every object made of the material and
     ``scene_scale`` times its size in mm, or the given ``buffers``/``camera``. ``measure`` replaces the measurement
-    (same keywords as ``measure_candidates``; tests stub it).
+    (same keywords as ``measure_candidates``; tests stub it). ``truth``: an offline render of ``buffers``' view,
+    ``(H, W, 3)``: the errors are then against it, not the reference. Local shading is the floor: every candidate
+    doing worse than it is flagged (``Advice.worse_than_local``, in the table and the JSON).
     """
     if not (max_delta_e >= 0):
         raise ValueError(f"max_delta_e must be >= 0, got {max_delta_e!r}")
     name, mat = resolve_material(material)
+    if truth is not None and buffers is None:
+        raise ValueError("truth needs the buffers (and camera) of the view it renders")
+    extra = {} if truth is None else {"truth": truth}
     cands = (measure or measure_candidates)(mat, buffers=buffers, camera=camera, size=size, scene_scale=scene_scale,
-                                            candidates=candidates, repeats=repeats, progress=progress)
+                                            candidates=candidates, repeats=repeats, progress=progress, **extra)
     choice, reason = choose(cands, max_delta_e)
-    return Advice(material=name, max_delta_e=float(max_delta_e), choice=choice, candidates=list(cands), reason=reason)
+    return Advice(material=name, max_delta_e=float(max_delta_e), choice=choice, candidates=list(cands), reason=reason,
+                  against="reference" if truth is None else "truth")
