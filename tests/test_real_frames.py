@@ -1,0 +1,217 @@
+"""Right on real renders (issue #27): the default techniques against path-traced truth, the back-lit slab, and a fit
+that does not fit the frame's edge.
+
+Frames: tests/data/mitsuba (scripts/render_mitsuba.py, Mitsuba 3 volpath through skin1 and marble of Jensen et al.
+2001, Table 2; README there) and the Blender 3.4 / Cycles render in ../shared/reference/blender. Every error is
+recomputed here with raw OpenImageIO reads and NumPy: rel_l2 = ||out - truth||_2 / ||truth||_2 over RGB on the SSS
+pixels (id > 0).
+"""
+
+import json
+import math
+import pathlib
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import OpenImageIO as oiio
+import pytest
+
+import sss_jax as sj
+
+DATA = pathlib.Path(__file__).resolve().parent / "data" / "mitsuba"
+
+
+@pytest.fixture
+def float32():
+    """The fits in float32, as a user's run has them (the test config turns x64 on globally): half the cost."""
+    with jax.enable_x64(False):
+        yield
+
+
+def _raw(path) -> dict[str, np.ndarray]:
+    inp = oiio.ImageInput.open(str(path))
+    spec = inp.spec()
+    data = np.asarray(inp.read_image(oiio.FLOAT), np.float64).reshape(spec.height, spec.width, spec.nchannels)
+    names = list(spec.channelnames)
+    inp.close()
+    return {n: data[..., i] for i, n in enumerate(names)}
+
+
+def _mitsuba(name: str):
+    """Buffers, camera, material, truth (H, W, 3), SSS mask and the sidecar of a committed Mitsuba scene."""
+    raw, truth = _raw(DATA / f"{name}_buffers.exr"), _raw(DATA / f"{name}_truth.exr")
+    meta = json.loads((DATA / f"{name}_buffers.json").read_text())
+    rgb = lambda d, p="": np.stack([d[p + c] for c in "RGB"], -1)
+    b = sj.Buffers(irradiance=jnp.asarray(rgb(raw), jnp.float32), depth=jnp.asarray(raw["Z"], jnp.float32),
+                   albedo=jnp.asarray(rgb(raw, "albedo."), jnp.float32),
+                   normal=jnp.asarray(np.stack([raw[f"N.{c}"] for c in "XYZ"], -1), jnp.float32),
+                   thickness=jnp.asarray(raw["thickness"], jnp.float32) if "thickness" in raw else None,
+                   material_id=jnp.asarray(np.rint(raw["id"]), jnp.int32))
+    cam = sj.Camera(meta["camera"]["focal_px"], meta["scene_unit_mm"])
+    mat = sj.BurleyMaterial(np.asarray(meta["material"]["albedo"], np.float32),
+                            np.asarray(meta["material"]["d_mm"], np.float32))
+    return b, cam, mat, rgb(truth), raw["id"] > 0.5, meta
+
+
+def _blender(shared_dir):
+    base = shared_dir / "reference" / "blender"
+    scene = json.loads((base / "burley_backlit.json").read_text())
+    white, cycles = _raw(base / "irradiance_backlit.exr"), _raw(base / "burley_backlit.exr")
+    col = lambda raw, p, c: raw[f"ViewLayer.{p}.{c}"]
+    irr = np.stack([col(white, "DiffDir", c) + col(white, "DiffInd", c) for c in "RGB"], -1)
+    depth = col(white, "Depth", "Z")
+    depth = np.where(depth > 1e9, np.inf, depth)
+    ids = np.rint(col(white, "IndexOB", "X")).astype(np.int32)
+    b = sj.Buffers(irradiance=jnp.asarray(irr, jnp.float32), depth=jnp.asarray(depth, jnp.float32),
+                   material_id=jnp.asarray(ids))
+    a = np.asarray(scene["material"]["subsurface_color"], np.float64)
+    # Cycles >= 3.0: d = radius / (4 pi) (bssrdf_setup_radius in intern/cycles/kernel/closure/bssrdf.h)
+    d = np.asarray(scene["material"]["radius_m"], np.float64) * scene["scene_unit_mm"] / (4 * math.pi)
+    mat = sj.BurleyMaterial(a.astype(np.float32), d.astype(np.float32))
+    cam = sj.Camera(scene["camera"]["focal_px"], scene["scene_unit_mm"])
+    truth = np.stack([col(cycles, "Combined", c) for c in "RGB"], -1)
+    return b, cam, mat, truth, ids > 0
+
+
+def _rel_l2(out, truth, mask) -> float:
+    o, t = np.asarray(out, np.float64)[mask], np.asarray(truth, np.float64)[mask]
+    return float(np.linalg.norm(o - t) / np.linalg.norm(t))
+
+
+def _local(b, mat) -> np.ndarray:
+    albedo = np.asarray(b.albedo) if b.albedo is not None else np.asarray(mat.albedo)[0]
+    return albedo * np.asarray(b.irradiance, np.float64)
+
+
+@pytest.mark.parametrize("scene", ["skin_closeup", "marble_objects", "blender"])
+def test_default_techniques_beat_local_shading_on_path_traced_frames(scene, shared_dir):
+    # issue #27's bar: on the Cycles frame and two scenes of our own, each technique with its DEFAULT options is
+    # closer to the path-traced truth than local shading (albedo x irradiance); the margins are the README's table
+    b, cam, mat, truth, mask = _blender(shared_dir) if scene == "blender" else _mitsuba(scene)[:5]
+    local = _rel_l2(_local(b, mat), truth, mask)
+    for name, out in (("burley", sj.burley(b, mat, cam)), ("separable", sj.separable(b, mat, cam))):
+        err = _rel_l2(out, truth, mask)
+        assert err < local, (scene, name, err, local)
+
+
+def test_closeup_default_keeps_the_light_the_old_default_lost():
+    # the close-up is cut by the frame on every side: border="leaves" lets light leave (a darker frame), the
+    # renormalised default keeps it (burley and separable redistribute light: energy out / in = 1 per channel)
+    b, cam, mat, truth, mask, _ = _mitsuba("skin_closeup")
+    local = _local(b, mat)
+    for technique in (sj.burley, sj.separable):
+        kept = np.asarray(technique(b, mat, cam), np.float64)[mask].sum(0) / local[mask].sum(0)
+        lost = np.asarray(technique(b, mat, cam, border="leaves"), np.float64)[mask].sum(0) / local[mask].sum(0)
+        np.testing.assert_allclose(kept, 1.0, atol=0.02)
+        assert np.all(lost < kept) and lost[0] < 0.97, (technique.__name__, lost)
+
+
+def _slab_interiors(b, mask, margin_px=8):
+    """Per slab thickness (mm), the pixels at least ``margin_px`` (3.2 mm, several mean free paths) inside its face:
+    the 1D slab model knows nothing of the side faces."""
+    thick = np.asarray(b.thickness)
+    out = {}
+    for t in (1.0, 2.0, 4.0):
+        m = mask & (np.abs(thick - t) < 1e-3)
+        ys, xs = np.nonzero(m)
+        inner = np.zeros_like(m)
+        inner[ys.min() + margin_px:ys.max() - margin_px + 1, xs.min() + margin_px:xs.max() - margin_px + 1] = True
+        out[t] = inner & m
+    return out
+
+
+def test_slab_model_against_a_path_traced_back_lit_medium():
+    # three slabs of skin1 (index-matched, as rendered) lit only from behind, 17 degrees off the axis: the camera sees
+    # only the diffusely transmitted light. model="slab" with the medium's own Monte Carlo table (in the sidecar)
+    b, cam, mat, truth, mask, meta = _mitsuba("skin_backlit")
+    medium = sj.MediumMaterial.from_tables(mat, [meta["material"]["slab_table"]])
+    lt = meta["lights"][0]
+    light = sj.DirectionalLight(jnp.asarray(lt["direction_to_light"], jnp.float32), lt["colour"])
+    out = np.asarray(sj.translucency(b, medium, cam, light, model="slab"), np.float64)
+    # the model before issue #27 by hand: the total transmittance (unscattered beam included), Lambertian exit
+    cos_back = float(np.asarray(light.direction)[2])  # -N . L with N = (0, 0, -1)
+    total = np.asarray(medium.transmittance(b.thickness), np.float64) * np.asarray(lt["colour"]) * cos_back
+    for t, inner in _slab_interiors(b, mask).items():
+        assert inner.sum() > 1000
+        got, old, want = out[inner].mean(0), total[inner].mean(0), truth[inner].mean(0)
+        # measured (README): 4 mm 1.12 / 0.99 / 0.89, 2 mm 1.30 / 1.16 / 1.03, 1 mm 1.49 / 1.39 / 1.24 of the truth
+        # (the total of before: 1.08-0.97, 1.81-1.55, 3.62-2.93); thin slabs are still too bright, see README
+        if t == 4.0:
+            np.testing.assert_allclose(got, want, rtol=0.15)
+        if t <= 2.0:  # where the unscattered beam is a large share, the error falls by at least 40%
+            assert np.all(np.abs(got / want - 1) < 0.6 * np.abs(old / want - 1)), (t, got / want, old / want)
+
+
+def test_edge_loss_and_held_mask():
+    from scipy import integrate
+
+    from sss_jax._match import edge_loss, held_mask, match_frame
+
+    # the share of Burley's 2D profile beyond a straight edge, by 2D quadrature of R(r) = (e^-r + e^-r/3) / (8 pi r)
+    R = lambda r: (math.exp(-r) + math.exp(-r / 3)) / (8 * math.pi * r)
+    mat = sj.BurleyMaterial([0.5] * 3, [1.0, 0.5, 0.25])
+    for x0 in (0.0, 1.0, 3.0, 8.0):
+        want = integrate.dblquad(lambda y, x: R(math.hypot(x, y)), x0, 80, -80, 80)[0]
+        got = edge_loss(np.array([x0]), mat, np.array([0]), np.array([1.0]))[0]  # the widest channel: d = 1
+        assert got == pytest.approx(want, rel=1e-6, abs=1e-9), x0
+    # the two-Gaussian separable kernel a(x) a(y): the normal tails, w Q(x / s1) + (1 - w) Q(x / s2)
+    tg = sj.TwoGaussianMaterial([0.5] * 3, [0.3] * 3, [1.0] * 3, [4.0] * 3)
+    q = lambda z: 0.5 * math.erfc(z / math.sqrt(2))
+    assert edge_loss(np.array([3.0]), tg, np.array([0]), np.array([1.0]))[0] == pytest.approx(
+        0.3 * q(3.0) + 0.7 * q(0.75), rel=1e-9)
+    # a frame: the held pixels are those ~8.2 d (d = 2 px) or more from every edge (99% of the energy inside)
+    shape = (64, 80)
+    b = sj.Buffers(irradiance=jnp.ones(shape + (3,)), depth=jnp.full(shape, 100.0))
+    f = match_frame(b, sj.Camera(200.0, 1.0), np.ones(shape + (3,)))  # 2 px per mm: d = 1 mm is 2 px
+    m = held_mask(f, mat)
+    ys, xs = np.nonzero(m)
+    assert 14 <= xs.min() <= 19 and 14 <= ys.min() <= 19 and xs.max() == 79 - xs.min() and ys.max() == 63 - ys.min()
+    assert held_mask(f, mat, held_fraction=0.9).sum() > m.sum() > 0
+
+
+@pytest.mark.usefixtures("float32")
+def test_fit_reports_the_pixels_it_scored():
+    from sss_jax._match import held_mask, match_frame, match_render
+
+    shape = (24, 32)
+    e = np.full(shape + (3,), 0.2, np.float32)
+    e[:, 16:] = 1.0
+    b = sj.Buffers(irradiance=jnp.asarray(e), depth=jnp.full(shape, 100.0, jnp.float32))
+    cam = sj.Camera(100.0, 1.0)  # 1 px per mm
+    mat = sj.BurleyMaterial([0.6, 0.5, 0.4], [0.8, 0.5, 0.3])
+    truth = np.asarray(sj.burley(b, mat, cam, samples=8, pattern="fixed"))
+    f = match_frame(b, cam, truth)
+    r = match_render(f, mat, samples=8, max_steps=2)
+    held = held_mask(f, mat)
+    assert r.scored["frames"][0]["scored_pixels"] == int(held.sum()) and 0 < held.sum() < held.size
+    assert r.scored["frames"][0]["sss_pixels"] == held.size and np.array_equal(r.score_masks[0], held)
+    assert r.to_json()["scored"]["rule"].startswith("SSS pixels holding >= 0.99")
+    assert set(r.errors["fitted"]["scored"]) == {"before", "after"}
+    r_all = match_render(f, mat, samples=8, max_steps=2, score="all")
+    assert r_all.scored["frames"][0]["scored_pixels"] == held.size
+    # a kernel wider than the frame leaves nothing to score: said, with the way out
+    with pytest.raises(ValueError, match="no pixel of material id.*score='all'"):
+        match_render(f, sj.BurleyMaterial([0.6, 0.5, 0.4], [20.0, 10.0, 5.0]), samples=8, max_steps=1)
+
+
+def test_advise_flags_candidates_worse_than_local_shading():
+    from sss_jax._advise import Candidate, advise, measure_candidates
+
+    def measure(material, **kw):
+        return [Candidate("local", None, 0.1, 1.0), Candidate("burley", 8, 2.0, 1.5), Candidate("burley", 32, 5.0, 0.5)]
+
+    advice = advise(sj.BurleyMaterial([0.5] * 3, [1.0] * 3), max_delta_e=2.0, measure=measure)
+    assert [c.label for c in advice.worse_than_local] == ["burley 8"]
+    assert advice.to_json()["worse_than_local_shading"] == ["burley 8"] and "worse than local shading" in advice.table()
+    # against a truth given for the user's frame: the errors are against it (a truth equal to local shading makes
+    # every scattering candidate worse than local shading)
+    shape = (12, 16)
+    e = np.zeros(shape + (3,))
+    e[:, 8:] = 1.0
+    b = sj.Buffers(irradiance=jnp.asarray(e), depth=jnp.full(shape, 10.0))
+    cam = sj.Camera(10.0, 1.0)
+    mat = sj.BurleyMaterial([0.8] * 3, [1.0] * 3)
+    cands = measure_candidates(mat, buffers=b, camera=cam, truth=0.8 * e, candidates=(("local", None), ("burley", 8)),
+                               repeats=1, timer=lambda fn, n: [1.0])
+    assert cands[0].delta_e == pytest.approx(0.0, abs=1e-9) and cands[1].delta_e > 0.1
