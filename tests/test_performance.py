@@ -123,7 +123,7 @@ def test_grey_channels_share_one_kernel_evaluation():
     # (there it is the sampled profile's own R/pdf, 1). Traced, the truncation is decided on the device: both branches
     # of its cond are in the computation, each with those exponentials
     n = 24 * 32
-    bilinear = dict(samples=8, compact=False, interpolation="bilinear")
+    bilinear = dict(samples=8, compact=False, interpolation="bilinear", border="leaves")  # the impl's default rule
     grey_exps = _exp_shapes(lambda bb: sj.burley(bb, grey, CAM, **bilinear), b)
     rgb_exps = _exp_shapes(lambda bb: sj.burley(bb, MAT, CAM, **bilinear), b)
     assert grey_exps.count((n,)) >= 4 and rgb_exps.count((n,)) - grey_exps.count((n,)) == 2 * (2 * 4 + 3)
@@ -145,7 +145,7 @@ def test_untruncated_frames_share_the_sample_radii():
     impl = lambda m, truncate: np.asarray(_burley_impl(b, m, CAM, samples=8, albedo_mode="post",
                                                        interpolation="bilinear", capacity=None, min_footprint_px=0.0,
                                                        weight_channels=3, truncate=truncate))
-    kw = dict(samples=8, min_footprint_px=0.0, compact=False, interpolation="bilinear")
+    kw = dict(samples=8, min_footprint_px=0.0, compact=False, interpolation="bilinear", border="leaves")
     out_small = np.asarray(sj.burley(b, small, CAM, **kw))
     np.testing.assert_allclose(out_small, impl(small, True), rtol=1e-12, atol=1e-14)
     np.testing.assert_array_equal(out_small, impl(small, False))  # the shared radii are what ran
@@ -261,7 +261,7 @@ def test_materials_sharing_a_kernel_share_its_weight_term():
     b = sj.Buffers(irradiance=b.irradiance, depth=b.depth, material_id=jnp.asarray(ids))
     options = dict(taps=9, albedo_mode="post", follow_surface=True, interpolation="bilinear",
                    scale_levels=separable_module.SCALE_LEVELS, min_footprint_px=0.5)
-    shared = np.asarray(sj.separable(b, mats, CAM, taps=9))
+    shared = np.asarray(sj.separable(b, mats, CAM, taps=9, border="leaves"))  # the impl's default rule
     np.testing.assert_allclose(shared, np.asarray(_separable_impl(b, mats, CAM, **options, kernel_groups=None)),
                                rtol=1e-12, atol=1e-14)
     albedo = np.asarray(mats.albedo)[ids - 1]

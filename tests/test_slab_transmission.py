@@ -191,7 +191,7 @@ def test_bad_model_and_params():
     light = sj.DirectionalLight(jnp.array([0.0, 0.0, 1.0]))
     with pytest.raises(ValueError, match=r"model='slabs' is not one of \('sta', 'thin', 'slab'\)"):
         sj.translucency(b, mat, cam, light, model="slabs")
-    with pytest.raises(TypeError, match=r"translucency\(model='slab'\) needs a BurleyMaterial, got STAParams"):
+    with pytest.raises(TypeError, match=r"sta \(model='slab'\) needs a BurleyMaterial or MediumMaterial, got STAParams"):
         sj.translucency(b, sj.STAParams(), cam, light, model="slab")
 
 

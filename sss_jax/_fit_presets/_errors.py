@@ -109,8 +109,9 @@ def image_errors(albedo, d_mm: np.ndarray, mc_profile, tg_burley: dict, tg_mc: d
     # one window for every material (one compilation): 20 d of the widest channel holds 99.9% of a Burley profile
     # (its CCDF (e^{-20} + 3 e^{-20/3})/4 = 1e-3)
     radius = math.ceil(20 * IMAGE_PX_PER_D)
-    ref_b = [np.asarray(reference(b, burley_mat, cam, radius_px=radius)) for b in patterns]
-    ref_mc = [np.asarray(reference(b, mc_mat, cam, radius_px=radius)) for b in patterns]
+    # the patterns are surfaces that end at the frame: light leaves there (image_error's rule too)
+    ref_b = [np.asarray(reference(b, burley_mat, cam, radius_px=radius, border="leaves")) for b in patterns]
+    ref_mc = [np.asarray(reference(b, mc_mat, cam, radius_px=radius, border="leaves")) for b in patterns]
     mat = lambda tg: TwoGaussianMaterial(ones, tg["w"], tg["sigma_near_mm"], tg["sigma_far_mm"])
     ref_b_on_mc = math.sqrt(sum(np.sum((a - b) ** 2) for a, b in zip(ref_b, ref_mc)) / sum(np.sum(b**2) for b in ref_mc))
     return {
