@@ -38,8 +38,8 @@ from .._materials import BurleyMaterial
 from .._profiles import burley_inverse_ccdf
 from .._scene import Buffers, Camera
 from ._base import AbstractTechnique, option
-from ._common import ALBEDO_MODES, _check_albedo_mode, _finish, _prepare, _safe_sqrt, _work_dtype
-from ._engine_frame import check_count, frame_geometry, nearest_fetch
+from ._common import ALBEDO_MODES, _finish, _prepare, _safe_sqrt, _work_dtype
+from ._engine_frame import check_count, frame_geometry, nearest_fetch, pass_arguments
 
 EEVEE_SAMPLE_LEN = 16  # SubsurfaceModule::end_sync, data_.sample_len (EEVEE Next, 4.2 and later)
 EEVEE_BURLEY_TRUNCATE = 16.0  # SSS_BURLEY_TRUNCATE
@@ -192,11 +192,9 @@ class EeveeNextPass(AbstractTechnique):
                  origin: tuple[int, int] = (0, 0), frame_shape: tuple[int, int] | None = None
                  ) -> Float[Array, "H W 3"]:
         self.check_material(material)
-        _check_albedo_mode(self.albedo_mode)
-        if buffers.irradiance.ndim != 3:
-            raise ValueError(f"eevee-next takes one image (H, W, 3); vmap for a batch, got {buffers.irradiance.shape}")
-        return _eevee_next_impl(buffers, material, camera, int(self.frames), self.albedo_mode, self.seed,
-                                tuple(int(o) for o in origin), None if frame_shape is None else tuple(frame_shape))
+        origin, frame_shape = pass_arguments(self.name, self.albedo_mode, buffers, origin, frame_shape)
+        return _eevee_next_impl(buffers, material, camera, int(self.frames), self.albedo_mode, self.seed, origin,
+                                frame_shape)
 
     def reach_px(self, buffers: Buffers, material: BurleyMaterial, camera: Camera) -> int:
         """The farthest sample (``x < 1 + 1/16`` of the truncated CDF, at most 16 d0 max radius) at the nearest

@@ -13,6 +13,7 @@ import jax.numpy as jnp
 from jaxtyping import Array
 
 from .._scene import Buffers, Camera
+from ._common import _check_albedo_mode
 from ._dispatch import check_tile
 
 
@@ -43,3 +44,13 @@ def nearest_fetch(flat: Array, height: int, width: int, row: Array, col: Array):
     inside = (row >= 0) & (row < height) & (col >= 0) & (col < width)
     idx = jnp.clip(row, 0, height - 1) * width + jnp.clip(col, 0, width - 1)
     return jnp.take(flat, idx, axis=0), inside
+
+
+def pass_arguments(name: str, albedo_mode: str, buffers: Buffers, origin,
+                   frame_shape) -> tuple[tuple[int, int], tuple[int, int] | None]:
+    """What an engine pass checks before tracing (the albedo mode, one image, not a batch) and its tile arguments
+    as the hashable tuples its jitted implementation takes as static arguments."""
+    _check_albedo_mode(albedo_mode)
+    if buffers.irradiance.ndim != 3:
+        raise ValueError(f"{name} takes one image (H, W, 3); vmap for a batch, got {buffers.irradiance.shape}")
+    return tuple(int(o) for o in origin), None if frame_shape is None else tuple(frame_shape)

@@ -40,8 +40,8 @@ from .._scene import Buffers, Camera
 from .._units import px_per_mm
 from ._base import AbstractTechnique, option
 from ._burley import spiral_rotation
-from ._common import _check_albedo_mode, _finish, _prepare, _safe_sqrt, _work_dtype, ALBEDO_MODES
-from ._engine_frame import check_count, frame_geometry, nearest_fetch
+from ._common import _finish, _prepare, _safe_sqrt, _work_dtype, ALBEDO_MODES
+from ._engine_frame import check_count, frame_geometry, nearest_fetch, pass_arguments
 
 HDRP_QUALITY_BUDGETS = {"low": 20, "medium": 40, "high": 80}  # DefaultSssSampleBudgetForQualityLevel
 HDRP_MAX_BUDGET = 1000  # DefaultSssSampleBudgetForQualityLevel.Max
@@ -159,11 +159,9 @@ class HdrpPass(AbstractTechnique):
                  origin: tuple[int, int] = (0, 0), frame_shape: tuple[int, int] | None = None
                  ) -> Float[Array, "H W 3"]:
         self.check_material(material)
-        _check_albedo_mode(self.albedo_mode)
-        if buffers.irradiance.ndim != 3:
-            raise ValueError(f"hdrp takes one image (H, W, 3); vmap for a batch, got {buffers.irradiance.shape}")
+        origin, frame_shape = pass_arguments(self.name, self.albedo_mode, buffers, origin, frame_shape)
         return _hdrp_impl(buffers, material, camera, self.samples, int(self.frames), self.albedo_mode, self.seed,
-                          tuple(int(o) for o in origin), None if frame_shape is None else tuple(frame_shape))
+                          origin, frame_shape)
 
     def reach_px(self, buffers: Buffers, material: BurleyMaterial, camera: Camera) -> int:
         """The farthest sample: the radius of sample ``n-1`` (``u = 1 - 0.5/n``) at the nearest SSS pixel."""
