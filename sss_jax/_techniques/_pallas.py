@@ -4,7 +4,7 @@ Each program takes a block of ``block`` consecutive pixels (row-major, the frame
 blocks), keeps its accumulators in registers through the loop, and gathers what each tap or sample reads from the
 whole source planes (one gather per plane and pixel read: R, G, B and depth, validity being depth > 0). A block whose
 pixels all skip the pass copies its input and runs no loop: the cost follows the scene on the device, no host count.
-The per-tap and per-sample arithmetic is the XLA formulation's own (``_separable_gpu.tap_term``,
+The per-tap and per-sample arithmetic is the XLA formulation's own (``_separable_gpu.pass_result``,
 ``_burley_gpu.sample_term``), so the two cannot drift apart.
 
 On a GPU the kernels lower through Triton (1D blocks of a power-of-two size, gathers through pointers); elsewhere
@@ -28,7 +28,8 @@ from .._scene import Buffers, Camera
 from ._burley_gpu import frame_result, frames_mean, needs_truncation_on_device
 from ._burley_spec import frame_rotation, pixel_planes
 from ._common import _finish, _prepare, _work_dtype
-from ._separable_gpu import gather_pass, tap_term
+from ._separable_gpu import gather_pass, pass_result, pass_tables
+from ._separable_spec import cell_edge
 
 # Pixels per program: a power of two (Triton's block shapes must be), large enough to fill a GPU's warps.
 BLOCK = 256
@@ -59,27 +60,28 @@ def _call(kernel, planes_full: list[Array], planes_block: list[Array], small: li
 
 
 def _separable_forward(e, z, reach_px, scale, skip, rows, w_table, unit_offsets, axis, follow_surface,
-                       interpolation, block):
+                       interpolation, border, origin_along, frame_length, truncate, block):
     _, h, w = e.shape
     n_pix, n_taps = h * w, unit_offsets.shape[0]
     total = -(-n_pix // block) * block
     length = w if axis == 2 else h
-    limit = length + 1.0
     flat = lambda a, fill=0: _padded(a.reshape(n_pix), total, fill)
     sources = [flat(e[0]), flat(e[1]), flat(e[2]), flat(z)]
     per_pixel = [flat(e[0]), flat(e[1]), flat(e[2]), flat(z), flat(reach_px), flat(scale),
                  flat(skip.astype(jnp.int32), 1), flat(rows.astype(jnp.int32))]
-    w_flat = w_table.reshape(-1)  # (M * 3 * n): row m, channel c, tap i at (3 m + c) n + i
-    w_sum = jnp.sum(w_table, axis=-1).reshape(-1)  # (M * 3)
+    table_names = ("unit", "w", "wsum", "cell_lo", "cell_hi", "bounds", "cum")
+    tables = pass_tables(w_table, unit_offsets, 1)  # one tap per step of the kernel's loop
+    kw = dict(taps=n_taps, length=length, origin_along=origin_along, frame_length=frame_length,
+              leaves=border == "leaves", truncate=truncate, one_row=w_table.shape[0] == 1,
+              follow_surface=follow_surface, interpolation=interpolation, taps_per_step=1)
 
-    def kernel(s0, s1, s2, sz, c0, c1, c2, cz, reach_ref, scale_ref, skip_ref, rows_ref, unit_ref, w_ref, wsum_ref,
-               o0, o1, o2):
+    def kernel(s0, s1, s2, sz, c0, c1, c2, cz, reach_ref, scale_ref, skip_ref, rows_ref, *refs):
+        table_refs, outs = dict(zip(table_names, refs[:len(table_names)])), refs[len(table_names):]
         p = pl.program_id(0) * block + jax.lax.broadcasted_iota(jnp.int32, (block,), 0)
         centre = [c0[...], c1[...], c2[...]]
         skip_b = skip_ref[...] != 0
 
         def run():
-            z_b, reach, sc, rows_b = cz[...], reach_ref[...], scale_ref[...], rows_ref[...]
             along = p % w if axis == 2 else p // w
             line = p - along if axis == 2 else p % w  # index of the pixel at position 0 of each pixel's line
             stride = 1 if axis == 2 else w
@@ -88,39 +90,44 @@ def _separable_forward(e, z, reach_px, scale, skip, rows, w_table, unit_offsets,
                 idx = jnp.clip(line + q * stride, 0, total - 1)
                 return [s0[idx], s1[idx], s2[idx], sz[idx]]
 
-            def tap(i, acc):
-                off = jnp.clip(unit_ref[i] * reach, -limit, limit)
-                term = tap_term(off, along, length, fetch, centre, z_b, sc, follow_surface=follow_surface,
-                                interpolation=interpolation)
-                return tuple(a + w_ref[(rows_b * 3 + c) * n_taps + i] * t for c, (a, t) in enumerate(zip(acc, term)))
-
-            acc = tuple(centre[c] * wsum_ref[rows_b * 3 + c] for c in range(3))
-            acc = jax.lax.fori_loop(0, n_taps, tap, acc)
+            # the spec's pass: the XLA gather's own function, run on this block's pixels
+            acc = pass_result(centre, cz[...], reach_ref[...], scale_ref[...], rows_ref[...], along, fetch,
+                              table_refs, **kw)
             return tuple(jnp.where(skip_b, centre[c], acc[c]) for c in range(3))
 
         out = jax.lax.cond(jnp.all(skip_b), lambda: tuple(centre), run)
-        o0[...], o1[...], o2[...] = out
+        for ref, o in zip(outs, out):
+            ref[...] = o
 
-    out = _call(kernel, sources, per_pixel, [unit_offsets, w_flat, w_sum], 3, total, block, e.dtype)
+    out = _call(kernel, sources, per_pixel, [tables[k] for k in table_names], 3, total, block, e.dtype)
     return jnp.stack([o[:n_pix].reshape(h, w) for o in out])
 
 
-@functools.partial(jax.custom_vjp, nondiff_argnums=(8, 9, 10, 11))
+_SEPARABLE_STATIC = (8, 9, 10, 11, 12, 13, 14)
+
+
+@functools.partial(jax.custom_vjp, nondiff_argnums=_SEPARABLE_STATIC)
 def _separable_pass(e, z, reach_px, scale, skip, rows, w_table, unit_offsets, axis, follow_surface, interpolation,
-                    block):
-    return _separable_forward(e, z, reach_px, scale, skip, rows, w_table, unit_offsets, axis, follow_surface,
-                              interpolation, block)
+                    border, origin_along, frame_length, block):
+    edge = cell_edge(unit_offsets.shape[0])
+    wide = jnp.any(jnp.where(skip, 0.0, reach_px) * edge > frame_length)  # as gather_pass decides it
+    run = lambda truncate: _separable_forward(e, z, reach_px, scale, skip, rows, w_table, unit_offsets, axis,
+                                              follow_surface, interpolation, border, origin_along, frame_length,
+                                              truncate, block)
+    return jax.lax.cond(wide, lambda: run(True), lambda: run(False))
 
 
 def _separable_fwd(e, z, reach_px, scale, skip, rows, w_table, unit_offsets, axis, follow_surface, interpolation,
-                   block):
-    out = _separable_forward(e, z, reach_px, scale, skip, rows, w_table, unit_offsets, axis, follow_surface,
-                             interpolation, block)
+                   border, origin_along, frame_length, block):
+    out = _separable_pass(e, z, reach_px, scale, skip, rows, w_table, unit_offsets, axis, follow_surface,
+                          interpolation, border, origin_along, frame_length, block)
     return out, (e, z, reach_px, scale, skip, rows, w_table, unit_offsets)
 
 
-def _separable_bwd(axis, follow_surface, interpolation, block, residuals, cotangent):
-    xla = functools.partial(gather_pass, axis=axis, follow_surface=follow_surface, interpolation=interpolation)
+def _separable_bwd(axis, follow_surface, interpolation, border, origin_along, frame_length, block, residuals,
+                   cotangent):
+    xla = functools.partial(gather_pass, axis=axis, follow_surface=follow_surface, interpolation=interpolation,
+                            border=border, origin_along=origin_along, frame_length=frame_length)
     return jax.vjp(xla, *residuals)[1](cotangent)
 
 
@@ -129,12 +136,15 @@ _separable_pass.defvjp(_separable_fwd, _separable_bwd)
 
 def separable_pass_pallas(e: Array, z: Array, reach_px: Array, scale: Array, skip: Array, rows: Array,
                           w_table: Array, unit_offsets: Array, *, axis: int, follow_surface: bool, interpolation: str,
+                          border: str = "renormalise", origin_along: int = 0, frame_length: int | None = None,
                           block: int = BLOCK) -> Array:
     """``_separable_gpu.gather_pass`` as one Pallas kernel (same arguments, same result to rounding)."""
     if axis not in (1, 2):
         raise ValueError(f"axis must be 1 (vertical) or 2 (horizontal), got {axis!r}")
+    length = e.shape[axis]
     return _separable_pass(e, z, reach_px, scale, skip, rows, w_table, unit_offsets, axis, bool(follow_surface),
-                           interpolation, int(block))
+                           interpolation, border, int(origin_along),
+                           int(length if frame_length is None else frame_length), int(block))
 
 
 _PIXEL_KEYS = ("row", "col", "z", "dmax", "ppm", "inside", "cos_phi", "sin_phi")

@@ -33,7 +33,8 @@ from ._common import (
     _sss_mask,
     _work_dtype,
 )
-from ._dispatch import resolve_impl
+from . import _separable_spec as spec
+from ._dispatch import check_tile, resolve_impl
 from ._whole_frame import separable_gpu_impl
 
 # Pixel-scale levels of the separable pass: each level is one shifted-slice pass at a constant reach; a pixel
@@ -43,48 +44,32 @@ from ._whole_frame import separable_gpu_impl
 SCALE_LEVELS = 2
 
 
-def _separable_level(fetch: Callable[[Array], tuple[Array, Array, Array]], e: Array, z: Array, reach_px: Array,
-                     inv_reach_mm: Array, tap_weight: Callable[[Array | int], Array], weight_sum: Array,
-                     unit_offsets: Array, taps_per_chunk: int, mm_per_unit: Array, limit: float, follow_surface: bool,
-                     interpolation: str) -> Array:
+def _separable_level(fetch: Callable[[Array], tuple[Array, Array, Array, Array]], e: Array, z: Array,
+                     reach_px: Array, inv_reach_mm: Array, tap_weight: Callable[[Array | int], Array],
+                     weight_sum: Array, unit_offsets: Array, taps_per_chunk: int, mm_per_unit: Array, limit: float,
+                     follow_surface: bool, interpolation: str) -> Array:
     """One 1D pass at one constant reach ``reach_px`` (a scalar) over a band of rows: ``fetch(start)`` returns the
-    padded planes (irradiance times validity, depth times validity, validity, and 1 off the image / 0 on it) shifted
-    by ``start`` pixels along the pass, so every tap is a constant shift. The taps are unrolled ``taps_per_chunk`` at a time into one expression,
-    which XLA fuses into one loop over the band (each pixel reads a chunk's taps and adds them to its result at once);
-    a loop runs the chunks, so the compile time and the fusions' size stay bounded as the taps grow.
-    ``unit_offsets`` has a whole number of chunks (padding taps have weight 0).
-
-    Each pixel q a tap reads (one for "nearest"; two for "linear", with weights 1 - f and f) adds
-    ``w f keep_q (e_q - e)`` to ``e sum(w)``, which is ``sum(w (sum_q f keep_q e_q + (1 - sum_q f keep_q) e))``: the
-    tap counts as far as it landed on valid pixels at a similar depth, and as the centre for the rest; a pixel q off
-    the image adds ``-w f e`` (dark: that light leaves the frame). No division
-    and no transcendental per tap, so nothing stops XLA from fusing a chunk whole."""
+    padded planes (irradiance times validity, depth times validity, validity, and 1 off the frame where light leaves
+    / 0 elsewhere) shifted by ``start`` pixels along the pass, so every tap is a constant shift. The per-tap term is
+    the spec's (``_separable_spec.tap_term``). The taps are unrolled ``taps_per_chunk`` at a time into one
+    expression, which XLA fuses into one loop over the band (each pixel reads a chunk's taps and adds them to its
+    result at once); a loop runs the chunks, so the compile time and the fusions' size stay bounded as the taps grow.
+    ``unit_offsets`` has a whole number of chunks (padding taps have weight 0). No division and no transcendental per
+    tap, so nothing stops XLA from fusing a chunk whole."""
     scale = mm_per_unit * inv_reach_mm  # depth difference (scene units) at which a fetch stops counting
+    centre = list(e)
 
     def chunk(c, acc):
         for j in range(taps_per_chunk):
             i = c * taps_per_chunk + j
-            # offsets beyond the image land in the zero padding: nothing valid there, the tap counts as the centre
-            off = jnp.clip(unit_offsets[i] * reach_px, -limit, limit)
-            if interpolation == "nearest":
-                corners = [(jnp.round(off).astype(jnp.int32), None)]
-            else:
-                x0 = jnp.floor(off)
-                f = off - x0
-                start = x0.astype(jnp.int32)
-                corners = [(start, 1 - f), (start + 1, f)]
-            term = 0.0
-            for start, frac in corners:
+            # offsets beyond the image land in the zero padding: nothing valid there
+            off = spec.tap_offset(unit_offsets[i], reach_px, limit)
+            fetched = []
+            for start, frac in spec.fetch_corners(off, interpolation):
                 ev, zv, vv, outside = fetch(start)
-                # Jimenez's "follow the surface", per fetched pixel: it counts less as its depth differs from the
-                # centre's (none at the kernel's reach); invalid pixels count as the centre. v is 0 or 1, so
-                # keep = v (1 - clip(|z_q - z| scale)) = max(v - |v z_q - v z| scale, 0): no division.
-                # Off-image pixels are dark: the light scattered there leaves the frame (adds -e, not 0)
-                keep = jnp.maximum(vv - jnp.abs(zv - vv * z) * scale, 0.0) if follow_surface else vv
-                if frac is not None:
-                    keep, outside = frac * keep, frac * outside
-                term = term + keep[None] * (ev - e) - outside[None] * e
-            acc = acc + tap_weight(i) * term
+                fetched.append((list(ev), zv, vv, outside, frac))
+            term = spec.tap_term(fetched, centre, z, scale, follow_surface=follow_surface)
+            acc = acc + tap_weight(i) * jnp.stack(term)
         return acc
 
     chunks = unit_offsets.shape[0] // taps_per_chunk
@@ -93,48 +78,7 @@ def _separable_level(fetch: Callable[[Array], tuple[Array, Array, Array]], e: Ar
     return jax.lax.fori_loop(0, chunks, chunk, e * weight_sum)
 
 
-def frame_truncation(unit_offsets: Array | np.ndarray, w_table: Array | np.ndarray,
-                     level_reach_px: Array | np.ndarray, extent_px: float
-                     ) -> tuple[Array | np.ndarray, Array | np.ndarray]:
-    """Per reach level, the scale of the tap pattern and the tap weights ``(L, M, 3, n)`` of a kernel cut at the
-    frame's extent along the pass (``extent_px``: no offset beyond it lands in the frame from any pixel).
-
-    A kernel whose outermost tap cell reaches past the extent is replaced by its part inside ``[-extent, extent]``,
-    taps spread over that range in the same pattern: tap i gets the kernel's mass over its shrunk cell, read from the
-    kernel's cumulative weights at the original cells' boundaries (linear within a cell: the taps know the kernel
-    no finer than that), and the mass beyond the extent is dropped (it leaves the frame from every pixel). Without
-    this a kernel far wider than the frame puts every tap but the centre outside it, and the pass returns the input
-    scaled by the centre weight instead of spreading the light. Kernels within the extent are unchanged.
-    ``unit_offsets`` and ``w_table (M, 3, n)`` are in the pass's tap order (centre first)."""
-    n = unit_offsets.shape[0]
-    order = np.asarray(centre_first(n)) if n > 1 else np.zeros(1, int)
-    sorted_unit = np.sort(np.asarray(unit_tap_offsets(n)))
-    if n > 1:
-        mids = 0.5 * (sorted_unit[1:] + sorted_unit[:-1])
-        outer = 2 * sorted_unit[-1] - mids[-1]  # the outer cells as wide beyond the last tap as inside it
-        bounds = np.concatenate([[-outer], mids, [outer]])
-    else:
-        bounds = np.array([-0.5, 0.5])
-    xp = np if isinstance(w_table, np.ndarray) else jnp  # NumPy for the host check: no dispatch per call
-    dtype = w_table.dtype
-    edge = float(bounds[-1])
-    bounds = xp.asarray(bounds, dtype)
-    sorted_w = w_table[..., np.argsort(order)]  # (M, 3, n), offsets ascending
-    cum = xp.concatenate([xp.zeros(sorted_w.shape[:-1] + (1,), dtype), xp.cumsum(sorted_w, axis=-1)], axis=-1)
-    reach_edge = level_reach_px * edge  # px, where the outer cells end
-    fits = reach_edge <= extent_px
-    scale = xp.where(fits, 1.0, extent_px / xp.where(fits, 1.0, reach_edge))  # (L,)
-    # the cumulative weights, linear within a cell, read at the shrunk boundaries: one interpolation index and
-    # fraction per level and boundary, shared by every material and channel (no vmap: NumPy runs it too)
-    at = xp.clip(scale[:, None] * bounds[None, :], bounds[0], bounds[-1])  # (L, n + 1)
-    cell = xp.clip(xp.searchsorted(bounds, at, side="right") - 1, 0, n - 1)
-    frac = (at - bounds[cell]) / (bounds[cell + 1] - bounds[cell])
-    lo, hi = cum[..., cell], cum[..., cell + 1]  # (M, 3, L, n + 1)
-    c = lo + (hi - lo) * frac.astype(dtype)[None, None]
-    w_levels = xp.moveaxis(xp.diff(c, axis=-1)[..., order], 2, 0)  # (L, M, 3, n)
-    # untouched levels keep their exact weights (no interpolation rounding)
-    w_levels = xp.where(fits[:, None, None, None], w_table[None], w_levels)
-    return scale.astype(dtype), w_levels
+frame_truncation = spec.frame_truncation  # the spec's (the host check and the tests read it here too)
 
 
 def tap_chunks(taps: int) -> tuple[int, int]:
@@ -163,7 +107,8 @@ _BAND_PIXELS = 1 << 15
 def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, level_reach_px: Array, skip: Array,
                     onehot: Array | None, w_table: Array, inv_reach_mm: Array, unit_offsets: Array,
                     mm_per_unit: Array, follow_surface: bool, interpolation: str,
-                    rows_per_band: int | None = None, axis: int = 2, border: str = "leaves") -> Array:
+                    rows_per_band: int | None = None, axis: int = 2, border: str = "leaves",
+                    origin_along: int = 0, frame_length: int | None = None) -> Array:
     """One 1D pass of planar ``e (3, H, W)`` along ``axis``: 2 horizontal, 1 vertical (no transposes: both read
     whole rows). The levels' shifted-slice passes are blended per pixel by ``level_weights (L, H, W)``; ``skip``
     pixels keep their own value.
@@ -173,7 +118,9 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
     cost follows the scene's coverage and depth range. A loop writes each band's rows in place into the output (the
     last band ends at the last row, overlapping the one before where the height is no multiple of the band): no
     padding rows and no reassembly copy. Tap weights: ``w_table (M, 3, n)`` per material, chosen per pixel by
-    ``onehot (M, H, W)`` (``None`` for one material)."""
+    ``onehot (M, H, W)`` (``None`` for one material). A tile of a larger frame passes its first pixel along the pass
+    in the frame (``origin_along``) and the frame's extent along it (``frame_length``): the border and the cut of
+    wide kernels follow the frame."""
     if axis not in (1, 2):
         raise ValueError(f"axis must be 1 (vertical) or 2 (horizontal), got {axis!r}")
     _, h, w = e.shape
@@ -185,17 +132,17 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
     pad_fetched = lambda a: jnp.pad(a, [(0, 0)] * (a.ndim - 2) + pad_width)
     ev_pad, z_pad, v_pad = pad_fetched(e * v[None]), pad_fetched(z * v), pad_fetched(v)
     along = w if axis == 2 else h
-    # 1D: 1 off the image (dark there, border="leaves"), or 0 everywhere (off-image taps count as the centre)
-    outside_pad = jnp.pad(jnp.zeros((along,), e.dtype), (pad, pad), constant_values=float(border == "leaves"))
+    frame_length = along if frame_length is None else int(frame_length)
+    # 1D: 1 off the frame (dark there, border="leaves"), or 0 everywhere (off-frame taps count as the centre)
+    position = np.arange(-pad, along + pad) + int(origin_along)  # in the frame
+    outside_pad = jnp.asarray(((position < 0) | (position >= frame_length)) & (border == "leaves"), e.dtype)
     planes = {"e": e, "z": z, "lw": level_weights, "inv": inv_reach_mm, "skip": skip}
     if onehot is not None:
         planes["onehot"] = onehot
     # kernels reaching past the frame are cut at its extent (the rest leaves), their taps spread over it
-    level_scale, w_levels = frame_truncation(unit_offsets, w_table, level_reach_px, float(along))
+    level_scale, w_levels = spec.frame_truncation(unit_offsets, w_table, level_reach_px, float(frame_length))
     if border != "leaves":  # the cut kernel renormalised: its part beyond the frame counts as the part inside
-        total = jnp.sum(w_levels, axis=-1, keepdims=True)
-        w_levels = w_levels * jnp.where(total > 0, jnp.sum(w_table, axis=-1, keepdims=True)[None] / jnp.where(
-            total > 0, total, 1.0), 1.0)
+        w_levels = spec.renormalised(w_levels, jnp.sum(w_table, axis=-1, keepdims=True)[None])
     chunks, per_chunk = tap_chunks(unit_offsets.shape[0])
     extra_taps = chunks * per_chunk - unit_offsets.shape[0]  # padding taps: weight 0 at offset 0 (the centre: adds 0)
     unit_offsets = jnp.pad(unit_offsets, (0, extra_taps))
@@ -243,7 +190,8 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
 @eqx.filter_jit
 def _separable_impl(buffers: Buffers, material, camera: Camera, taps: int, albedo_mode: str, follow_surface: bool,
                     interpolation: str, scale_levels: int, min_footprint_px: float,
-                    kernel_groups: tuple[int, ...] | None = None, border: str = "leaves") -> Array:
+                    kernel_groups: tuple[int, ...] | None = None, border: str = "leaves",
+                    origin: tuple[int, int] = (0, 0), frame_shape: tuple[int, int] | None = None) -> Array:
     dtype = _work_dtype(buffers.irradiance.dtype)
     prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
     rows, kernel_material = prep.rows, material
@@ -284,15 +232,17 @@ def _separable_impl(buffers: Buffers, material, camera: Camera, taps: int, albed
     level_weights = jnp.where(active[None], level_weights, 0.0)
     level_reach_px = jnp.exp(lo + span * levels / max(nlev - 1, 1))
     level_reach_px = jnp.where(any_active, level_reach_px, 0.0)
-    unit_offsets = jnp.asarray(unit_tap_offsets(taps)[centre_first(taps)], dtype)
+    unit_offsets = jnp.asarray(spec.pass_unit_offsets(taps), dtype)
     w_table = jnp.moveaxis(weights, -1, 1)  # (M, 3, n)
     onehot_planes = None if count == 1 else jnp.stack(onehot)  # (M, H, W)
     common = dict(unit_offsets=unit_offsets, mm_per_unit=mm_per_unit, follow_surface=follow_surface,
                   interpolation=interpolation, border=border)
+    frame_shape = tuple(buffers.depth.shape) if frame_shape is None else tuple(frame_shape)
     e = jnp.moveaxis(prep.irradiance, -1, 0)  # planar (3, H, W): the fused loops run along rows
     for axis in (2, 1):  # horizontal, then vertical
         e = _separable_pass(e, prep.depth, prep.valid, level_weights, level_reach_px, skip, onehot_planes, w_table,
-                            inv_reach_mm, axis=axis, **common)
+                            inv_reach_mm, axis=axis, origin_along=origin[axis - 1],
+                            frame_length=frame_shape[axis - 1], **common)
     return _finish(buffers, prep, jnp.moveaxis(e, 0, -1))
 
 
@@ -309,6 +259,8 @@ def separable(
     scale_levels: int = SCALE_LEVELS,
     impl: str = "auto",
     border: str = "renormalise",
+    origin: tuple[int, int] = (0, 0),
+    frame_shape: tuple[int, int] | None = None,
 ) -> Float[Array, "H W 3"]:
     """Separable subsurface scattering (Jimenez et al. 2015): a horizontal then a vertical 1D pass.
 
@@ -363,16 +315,10 @@ def separable(
         raise ValueError(f"min_footprint_px must be >= 0, got {min_footprint_px!r}")
     mode = "bilinear" if interpolation == "linear" else "nearest"
     which = resolve_impl(impl, "separable", dict(border=border, interpolation=interpolation))
-    if which != "banded" and border != "renormalise":
-        raise ValueError(f"impl={impl!r} has the renormalised border only so far: pass border='renormalise', "
-                         "or impl='auto'/'banded'")
-    if impl == "auto":
-        # the whole-frame formulation predates the frame-edge rules (frame truncation of wide kernels) and does not
-        # agree with the banded one yet: it runs only when named; the banded one runs on every backend
-        which = "banded"
+    origin, frame_shape = check_tile(tuple(buffers.depth.shape[-2:]), origin, frame_shape)
     if which != "banded":  # no host read of the parameters (kernel_groups) off the CPU
         return separable_gpu_impl(buffers, material, camera, int(taps), albedo_mode, bool(follow_surface), mode,
-                                  float(min_footprint_px), None, which)
+                                  float(min_footprint_px), None, which, border, origin, frame_shape)
     if _is_concrete(buffers, material, camera):  # a host-side check: the CPU formulation only, which counts anyway
         implied = separable_edge_error(buffers, material, camera, int(taps), float(min_footprint_px))
         if implied[0] > SAMPLING_ERROR_LIMIT:
@@ -380,7 +326,8 @@ def separable(
                           f"{implied[2]:.1f} px wide: a hard edge may be off by up to {implied[0]:.3f} of its "
                           f"contrast (more taps lower it)", SamplingWarning, stacklevel=2)
     return _separable_impl(buffers, material, camera, int(taps), albedo_mode, bool(follow_surface), mode,
-                           int(scale_levels), float(min_footprint_px), kernel_groups(material), border)
+                           int(scale_levels), float(min_footprint_px), kernel_groups(material), border, origin,
+                           frame_shape)
 
 
 def separable_edge_error(buffers: Buffers, material, camera: Camera, taps: int,

@@ -22,9 +22,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from .._kernels import centre_first, unit_tap_offsets
 from .._scene import Buffers, Camera
 from .._units import px_per_mm
+from . import _separable_spec as spec
 from ._common import _finish, _prepare, _work_dtype
 
 # Taps unrolled per step of the tap loop: a step is one fused kernel over the frame, so this many taps share one
@@ -32,81 +32,132 @@ from ._common import _finish, _prepare, _work_dtype
 TAPS_PER_STEP = 4
 
 
-def tap_term(off: Array, along: Array, length: int, fetch, e: Sequence[Array], z: Array, scale: Array, *,
-             follow_surface: bool, interpolation: str) -> list[Array]:
-    """What one tap adds per channel, before its weight: ``sum_q frac_q keep_q (e_q - e)`` over the pixels q it reads.
+def pass_tables(w_table: Array, unit_offsets: Array, taps_per_step: int) -> dict[str, Array]:
+    """The small tables a whole-frame pass reads, flat (a Pallas kernel indexes them as refs, XLA as arrays), the taps
+    padded to whole steps with taps of weight 0 at offset 0 and an empty cell: ``unit (n',)``, ``w (M 3 n')`` (row m,
+    channel c, tap i at ``(3 m + c) n' + i``), ``wsum (M 3)``, and for the cut at the frame ``cell_lo``/``cell_hi
+    (n',)`` (tap i's cell, unit offsets), ``bounds (n + 1,)`` ascending and ``cum (M 3 (n + 1))`` (the cumulative
+    weights at the bounds)."""
+    m, _, n = w_table.shape
+    dtype = w_table.dtype
+    steps = -(-n // taps_per_step)
+    extra = steps * taps_per_step - n
+    order = spec.tap_order(n)
+    bounds = spec.cell_bounds(n)
+    lo, hi = bounds[order], bounds[order + 1]  # tap i (pass order) is the order[i]-th from the left
+    sorted_w = w_table[..., np.argsort(order)]
+    cum = jnp.concatenate([jnp.zeros((m, 3, 1), dtype), jnp.cumsum(sorted_w, axis=-1)], axis=-1)
+    return dict(unit=jnp.pad(unit_offsets, (0, extra)),
+                w=jnp.pad(w_table, [(0, 0), (0, 0), (0, extra)]).reshape(-1),
+                wsum=jnp.sum(w_table, axis=-1).reshape(-1),
+                cell_lo=jnp.asarray(np.pad(lo, (0, extra)), dtype), cell_hi=jnp.asarray(np.pad(hi, (0, extra)), dtype),
+                bounds=jnp.asarray(bounds, dtype), cum=cum.reshape(-1))
 
-    ``off``: the tap's offset along the pass at each pixel (px, already clipped just beyond the frame); ``along``:
-    each pixel's position along the pass; ``fetch(q)``: the channels and depth at position ``q`` (clipped into the
-    frame) on each pixel's line. Layout-free (a frame or a block of pixels), so the XLA pass and the Pallas kernel
-    share it."""
-    if interpolation == "nearest":
-        corners = [(jnp.round(off), None)]
+
+def pass_result(centre: Sequence[Array], z: Array, reach_px: Array, scale: Array, rows: Array, along: Array,
+                fetch, tables, *, taps: int, length: int, origin_along: int, frame_length: int, leaves: bool,
+                truncate: bool, one_row: bool, follow_surface: bool, interpolation: str,
+                taps_per_step: int) -> list[Array]:
+    """One pass at each pixel of a layout (a whole frame, a block of pixels), each at its own reach: the spec's taps
+    (``_separable_spec``) with the weights of its material row, the kernel cut at the frame per pixel where
+    ``truncate`` (where a pixel's kernel fits the frame, its own weights).
+
+    ``centre``: the pixels' channels; ``z`` (0 where a pixel takes no part), ``reach_px``, ``scale`` (follow the
+    surface), ``rows`` (material row), ``along`` (position along the pass in the buffer): per pixel; ``fetch(q)``:
+    ``(channels, z)`` at position ``q`` (clipped into the buffer) on each pixel's line; ``tables``:
+    ``pass_tables``' (arrays or Pallas refs). ``length``: the buffer's extent along the pass; ``origin_along``,
+    ``frame_length``: its first pixel along the pass in the frame and the frame's extent (the border and the cut
+    follow the frame)."""
+    n_pad = tables["unit"].shape[0]
+    limit = length + 1.0  # beyond the buffer by more than a pixel: every corner lands off it
+    n = taps
+    if truncate:
+        cut = spec.truncation_scale(reach_px, spec.cell_edge(n), float(frame_length))
+        fits = cut >= 1.0
+        reach_px = reach_px * cut
+    weight = lambda c, i: tables["w"][c * n_pad + i] if one_row else tables["w"][(rows * 3 + c) * n_pad + i]
+    full_sum = [tables["wsum"][c] if one_row else tables["wsum"][rows * 3 + c] for c in range(3)]
+
+    def cumulative(c, x):  # the kernel's cumulative weight at unit position x (linear within a cell)
+        j = sum((tables["bounds"][k] <= x).astype(jnp.int32) for k in range(1, n))
+        base = c * (n + 1) if one_row else (rows * 3 + c) * (n + 1)
+        return spec.cumulative_at(x, (tables["bounds"][j], tables["bounds"][j + 1]), tables["cum"][base + j],
+                                  tables["cum"][base + j + 1])
+
+    if truncate:
+        cut_sum = [cumulative(c, cut * tables["bounds"][n]) - cumulative(c, cut * tables["bounds"][0])
+                   for c in range(3)]
+        # leaves: the cut kernel's own mass; renormalise: scaled to the full kernel's total (``spec.renormalised``)
+        gain = [1.0 if leaves else jnp.where(f > 0, s / jnp.where(f > 0, f, 1.0), 1.0)
+                for s, f in zip(full_sum, cut_sum)]
+        weight_sum = [jnp.where(fits, s, f * g) for s, f, g in zip(full_sum, cut_sum, gain)]
     else:
-        x0 = jnp.floor(off)
-        f = off - x0
-        corners = [(x0, 1 - f), (x0 + 1, f)]
-    term = [0.0, 0.0, 0.0]
-    for shift, frac in corners:
-        q = along + shift.astype(jnp.int32)
-        inside = (q >= 0) & (q < length)
-        *ev, zv = fetch(jnp.clip(q, 0, length - 1))
-        valid = inside & (zv > 0)  # off the frame, or a pixel that takes no part: counts as the centre
-        keep = jnp.maximum(1 - jnp.abs(zv - z) * scale, 0.0) if follow_surface else 1.0
-        keep = jnp.where(valid, keep, 0.0)
-        keep = keep if frac is None else frac * keep
-        term = [t + keep * (a - b) for t, a, b in zip(term, ev, e)]
-    return term
+        weight_sum = full_sum
+
+    def tap_weight(c, i):
+        if not truncate:
+            return weight(c, i)
+        mass = cumulative(c, cut * tables["cell_hi"][i]) - cumulative(c, cut * tables["cell_lo"][i])
+        return jnp.where(fits, weight(c, i), mass * gain[c])
+
+    def step(s, acc):
+        for j in range(taps_per_step):
+            i = s * taps_per_step + j
+            off = spec.tap_offset(tables["unit"][i], reach_px, limit)
+            fetched = []
+            for shift, frac in spec.fetch_corners(off, interpolation):
+                q = along + shift
+                in_buffer = (q >= 0) & (q < length)
+                q_frame = q + origin_along
+                in_frame = (q_frame >= 0) & (q_frame < frame_length)
+                *e_q, z_q = fetch(jnp.clip(q, 0, length - 1))
+                v_q = (in_buffer & (z_q > 0)).astype(z.dtype)  # a pixel that takes no part counts as the centre
+                out_q = (~in_frame).astype(z.dtype) if leaves else jnp.zeros_like(z)
+                fetched.append((e_q, z_q, v_q, out_q, frac))
+            term = spec.tap_term(fetched, centre, z, scale, follow_surface=follow_surface)
+            acc = tuple(a + tap_weight(c, i) * t for c, (a, t) in enumerate(zip(acc, term)))
+        return acc
+
+    out = tuple(centre[c] * weight_sum[c] for c in range(3))
+    steps = n_pad // taps_per_step
+    return list(step(0, out) if steps == 1 else jax.lax.fori_loop(0, steps, step, out))
 
 
 def gather_pass(e: Float[Array, "3 H W"], z: Float[Array, "H W"], reach_px: Float[Array, "H W"],
                 scale: Float[Array, "H W"], skip: Bool[Array, "H W"], rows: Int[Array, "H W"],
                 w_table: Float[Array, "M 3 n"], unit_offsets: Float[Array, " n"], *, axis: int,
-                follow_surface: bool, interpolation: str, taps_per_step: int = TAPS_PER_STEP) -> Float[Array, "3 H W"]:
+                follow_surface: bool, interpolation: str, border: str = "renormalise", origin_along: int = 0,
+                frame_length: int | None = None, taps_per_step: int = TAPS_PER_STEP) -> Float[Array, "3 H W"]:
     """One 1D pass of planar irradiance ``e`` along ``axis`` (2 horizontal, 1 vertical), XLA formulation.
 
     ``z``: depth in scene units, 0 where the pixel takes no part. ``reach_px``: the kernel's reach at each pixel, in
-    px (a tap at unit offset ``u`` lands ``u * reach_px`` px away, clipped just beyond the frame). ``scale``: the
+    px (a tap at unit offset ``u`` lands ``u * reach_px`` px away, clipped just beyond the buffer). ``scale``: the
     depth difference (scene units) times ``scale`` is the fraction a fetched pixel stops counting by
     (``mm_per_unit / reach_mm``). ``rows``: each pixel's row of ``w_table (M, 3, n)`` (tap weights per channel).
-    ``skip`` pixels keep their value. ``interpolation``: "bilinear" (two pixels, weights 1 - f and f) or "nearest"."""
+    ``skip`` pixels keep their value. ``interpolation``: "bilinear" (two pixels, weights 1 - f and f) or "nearest".
+    ``border``, ``origin_along``, ``frame_length``: as ``pass_result``. A kernel reaching past the frame is cut
+    there per pixel (decided on the device: the cut's arithmetic runs only where some pixel needs it)."""
     if axis not in (1, 2):
         raise ValueError(f"axis must be 1 (vertical) or 2 (horizontal), got {axis!r}")
     _, h, w = e.shape
     length = w if axis == 2 else h
+    frame_length = length if frame_length is None else int(frame_length)
     along = jax.lax.broadcasted_iota(jnp.int32, (h, w), axis - 1)  # each pixel's position along the pass
-    limit = length + 1.0  # beyond the frame by more than a pixel: every corner lands off it
-    n = unit_offsets.shape[0]
-    steps = -(-n // taps_per_step)
-    extra = steps * taps_per_step - n  # padding taps: weight 0 at offset 0
-    unit_offsets = jnp.pad(unit_offsets, (0, extra))
-    w_table = jnp.pad(w_table, [(0, 0), (0, 0), (0, extra)])
+    tables = pass_tables(w_table, unit_offsets, taps_per_step)
     # one gather per corner fetches the four planes of a pixel (flat, row-major: q is a position on the line)
     packed = jnp.stack([e[0], e[1], e[2], z], axis=-1).reshape(h * w, 4)
     line = jax.lax.broadcasted_iota(jnp.int32, (h, w), 0) * w if axis == 2 else \
         jax.lax.broadcasted_iota(jnp.int32, (h, w), 1)
     stride = 1 if axis == 2 else w
     fetch = lambda q: list(jnp.moveaxis(jnp.take(packed, line + q * stride, axis=0), -1, 0))
-    centre = (e[0], e[1], e[2])
-    weight_sum = jnp.sum(w_table, axis=-1)  # (M, 3)
-    if w_table.shape[0] == 1:  # one material: a weight per channel and tap, no per-pixel lookup
-        tap_weight = lambda i, c: w_table[0, c, i]
-        weight_sum = [weight_sum[0, c] for c in range(3)]
-    else:
-        tap_weight = lambda i, c: w_table[:, c, i][rows]
-        weight_sum = [weight_sum[:, c][rows] for c in range(3)]
-
-    def step(s, acc):
-        for j in range(taps_per_step):
-            i = s * taps_per_step + j
-            off = jnp.clip(unit_offsets[i] * reach_px, -limit, limit)
-            term = tap_term(off, along, length, fetch, centre, z, scale, follow_surface=follow_surface,
-                            interpolation=interpolation)
-            acc = tuple(a + tap_weight(i, c) * t for c, (a, t) in enumerate(zip(acc, term)))
-        return acc
-
-    out = tuple(centre[c] * weight_sum[c] for c in range(3))
-    out = step(0, out) if steps == 1 else jax.lax.fori_loop(0, steps, step, out)
+    kw = dict(taps=unit_offsets.shape[0], length=length, origin_along=int(origin_along),
+              frame_length=frame_length, leaves=border == "leaves", one_row=w_table.shape[0] == 1,
+              follow_surface=follow_surface, interpolation=interpolation, taps_per_step=taps_per_step)
+    run = lambda truncate: tuple(pass_result(list(e), z, reach_px, scale, rows, along, fetch, tables,
+                                             truncate=truncate, **kw))
+    edge = spec.cell_edge(unit_offsets.shape[0])
+    wide = jnp.any(jnp.where(skip, 0.0, reach_px) * edge > frame_length)
+    out = jax.lax.cond(wide, lambda: run(True), lambda: run(False))
     return jnp.where(skip[None], e, jnp.stack(out))
 
 
@@ -145,4 +196,4 @@ def pass_inputs(buffers: Buffers, material, camera: Camera, prep, taps: int, min
     return PassInputs(e=jnp.moveaxis(prep.irradiance, -1, 0), z=prep.depth, reach_px=reach_px,
                       scale=mm_per_unit * inv_reach_mm, skip=~active, rows=rows,
                       w_table=jnp.moveaxis(weights, -1, 1),
-                      unit_offsets=jnp.asarray(unit_tap_offsets(taps)[centre_first(taps)], dtype))
+                      unit_offsets=jnp.asarray(spec.pass_unit_offsets(taps), dtype))

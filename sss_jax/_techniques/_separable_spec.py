@@ -1,0 +1,163 @@
+"""``separable`` written once: where a tap lands, what a fetched pixel counts for, the per-tap term, and the kernel
+cut at the frame.
+
+Every formulation of the 1D pass (``_separable``: bands of constant shifts at quantised reach levels;
+``_separable_gpu``: the whole frame, a gather per tap at each pixel's own offset; ``_pallas``: that gather in blocks of
+pixels) evaluates these functions on its own layout; they differ in which reach a pixel's taps use (a level's or the
+pixel's own) and in how they fetch, not in arithmetic.
+
+One pass at a pixel with irradiance ``e``, depth ``z``, kernel reach ``R`` px and tap weights ``w_i`` (per channel)
+at unit offsets ``u_i`` (``_kernels.unit_tap_offsets``, centre first) is::
+
+    out = e sum_i w_i + sum_i w_i sum_q f_q (keep_q (e_q - e) - out_q e)
+
+over the pixels q tap i fetches at ``u_i R`` px along the pass (one for "nearest", two with weights ``1 - f`` and
+``f`` for "linear"). ``keep_q`` is 0 for a pixel that takes no part and, with ``follow_surface``,
+``max(1 - |z_q - z| mm_per_unit / reach_mm, 0)`` otherwise (Jimenez's "follow the surface": none at the kernel's
+reach); ``out_q`` is 1 where q lies outside the frame and the border is "leaves" (that light leaves: the tap counts
+as dark), else 0 (the tap counts as the centre: "renormalise").
+
+A kernel whose outer tap cell reaches past the frame's extent along the pass is cut there (``truncation_scale``):
+its taps spread over ``[-extent, extent]`` in the same pattern, each weighing the kernel's mass over its shrunk cell
+(the cumulative weights, linear within the original cells); with "renormalise" the cut kernel keeps the full
+kernel's total. Positions are frame coordinates: a buffer that is a tile of a larger frame states its first pixel
+along the pass in the frame, and the frame's extent decides both the border and the cut.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array
+
+from .._kernels import centre_first, unit_tap_offsets
+
+
+def tap_order(taps: int) -> np.ndarray:
+    """The pass's tap order (centre first), as indices into the ascending pattern."""
+    return np.asarray(centre_first(taps)) if taps > 1 else np.zeros(1, int)
+
+
+def pass_unit_offsets(taps: int) -> np.ndarray:
+    """The unit tap offsets in the pass's order (centre first), float64."""
+    return np.asarray(unit_tap_offsets(taps))[tap_order(taps)]
+
+
+def cell_bounds(taps: int) -> np.ndarray:
+    """The boundaries ``(taps + 1,)`` (ascending, unit offsets) of the cells the taps stand for: half way between
+    neighbouring taps, the outer cells as wide beyond the last tap as inside it (one tap: ``[-0.5, 0.5]``)."""
+    if taps == 1:
+        return np.array([-0.5, 0.5])
+    sorted_unit = np.sort(np.asarray(unit_tap_offsets(taps)))
+    mids = 0.5 * (sorted_unit[1:] + sorted_unit[:-1])
+    outer = 2 * sorted_unit[-1] - mids[-1]
+    return np.concatenate([[-outer], mids, [outer]])
+
+
+def cell_edge(taps: int) -> float:
+    """Where the outer cells end, in units of the reach (the kernel's extent as the taps see it)."""
+    return float(cell_bounds(taps)[-1])
+
+
+def truncation_scale(reach_px, edge: float, extent_px):
+    """By how much a kernel of reach ``reach_px`` shrinks to fit the frame's extent along the pass: 1 where its outer
+    cells end within ``extent_px``, else ``extent_px / (reach_px edge)``. NumPy or JAX arrays alike."""
+    xp = np if isinstance(reach_px, (np.ndarray, float, int)) else jnp
+    reach_edge = reach_px * edge
+    fits = reach_edge <= extent_px
+    return xp.where(fits, 1.0, extent_px / xp.where(fits, 1.0, reach_edge))
+
+
+def cumulative_at(x, bounds, cum_lo, cum_hi):
+    """The kernel's cumulative weight at unit position ``x`` inside a cell ``[bounds_lo, bounds_hi]`` whose
+    cumulative weights at its ends are ``cum_lo``/``cum_hi``: linear within the cell (the taps know the kernel no
+    finer than their cells)."""
+    lo, hi = bounds
+    return cum_lo + (cum_hi - cum_lo) * (x - lo) / (hi - lo)
+
+
+def tap_offset(unit, reach_px, limit):
+    """Where a tap lands, px along the pass from its pixel: ``unit * reach_px``, clipped to ``[-limit, limit]``
+    (``limit`` is just beyond the buffer: a clipped tap still lands outside it)."""
+    return jnp.clip(unit * reach_px, -limit, limit)
+
+
+def fetch_corners(off, interpolation: str) -> list[tuple[Array, Array | None]]:
+    """The pixels a tap at fractional offset ``off`` reads: ``[(shift, fraction)]`` (integer shifts, ``None`` for a
+    whole pixel). "nearest": the rounded offset; "linear"/"bilinear": the two pixels around it, ``1 - f`` and ``f``."""
+    if interpolation == "nearest":
+        return [(jnp.round(off).astype(jnp.int32), None)]
+    x0 = jnp.floor(off)
+    f = off - x0
+    start = x0.astype(jnp.int32)
+    return [(start, 1 - f), (start + 1, f)]
+
+
+def fetch_keep(z_q, v_q, z, scale, *, follow_surface: bool):
+    """How much a fetched pixel counts (0 to 1): ``v_q`` (1 where it takes part and lies in the buffer, else 0) and,
+    with ``follow_surface``, less as its depth ``z_q`` differs from the centre's ``z``, none at ``1 / scale``
+    (``scale = mm_per_unit / reach_mm``). No division: with v in {0, 1}, ``v (1 - clip(|z_q - z| scale))`` is
+    ``max(v - |z_q - v z| scale, 0)`` (where v is 0 the second term is never negative: ``z_q`` may be anything)."""
+    if not follow_surface:
+        return v_q
+    return jnp.maximum(v_q - jnp.abs(z_q - v_q * z) * scale, 0.0)
+
+
+def tap_term(fetched: Sequence[tuple[Sequence[Array], Array, Array, Array, Array | None]], e: Sequence[Array],
+             z: Array, scale: Array, *, follow_surface: bool) -> list[Array]:
+    """What one tap adds per channel, before its weight: ``sum_q f_q (keep_q (e_q - e) - out_q e)``.
+
+    ``fetched``: per pixel q the tap reads, ``(e_q channels, z_q, v_q, out_q, f_q)`` (``f_q`` ``None`` for a whole
+    pixel; ``out_q`` 1 outside the frame where light leaves, else 0); ``e``: the centre's channels. Layout-free:
+    planes of a band, a whole frame or a block of pixels."""
+    term = [0.0] * len(e)
+    for e_q, z_q, v_q, out_q, frac in fetched:
+        keep = fetch_keep(z_q, v_q, z, scale, follow_surface=follow_surface)
+        if frac is not None:
+            keep, out_q = frac * keep, frac * out_q
+        term = [t + keep * (a - c) - out_q * c for t, a, c in zip(term, e_q, e)]
+    return term
+
+
+def frame_truncation(unit_offsets: Array | np.ndarray, w_table: Array | np.ndarray,
+                     level_reach_px: Array | np.ndarray, extent_px: float
+                     ) -> tuple[Array | np.ndarray, Array | np.ndarray]:
+    """Per reach level, the scale of the tap pattern and the tap weights ``(L, M, 3, n)`` of a kernel cut at the
+    frame's extent along the pass (``extent_px``: no offset beyond it lands in the frame from any pixel).
+
+    A kernel whose outermost tap cell reaches past the extent is replaced by its part inside ``[-extent, extent]``,
+    taps spread over that range in the same pattern: tap i gets the kernel's mass over its shrunk cell
+    (``cumulative_at`` at the shrunk boundaries), and the mass beyond the extent is dropped (it leaves the frame from
+    every pixel). Without this a kernel far wider than the frame puts every tap but the centre outside it, and the
+    pass returns the input scaled by the centre weight instead of spreading the light. Kernels within the extent are
+    unchanged. ``unit_offsets`` and ``w_table (M, 3, n)`` are in the pass's tap order (centre first)."""
+    n = unit_offsets.shape[0]
+    order = tap_order(n)
+    bounds = cell_bounds(n)
+    xp = np if isinstance(w_table, np.ndarray) else jnp  # NumPy for the host check: no dispatch per call
+    dtype = w_table.dtype
+    bounds = xp.asarray(bounds, dtype)
+    sorted_w = w_table[..., np.argsort(order)]  # (M, 3, n), offsets ascending
+    cum = xp.concatenate([xp.zeros(sorted_w.shape[:-1] + (1,), dtype), xp.cumsum(sorted_w, axis=-1)], axis=-1)
+    scale = truncation_scale(level_reach_px, cell_edge(n), extent_px)  # (L,)
+    fits = scale >= 1.0
+    # the cumulative weights read at the shrunk boundaries: one cell index per level and boundary, shared by every
+    # material and channel (no vmap: NumPy runs it too)
+    at = xp.clip(scale[:, None] * bounds[None, :], bounds[0], bounds[-1])  # (L, n + 1)
+    cell = xp.clip(xp.searchsorted(bounds, at, side="right") - 1, 0, n - 1)
+    c = cumulative_at(at.astype(dtype)[None, None], (bounds[cell], bounds[cell + 1]), cum[..., cell],
+                      cum[..., cell + 1])  # (M, 3, L, n + 1)
+    w_levels = xp.moveaxis(xp.diff(c, axis=-1)[..., order], 2, 0)  # (L, M, 3, n)
+    # untouched levels keep their exact weights (no interpolation rounding)
+    w_levels = xp.where(fits[:, None, None, None], w_table[None], w_levels)
+    return scale.astype(dtype), w_levels
+
+
+def renormalised(w_cut, w_full_total):
+    """The cut kernel's weights scaled to the full kernel's total (``border="renormalise"``: the part beyond the frame
+    counts as the part inside); a kernel with nothing left keeps its (zero) weights."""
+    total = jnp.sum(w_cut, axis=-1, keepdims=True)
+    ok = total > 0
+    return w_cut * jnp.where(ok, w_full_total / jnp.where(ok, total, 1.0), 1.0)
