@@ -175,3 +175,202 @@ def test_tile_arguments_are_checked(as_users_run_it):
         sj.burley(b, mat, CAM, origin=(5, 0), frame_shape=(12, 12))
     with pytest.raises(ValueError, match="origin must be a pair of integers"):
         sj.burley(b, mat, CAM, origin=(0.5, 0))
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# separable (SSSS): an independent NumPy loop of the two 1D passes, against the banded, gather and Pallas layouts
+# ------------------------------------------------------------------------------------------------------------------
+#
+# Written from the formulas (Jimenez et al. 2015, and this package's documented rules), pixel by pixel in float64:
+# taps at ``range sign(o) o^2`` (o evenly spaced in [-1, 1], SeparableSSS::calculateKernel), each weighing the
+# kernel's mass over its cell (half way to its neighbours, the outer cells to infinity); the two-Gaussian kernel's
+# masses from erf, the pre-integrated Burley kernel's from the 1D marginal P(|r cos theta| <= x) averaged over 2048
+# radius quantiles (midpoint rule; radii by bisection on the CDF); a fetch counts as far as it is valid and, following
+# the surface, 1 - |dz| mm_per_unit / range; off the frame it is dark (border "leaves") or the centre ("renormalise");
+# a kernel whose outer cell ends past the frame's extent is shrunk onto the frame, tap i weighing the kernel's mass
+# over its shrunk cell (the cumulative weight linear within a cell), renormalised to the full total with
+# "renormalise". Nothing of sss_jax's kernels or passes is called.
+
+from math import erf
+
+
+def _sorted_unit(taps):
+    o = np.linspace(-1.0, 1.0, taps) if taps > 1 else np.zeros(1)
+    return np.sign(o) * o ** 2
+
+
+def _cells(taps):
+    """Cell boundaries of the ascending taps (unit offsets): infinite outer ones for the kernel's masses, and the
+    finite ones the frame cut uses (outer cells as wide beyond the last tap as inside it)."""
+    u = _sorted_unit(taps)
+    if taps == 1:
+        return np.array([-np.inf, np.inf]), np.array([-0.5, 0.5])
+    mids = 0.5 * (u[1:] + u[:-1])
+    outer = 2 * u[-1] - mids[-1]
+    return np.concatenate([[-np.inf], mids, [np.inf]]), np.concatenate([[-outer], mids, [outer]])
+
+
+def _two_gaussian_taps(w, s_near, s_far, taps):
+    """(offsets_mm (n,) ascending, weights (n, 3)) of w G(s_near) + (1 - w) G(s_far), range 3 max(sigma)."""
+    reach = 3 * max(max(s_near), max(s_far))
+    inf_cells, _ = _cells(taps)
+    phi = lambda x, s: 0.5 * (1 + erf(x / (s * np.sqrt(2)))) if np.isfinite(x) else float(x > 0)
+    weights = np.array([[w[c] * (phi(hi, s_near[c]) - phi(lo, s_near[c]))
+                         + (1 - w[c]) * (phi(hi, s_far[c]) - phi(lo, s_far[c])) for c in range(3)]
+                        for lo, hi in zip(reach * inf_cells[:-1], reach * inf_cells[1:])])
+    return reach * _sorted_unit(taps), weights / weights.sum(0)
+
+
+def _burley_radius(u, d):
+    """r with CDF(r) = u for Burley's 1 - (exp(-r/d) + 3 exp(-r/3d)) / 4, by bisection."""
+    lo, hi = np.zeros_like(u), np.full_like(u, 200.0 * d)
+    for _ in range(100):
+        mid = 0.5 * (lo + hi)
+        below = 1 - (np.exp(-mid / d) + 3 * np.exp(-mid / (3 * d))) / 4 < u
+        lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+    return 0.5 * (lo + hi)
+
+
+def _burley_taps(d, taps, quantiles=2048):
+    """The pre-integrated kernel: range = the radius holding 99% of the widest channel's energy."""
+    reach = _burley_radius(np.array([0.99]), max(d))[0]
+    inf_cells, _ = _cells(taps)
+    u = (np.arange(quantiles) + 0.5) / quantiles
+
+    def marginal(x, dc):  # P(X <= x), X = r cos(theta), r Burley-distributed, theta uniform
+        if not np.isfinite(x):
+            return float(x > 0)
+        r = _burley_radius(u, dc)
+        inside = np.where(r > abs(x), 2 / np.pi * np.arcsin(np.minimum(abs(x) / r, 1.0)), 1.0).mean()
+        return 0.5 + 0.5 * np.sign(x) * inside
+
+    weights = np.array([[marginal(hi, d[c]) - marginal(lo, d[c]) for c in range(3)]
+                        for lo, hi in zip(reach * inf_cells[:-1], reach * inf_cells[1:])])
+    return reach * _sorted_unit(taps), weights / weights.sum(0)
+
+
+def _cut_kernel(offsets_px, weights, extent, leaves):
+    """The kernel shrunk onto the frame's extent where its outer cell ends past it (see the section's comment)."""
+    taps = offsets_px.shape[0]
+    reach = np.abs(offsets_px).max()
+    _, cells = _cells(taps)
+    if reach * cells[-1] <= extent:
+        return offsets_px, weights
+    s = extent / (reach * cells[-1])
+    cum = np.concatenate([np.zeros((1, 3)), np.cumsum(weights, 0)])
+
+    def cumulative(x):  # at unit position x, linear within the original cells
+        j = min(max(np.searchsorted(cells, x, side="right") - 1, 0), taps - 1)
+        return cum[j] + (cum[j + 1] - cum[j]) * (x - cells[j]) / (cells[j + 1] - cells[j])
+
+    cut = np.array([cumulative(s * cells[k + 1]) - cumulative(s * cells[k]) for k in range(taps)])
+    if not leaves:
+        cut = cut * weights.sum(0) / cut.sum(0)
+    return offsets_px * s, cut
+
+
+def numpy_separable(e, z, valid, rows, kernels, ppm, mm_per_unit, albedo, *, linear, follow, leaves,
+                    pre_post=False, origin=(0, 0), frame_shape=None, footprint=0.5):
+    """Both passes pixel by pixel; ``kernels[m] = (offsets_mm ascending, weights (n, 3))``; ``albedo (M, 3)``."""
+    h, w = z.shape
+    frame_shape = frame_shape or (h, w)
+    a = np.where(valid[..., None], albedo[rows], 1.0)
+    x = np.where(valid[..., None], e * (np.sqrt(a) if pre_post else 1.0), 0.0)
+    for axis in (1, 0):  # horizontal (along columns), then vertical
+        src, out = x.copy(), x.copy()
+        length, extent, start = (w, frame_shape[1], origin[1]) if axis == 1 else (h, frame_shape[0], origin[0])
+        for py in range(h):
+            for px in range(w):
+                offsets_mm, weights = kernels[rows[py, px]]
+                reach_mm = np.abs(offsets_mm).max()
+                if not valid[py, px] or reach_mm * ppm[py, px] < footprint:
+                    continue
+                offs, wts = _cut_kernel(offsets_mm * ppm[py, px], weights, extent, leaves)
+                here = px if axis == 1 else py
+                acc = np.zeros(3)
+                for off, wt in zip(offs, wts):
+                    pos = here + off
+                    corners = ([(int(np.floor(pos)), 1 - (pos - np.floor(pos))),
+                                (int(np.floor(pos)) + 1, pos - np.floor(pos))] if linear
+                               else [(int(np.round(pos)), 1.0)])
+                    sample = src[py, px].copy()
+                    for q, f in corners:
+                        if not 0 <= q + start < extent:  # off the frame
+                            if leaves:
+                                sample -= f * src[py, px]
+                            continue
+                        if not 0 <= q < length:  # in the frame, not in this buffer: counts as the centre
+                            continue
+                        qy, qx = (py, q) if axis == 1 else (q, px)
+                        if not valid[qy, qx]:
+                            continue
+                        keep = 1 - min(abs(z[qy, qx] - z[py, px]) * mm_per_unit / reach_mm, 1.0) if follow else 1.0
+                        sample += f * keep * (src[qy, qx] - src[py, px])
+                    acc += wt * sample
+                out[py, px] = acc
+        x = out
+    result = x * (np.sqrt(a) if pre_post else a)
+    return np.where(valid[..., None], result, e)
+
+
+SEP_CAM = sj.Camera(focal_px=100.0, mm_per_unit=10.0)
+
+
+def _separable_case(kind, *, h=12, w=16, seed=4, jitter=True, wide=False):
+    """A depth step (two planes, jittered per pixel for the layouts that follow each pixel's reach), holes (id 0)
+    and two materials whose kernels share one reach (mm) but not their weights, so the banded levels meet exactly
+    two reaches on the unjittered step (one per plane) and are exact there."""
+    rng = np.random.default_rng(seed)
+    e = rng.uniform(0.0, 2.0, (h, w, 3))
+    depth = 47.3 + 5.0 * (np.arange(w)[None, :] >= w // 2) + (rng.uniform(0.0, 1.0, (h, w)) if jitter else 0.0)
+    depth = depth * np.ones((h, 1))
+    ids = np.ones((h, w), np.int32)
+    ids[(np.arange(h)[:, None] + 2 * np.arange(w)[None, :]) % 5 == 0] = 2
+    ids[rng.uniform(size=(h, w)) < 0.12] = 0
+    albedo = np.array([[0.9, 0.7, 0.5], [0.6, 0.8, 1.0]])
+    scale = 10.0 if wide else 0.5
+    if kind == "two_gaussian":
+        w_, sn, sf = [[0.6, 0.5, 0.4], [0.3, 0.7, 0.5]], [[4.0, 2.0, 1.0], [1.0, 3.0, 2.0]], [[20.0, 10.0, 6.0],
+                                                                                             [8.0, 20.0, 12.0]]
+        sn, sf = (np.asarray(s) * scale for s in (sn, sf))
+        mat = sj.TwoGaussianMaterial(albedo=albedo, w=w_, sigma_near_mm=sn, sigma_far_mm=sf)
+        taps = lambda n: [_two_gaussian_taps(w_[m], sn[m], sf[m], n) for m in range(2)]
+    else:
+        d = np.array([[6.0, 3.0, 1.5], [2.0, 6.0, 1.0]]) * scale
+        mat = sj.BurleyMaterial(albedo=albedo, d_mm=d)
+        taps = lambda n: [_burley_taps(d[m], n) for m in range(2)]
+    b = sj.Buffers(irradiance=jnp.asarray(e), depth=jnp.asarray(depth), material_id=jnp.asarray(ids))
+    valid = ids > 0
+    return b, mat, taps, dict(e=e, z=depth, valid=valid, rows=np.maximum(ids - 1, 0), albedo=albedo,
+                              ppm=SEP_CAM.focal_px / (depth * 10.0), mm_per_unit=10.0)
+
+
+# each option set with one material kind, narrow or wide (the kernel cut at the frame), against every layout
+SEP_CASES = [("burley", False, dict(border="leaves", interpolation="linear", follow_surface=True, albedo_mode="post",
+                                    taps=7)),
+             ("two_gaussian", True, dict(border="renormalise", interpolation="nearest", follow_surface=True,
+                                         albedo_mode="pre_post", taps=5)),
+             ("burley", True, dict(border="renormalise", interpolation="linear", follow_surface=False,
+                                   albedo_mode="post", taps=9)),
+             ("two_gaussian", False, dict(border="leaves", interpolation="nearest", follow_surface=False,
+                                          albedo_mode="post", taps=5))]
+
+
+@pytest.mark.parametrize("impl", ["banded", "gather", "pallas"])
+@pytest.mark.parametrize("kind,wide,opts", SEP_CASES,
+                         ids=lambda v: "-".join(str(x) for x in v.values()) if isinstance(v, dict) else str(v))
+def test_separable_matches_the_numpy_loop(impl, kind, wide, opts):
+    # the banded layout's reach levels are exact where the frame holds two reaches (levels at its least and its
+    # largest): the unjittered step; the whole-frame layouts follow each pixel's own reach (jittered depths)
+    b, mat, taps, ref = _separable_case(kind, jitter=impl != "banded", wide=wide)
+    got = np.asarray(sj.separable(b, mat, SEP_CAM, impl=impl, **opts))
+    expected = numpy_separable(ref["e"], ref["z"], ref["valid"], ref["rows"], taps(opts["taps"]), ref["ppm"],
+                               ref["mm_per_unit"], ref["albedo"], linear=opts["interpolation"] == "linear",
+                               follow=opts["follow_surface"], leaves=opts["border"] == "leaves",
+                               pre_post=opts["albedo_mode"] == "pre_post")
+    np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-9)
+    local = ref["albedo"][ref["rows"]] * ref["e"]
+    assert np.abs(expected - local)[ref["valid"]].max() > 0.05  # it scattered
+    reach_px = max(np.abs(k[0]).max() for k in taps(opts["taps"])) * ref["ppm"].max()
+    edge_px = reach_px * _cells(opts["taps"])[1][-1]
+    assert edge_px > 16 if wide else edge_px < 12  # wide: the widest kernel cut at the frame, else none

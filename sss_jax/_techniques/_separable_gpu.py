@@ -78,15 +78,15 @@ def pass_result(centre: Sequence[Array], z: Array, reach_px: Array, scale: Array
     weight = lambda c, i: tables["w"][c * n_pad + i] if one_row else tables["w"][(rows * 3 + c) * n_pad + i]
     full_sum = [tables["wsum"][c] if one_row else tables["wsum"][rows * 3 + c] for c in range(3)]
 
-    def cumulative(c, x):  # the kernel's cumulative weight at unit position x (linear within a cell)
-        j = sum((tables["bounds"][k] <= x).astype(jnp.int32) for k in range(1, n))
-        base = c * (n + 1) if one_row else (rows * 3 + c) * (n + 1)
-        return spec.cumulative_at(x, (tables["bounds"][j], tables["bounds"][j + 1]), tables["cum"][base + j],
-                                  tables["cum"][base + j + 1])
+    def cumulative(x):  # the kernel's cumulative weight per channel at unit position x (linear within a cell)
+        j = sum((tables["bounds"][k] <= x).astype(jnp.int32) for k in range(1, n))  # x's cell, shared by channels
+        cell = (tables["bounds"][j], tables["bounds"][j + 1])
+        base = [c * (n + 1) if one_row else (rows * 3 + c) * (n + 1) for c in range(3)]
+        return [spec.cumulative_at(x, cell, tables["cum"][b + j], tables["cum"][b + j + 1]) for b in base]
 
     if truncate:
-        cut_sum = [cumulative(c, cut * tables["bounds"][n]) - cumulative(c, cut * tables["bounds"][0])
-                   for c in range(3)]
+        cut_sum = [hi - lo for hi, lo in zip(cumulative(cut * tables["bounds"][n]),
+                                             cumulative(cut * tables["bounds"][0]))]
         # leaves: the cut kernel's own mass; renormalise: scaled to the full kernel's total (``spec.renormalised``)
         gain = [1.0 if leaves else jnp.where(f > 0, s / jnp.where(f > 0, f, 1.0), 1.0)
                 for s, f in zip(full_sum, cut_sum)]
@@ -94,11 +94,12 @@ def pass_result(centre: Sequence[Array], z: Array, reach_px: Array, scale: Array
     else:
         weight_sum = full_sum
 
-    def tap_weight(c, i):
+    def tap_weights(i):
         if not truncate:
-            return weight(c, i)
-        mass = cumulative(c, cut * tables["cell_hi"][i]) - cumulative(c, cut * tables["cell_lo"][i])
-        return jnp.where(fits, weight(c, i), mass * gain[c])
+            return [weight(c, i) for c in range(3)]
+        mass = [hi - lo for hi, lo in zip(cumulative(cut * tables["cell_hi"][i]),
+                                          cumulative(cut * tables["cell_lo"][i]))]
+        return [jnp.where(fits, weight(c, i), mass[c] * gain[c]) for c in range(3)]
 
     def step(s, acc):
         for j in range(taps_per_step):
@@ -115,7 +116,7 @@ def pass_result(centre: Sequence[Array], z: Array, reach_px: Array, scale: Array
                 out_q = (~in_frame).astype(z.dtype) if leaves else jnp.zeros_like(z)
                 fetched.append((e_q, z_q, v_q, out_q, frac))
             term = spec.tap_term(fetched, centre, z, scale, follow_surface=follow_surface)
-            acc = tuple(a + tap_weight(c, i) * t for c, (a, t) in enumerate(zip(acc, term)))
+            acc = tuple(a + wt * t for a, wt, t in zip(acc, tap_weights(i), term))
         return acc
 
     out = tuple(centre[c] * weight_sum[c] for c in range(3))
@@ -152,9 +153,11 @@ def gather_pass(e: Float[Array, "3 H W"], z: Float[Array, "H W"], reach_px: Floa
     fetch = lambda q: list(jnp.moveaxis(jnp.take(packed, line + q * stride, axis=0), -1, 0))
     kw = dict(taps=unit_offsets.shape[0], length=length, origin_along=int(origin_along),
               frame_length=frame_length, leaves=border == "leaves", one_row=w_table.shape[0] == 1,
-              follow_surface=follow_surface, interpolation=interpolation, taps_per_step=taps_per_step)
+              follow_surface=follow_surface, interpolation=interpolation)
+    # the cut (rare: a kernel wider than the frame) one tap per loop step: its arithmetic per tap is larger, and a
+    # smaller unrolled body keeps the compile time of the branch that seldom runs small
     run = lambda truncate: tuple(pass_result(list(e), z, reach_px, scale, rows, along, fetch, tables,
-                                             truncate=truncate, **kw))
+                                             truncate=truncate, taps_per_step=1 if truncate else taps_per_step, **kw))
     edge = spec.cell_edge(unit_offsets.shape[0])
     wide = jnp.any(jnp.where(skip, 0.0, reach_px) * edge > frame_length)
     out = jax.lax.cond(wide, lambda: run(True), lambda: run(False))

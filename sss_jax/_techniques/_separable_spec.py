@@ -147,8 +147,8 @@ def frame_truncation(unit_offsets: Array | np.ndarray, w_table: Array | np.ndarr
     # material and channel (no vmap: NumPy runs it too)
     at = xp.clip(scale[:, None] * bounds[None, :], bounds[0], bounds[-1])  # (L, n + 1)
     cell = xp.clip(xp.searchsorted(bounds, at, side="right") - 1, 0, n - 1)
-    c = cumulative_at(at.astype(dtype)[None, None], (bounds[cell], bounds[cell + 1]), cum[..., cell],
-                      cum[..., cell + 1])  # (M, 3, L, n + 1)
+    c = cumulative_at(at.astype(dtype)[None, None], (bounds[cell][None, None], bounds[cell + 1][None, None]),
+                      cum[..., cell], cum[..., cell + 1])  # (M, 3, L, n + 1)
     w_levels = xp.moveaxis(xp.diff(c, axis=-1)[..., order], 2, 0)  # (L, M, 3, n)
     # untouched levels keep their exact weights (no interpolation rounding)
     w_levels = xp.where(fits[:, None, None, None], w_table[None], w_levels)
