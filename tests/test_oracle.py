@@ -1,4 +1,5 @@
-"""An independent NumPy loop of Burley's screen-space pass, against every formulation and option, and tiles.
+"""Independent NumPy loops of Burley's screen-space pass and of the reference, against every formulation and option,
+and tiles.
 
 The loop is written from the formulas (Christensen & Burley 2015's CDF ``1 - (exp(-r/d) + 3 exp(-r/3d))/4``, its
 closed-form inverse, the golden-angle spiral, Wellons' lowbias32 hash for the per-pixel rotation), pixel by pixel
@@ -374,3 +375,173 @@ def test_separable_matches_the_numpy_loop(impl, kind, wide, opts):
     reach_px = max(np.abs(k[0]).max() for k in taps(opts["taps"])) * ref["ppm"].max()
     edge_px = reach_px * _cells(opts["taps"])[1][-1]
     assert edge_px > 16 if wide else edge_px < 12  # wide: the widest kernel cut at the frame, else none
+
+# The reference: an independent NumPy loop of the dense pixel-integrated convolution (the paper's ground truth)
+# ------------------------------------------------------------------------------------------------------------------
+# Written from the formulas: Christensen & Burley 2015's normalised R(r) = (exp(-r/d) + exp(-r/3d)) / (8 pi d r) and
+# its CDF 1 - (exp(-r/d) + 3 exp(-r/3d))/4; a Gaussian sum R(r) = sum w_k exp(-r^2/2v_k) / (2 pi v_k) / sum w_k. The
+# centre pixel's mass is the profile's integral over the pixel's square, in polar coordinates around the centre
+# (scipy's adaptive quadrature of CDF(a / cos t)); a neighbour's is the midpoint rule the reference documents
+# (near_subsamples^2 points within two pixels, 2x2 within six, one beyond) at the 3D distance; with the leaving
+# border the energy beyond the frame is 1 - (1/2pi) int CDF(distance to the frame's edge along phi) dphi (scipy, the
+# corner angles as break points), not the package's triangle rule. Nothing of sss_jax is called.
+
+from scipy import integrate  # noqa: E402
+
+
+def _burley_radial(d):
+    d = np.asarray(d, np.float64)
+
+    def radial(r):  # r (n,) -> (n, 3)
+        ok = d > 0
+        dd = np.where(ok, d, 1.0)
+        r = np.asarray(r, np.float64)[:, None]
+        return np.where(ok, (np.exp(-r / dd) + np.exp(-r / (3 * dd))) / (8 * np.pi * dd * r), 0.0)
+
+    def cdf(r):
+        ok = d > 0
+        dd = np.where(ok, d, 1.0)
+        return np.where(ok, 1 - (np.exp(-r / dd) + 3 * np.exp(-r / (3 * dd))) / 4, 1.0)
+
+    return radial, cdf
+
+
+def _gaussian_radial(weights, variances):
+    w = np.asarray(weights, np.float64) / np.sum(weights, axis=0)  # (K, 3), normalised per channel
+    v = np.asarray(variances, np.float64)
+    radial = lambda r: np.sum(w * np.exp(-np.asarray(r)[:, None, None] ** 2 / (2 * v)) / (2 * np.pi * v), axis=1)
+    cdf = lambda r: np.sum(w * (1 - np.exp(-r * r / (2 * v))), axis=0)
+    return radial, cdf
+
+
+def _energy_inside_frame(cdf, y, x, fh, fw, pixel_mm):
+    """Fraction of the profile centred on (y, x) inside the frame [-0.5, fh - 0.5] x [-0.5, fw - 0.5] (px)."""
+    def reach(phi):
+        c, s = np.cos(phi), np.sin(phi)
+        tx = (fw - 0.5 - x) / c if c > 1e-15 else ((-0.5 - x) / c if c < -1e-15 else np.inf)
+        ty = (fh - 0.5 - y) / s if s > 1e-15 else ((-0.5 - y) / s if s < -1e-15 else np.inf)
+        return min(tx, ty) * pixel_mm
+
+    corners = sorted(np.mod(np.arctan2(cy - y, cx - x), 2 * np.pi)
+                     for cy in (-0.5, fh - 0.5) for cx in (-0.5, fw - 0.5))
+    edges = [0.0] + corners + [2 * np.pi]
+    total = sum(integrate.quad_vec(lambda p: cdf(reach(p)), a, b, epsabs=1e-12, epsrel=1e-10)[0]
+                for a, b in zip(edges[:-1], edges[1:]) if b > a)
+    return total / (2 * np.pi)
+
+
+def numpy_reference(e, z, valid, profiles, albedo, ppm, mm_per_unit, k, *, near, leaves, pre_post=False,
+                    origin=(0, 0), frame_shape=None):
+    """``profiles[y][x]``: (radial, cdf) of the pixel's material; ``albedo (H, W, 3)``. The result of every pixel."""
+    h, w = z.shape
+    fh, fw = frame_shape or (h, w)
+    root = np.sqrt(albedo) if pre_post else None
+    src = e * root if pre_post else e
+    out = np.array(e, np.float64)
+    for y in range(h):
+        for x in range(w):
+            if not valid[y, x]:
+                continue
+            radial, cdf = profiles[y][x]
+            pixel_mm = 1.0 / ppm[y, x]
+            a = 0.5 * pixel_mm
+            centre = 8 * integrate.quad_vec(lambda t: cdf(a / np.cos(t)), 0, np.pi / 4, epsabs=1e-13,
+                                            epsrel=1e-11)[0] / (2 * np.pi)
+            num, den = centre * src[y, x], centre.copy()
+            if leaves:
+                den += 1 - _energy_inside_frame(cdf, y + origin[0], x + origin[1], fh, fw, pixel_mm)
+            for dy in range(-k, k + 1):
+                for dx in range(-k, k + 1):
+                    ring = max(abs(dy), abs(dx))
+                    qy, qx = y + dy, x + dx
+                    if ring == 0 or not (0 <= qy < h and 0 <= qx < w and valid[qy, qx]):
+                        continue
+                    sub = near if ring <= 2 else (2 if ring <= 6 else 1)
+                    f = (np.arange(sub) + 0.5) / sub - 0.5
+                    oy, ox = np.meshgrid(dy + f, dx + f, indexing="ij")
+                    dz = (z[qy, qx] - z[y, x]) * mm_per_unit
+                    r = np.sqrt((oy * oy + ox * ox) * pixel_mm ** 2 + dz * dz).ravel()
+                    mass = radial(r).sum(axis=0) * pixel_mm ** 2 / sub ** 2
+                    num, den = num + mass * src[qy, qx], den + mass
+            scattered = np.where(den > 0, num / np.where(den > 0, den, 1.0), src[y, x])
+            out[y, x] = (root[y, x] if pre_post else albedo[y, x]) * scattered
+    return out
+
+
+def _reference_case(kind, h=7, w=9, seed=4, d_scale=1.0):
+    rng = np.random.default_rng(seed)
+    e = rng.uniform(0.0, 2.0, (h, w, 3))
+    depth = 50.0 + 2.0 * (np.arange(w)[None, :] >= 5) + rng.uniform(0.0, 0.3, (h, w))  # a 20 mm depth step
+    ids = np.ones((h, w), np.int32)
+    if kind == "gaussian":
+        weights, variances = [[0.3, 0.5, 0.6], [0.7, 0.5, 0.4]], [[4.0, 2.0, 1.0], [60.0, 30.0, 8.0]]  # mm^2
+        mat = sj.ProfileMaterial(sj.GaussianSumProfile(weights, variances), albedo=[0.9, 0.7, 0.5])
+        table = [(_gaussian_radial(weights, variances), [0.9, 0.7, 0.5])]
+    else:
+        d = [[15.0, 8.0, 4.0], [5.0, 10.0, 3.0]] if kind == "two" else [[12.0, 6.0, 3.0]]
+        d = [[v * d_scale for v in row] for row in d]
+        albedo = [[0.8, 0.6, 0.5], [0.5, 0.9, 0.7]][:len(d)]
+        mat = sj.BurleyMaterial(albedo=albedo, d_mm=d)
+        table = [(_burley_radial(row), a) for row, a in zip(d, albedo)]
+        if kind == "two":
+            ids[(np.arange(h)[:, None] + np.arange(w)[None, :]) % 3 == 0] = 2
+            ids[rng.uniform(size=(h, w)) < 0.12] = 0  # pixels without SSS pass through, and pass no light on
+    b = sj.Buffers(irradiance=jnp.asarray(e), depth=jnp.asarray(depth), material_id=jnp.asarray(ids))
+    valid = ids > 0
+    rows = np.maximum(ids - 1, 0)
+    profiles = [[table[rows[y, x]][0] for x in range(w)] for y in range(h)]
+    albedo = np.asarray([t[1] for t in table], np.float64)[rows]
+    ppm = CAM.focal_px / (depth * CAM.mm_per_unit)
+    return b, mat, e, depth, valid, profiles, albedo, ppm
+
+
+REFERENCE_OPTIONS = [("two", dict(border="leaves", albedo_mode="post", near_subsamples=3)),
+                     ("two", dict(border="renormalise", albedo_mode="pre_post", near_subsamples=2)),
+                     ("one", dict(border="leaves", albedo_mode="pre_post", near_subsamples=4)),
+                     ("gaussian", dict(border="leaves", albedo_mode="post", near_subsamples=2))]
+
+
+@pytest.mark.parametrize("kind, opts", REFERENCE_OPTIONS,
+                         ids=lambda v: v if isinstance(v, str) else "-".join(str(x) for x in v.values()))
+def test_reference_matches_the_numpy_loop(kind, opts):
+    b, mat, e, depth, valid, profiles, albedo, ppm = _reference_case(kind)
+    k = 8  # the window spans the frame; every tier of the midpoint rule (within 2, within 6, beyond) takes part
+    got = np.asarray(sj.reference(b, mat, CAM, radius_px=k, **opts))
+    expected = numpy_reference(e, depth, valid, profiles, albedo, ppm, CAM.mm_per_unit, k,
+                               near=opts["near_subsamples"], leaves=opts["border"] == "leaves",
+                               pre_post=opts["albedo_mode"] == "pre_post")
+    np.testing.assert_allclose(got, expected, rtol=2e-6, atol=1e-9)
+    assert np.abs(expected - albedo * e)[valid].max() > 0.05  # it scattered
+    if kind == "two":
+        np.testing.assert_array_equal(got[~valid], e[~valid])  # no SSS: untouched
+
+
+@pytest.mark.parametrize("border", ["renormalise", "leaves"])
+def test_a_reference_tile_with_its_halo_gives_the_untiled_frames_pixels(border):
+    # a tile cut with a halo of the technique's reach (the window of the frame), told its place: the frame's pixels
+    b, mat, *_ = _reference_case("two", h=20, w=24, seed=8, d_scale=0.1)
+    tech = sj.Reference(border=border, near_subsamples=2)
+    halo = tech.reach_px(b, mat, CAM)  # the default window on the whole frame
+    assert 2 <= halo < 8
+    tech = tech.replace(radius_px=halo)  # the frame's window, fixed for its tiles (a tile's own would differ)
+    frame = np.asarray(tech(b, mat, CAM))
+    np.testing.assert_array_equal(frame, np.asarray(sj.Reference(border=border, near_subsamples=2)(b, mat, CAM)))
+    for r0, r1, c0, c1 in [(7, 13, 8, 16), (0, 6, 16, 24)]:  # inside; and at the frame's corner (one shape)
+        a0, a1, b0, b1 = max(r0 - halo, 0), min(r1 + halo, 20), max(c0 - halo, 0), min(c1 + halo, 24)
+        crop = jax_tree_crop(b, a0, a1, b0, b1)
+        tile = np.asarray(tech(crop, mat, CAM, origin=(a0, b0), frame_shape=(20, 24)))
+        # the same arithmetic as the frame's (the goal is 1e-4): exact to rounding
+        assert np.abs(tile[r0 - a0:r1 - a0, c0 - b0:c1 - b0] - frame[r0:r1, c0:c1]).max() <= 1e-10
+    # told another place, the leaving border moves (the renormalised one depends on nothing of the frame)
+    moved = np.asarray(tech(crop, mat, CAM, origin=(a0 + 1, b0), frame_shape=(20, 24)))
+    shift = np.abs(moved[r0 - a0:r1 - a0, c0 - b0:c1 - b0] - frame[r0:r1, c0:c1]).max()
+    assert shift > 1e-6 if border == "leaves" else shift <= 1e-10
+
+
+def test_a_reference_tile_needs_the_frames_window(as_users_run_it):
+    b, mat, *_ = _reference_case("one", h=12, w=12)
+    crop = jax_tree_crop(b, 0, 6, 0, 6)
+    with pytest.raises(ValueError, match="needs the frame's window, radius_px"):
+        sj.reference(crop, mat, CAM, origin=(0, 0), frame_shape=(12, 12))
+    with pytest.raises(ValueError, match="does not lie inside frame_shape"):
+        sj.reference(crop, mat, CAM, radius_px=2, origin=(8, 0), frame_shape=(12, 12))

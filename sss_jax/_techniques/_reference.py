@@ -25,6 +25,7 @@ from ._common import (
     _work_dtype,
     frame_energy_fraction,
 )
+from ._dispatch import check_tile
 
 _THETA_NODES, _THETA_WEIGHTS = np.polynomial.legendre.leggauss(16)
 
@@ -45,14 +46,17 @@ def reference_radius_px(buffers: Buffers, material, camera: Camera, *, energy: f
     return int(max(1, min(cap, extent, math.ceil(radius_mm * ppm_max))))
 
 
-def reference_energy_held(buffers: Buffers, material, camera: Camera, radius_px: int) -> float:
+def reference_energy_held(buffers: Buffers, material, camera: Camera, radius_px: int, *,
+                          frame_shape: tuple[int, int] | None = None) -> float:
     """Host side: the smallest fraction of the widest profile's energy that ``reference`` with window ``radius_px``
     accounts for at any SSS pixel: 1 where the window spans the frame (every offset that lands inside is in the
     window, the rest leaves the frame and is accounted for analytically), else the energy within the disc the window
     holds at the nearest SSS pixel (the light farther away, inside the frame, is missing from the result: the pixel
-    is normalised by what the window saw, as if that light had come from inside it)."""
+    is normalised by what the window saw, as if that light had come from inside it). ``frame_shape``: the whole
+    frame's ``(H, W)`` where ``buffers`` is a tile of it (``None``: the buffers are the frame)."""
     valid = np.asarray(_sss_mask(buffers))
-    if not valid.any() or radius_px >= max(buffers.depth.shape[-2:]) - 1:
+    frame_shape = tuple(buffers.depth.shape[-2:]) if frame_shape is None else tuple(frame_shape)
+    if not valid.any() or radius_px >= max(frame_shape) - 1:
         return 1.0
     depth = np.asarray(buffers.depth, dtype=np.float64)[valid]
     ppm_max = float(camera.focal_px) / (float(np.min(depth)) * float(camera.mm_per_unit))
@@ -69,7 +73,8 @@ from .._errors import ReferenceWindowWarning as ReferenceWindowWarning  # noqa: 
 
 @eqx.filter_jit
 def _reference_impl(buffers: Buffers, material, camera: Camera, radius_px: int, albedo_mode: str,
-                    near_subsamples: int, border: str = "leaves") -> Array:
+                    near_subsamples: int, border: str = "leaves", origin: Array | tuple[int, int] = (0, 0),
+                    frame_shape: tuple[int, int] | None = None) -> Array:
     dtype = _work_dtype(buffers.irradiance.dtype)
     prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
     h, w = buffers.depth.shape
@@ -90,8 +95,11 @@ def _reference_impl(buffers: Buffers, material, camera: Camera, radius_px: int, 
     centre_w = jnp.where(prep.valid[..., None], centre_mass, 0.0)
     num, den = centre_w * e, centre_w
     if border == "leaves":  # the profile's energy beyond the frame leaves: it counts as dark surface (_common)
-        rows, cols = jnp.meshgrid(jnp.arange(h), jnp.arange(w), indexing="ij")
-        leaves = 1 - frame_energy_fraction(cdf, rows, cols, h, w, pixel_mm)
+        # frame coordinates: a tile's border is the frame's, not its own (pixels of the frame beyond the tile are
+        # read from its halo like any other)
+        frame_h, frame_w = (h, w) if frame_shape is None else frame_shape
+        rows, cols = jnp.meshgrid(jnp.arange(h) + origin[0], jnp.arange(w) + origin[1], indexing="ij")
+        leaves = 1 - frame_energy_fraction(cdf, rows, cols, frame_h, frame_w, pixel_mm)
         den = den + jnp.where(prep.valid[..., None], jnp.maximum(leaves, 0.0), 0.0)
 
     k = radius_px
@@ -153,6 +161,8 @@ def reference(
     albedo_mode: str = "post",
     near_subsamples: int = 6,
     border: str = "renormalise",
+    origin: tuple[int, int] = (0, 0),
+    frame_shape: tuple[int, int] | None = None,
 ) -> Float[Array, "H W 3"]:
     """Ground truth: every pixel within ``radius_px`` contributes the exact mass of the profile over its footprint.
 
@@ -167,21 +177,37 @@ def reference(
     cost grows with the window's area.
     ``border="renormalise"`` (the default, as ``burley`` and ``separable``): no energy leaves at the frame (the
     window's weights renormalised); ``"leaves"`` for a surface that really ends at the frame.
+
+    Tiles: ``origin=(row0, col0)`` is this buffer's top-left pixel in the whole frame and ``frame_shape=(H, W)`` the
+    frame's size (``None``: the buffer is the frame). The frame border follows the frame, so a tile cut with a halo
+    of ``radius_px`` pixels on every side (fewer where the frame ends) gives the untiled frame's pixels inside the
+    halo. A tile needs the frame's window (``radius_px``: ``Reference().reach_px`` of the whole frame): the default
+    would be the tile's own, other pixels, so a placed tile without ``radius_px`` is an error.
     """
     _check_border(border)
     _check_albedo_mode(albedo_mode)
     if not isinstance(material, (BurleyMaterial, ProfileMaterial)):
         raise TypeError(f"reference needs a BurleyMaterial or ProfileMaterial, got {type(material).__name__}")
+    h, w = buffers.depth.shape[-2:]
+    origin, frame_shape = check_tile((h, w), origin, frame_shape)
+    placed = origin != (0, 0) or frame_shape != (h, w)
+    if radius_px is None and placed:
+        raise ValueError("reference: a tile of a larger frame needs the frame's window, radius_px (e.g. "
+                         "Reference().reach_px(<the whole frame's buffers>, material, camera)); the default would "
+                         "be this tile's own window: other pixels")
     if radius_px is None:
         radius_px = reference_radius_px(buffers, material, camera)
     if not isinstance(radius_px, (int, np.integer)) or radius_px < 0:
         raise ValueError(f"radius_px must be a non-negative integer, got {radius_px!r}")
     if _is_concrete(buffers, material, camera):
-        held = reference_energy_held(buffers, material, camera, int(radius_px))
+        held = reference_energy_held(buffers, material, camera, int(radius_px), frame_shape=frame_shape)
         if held < 0.999:
             warnings.warn(f"reference: the {radius_px}-px window holds {held:.1%} of the profile's energy at the "
-                          f"nearest SSS pixel (the frame needs {max(buffers.depth.shape[-2:]) - 1} px to hold all of "
+                          f"nearest SSS pixel (the frame needs {max(frame_shape) - 1} px to hold all of "
                           f"it): the result misses the rest; pass a larger radius_px", ReferenceWindowWarning,
                           stacklevel=2)
-    return _reference_impl(buffers, material, camera, int(radius_px), albedo_mode, int(near_subsamples), border)
+    # a tile's origin is traced (the tiles of one shape share one program); the whole frame's program is unchanged
+    tile = {} if not placed else {"origin": jnp.asarray(origin, jnp.int32), "frame_shape": frame_shape}
+    return _reference_impl(buffers, material, camera, int(radius_px), albedo_mode, int(near_subsamples), border,
+                           **tile)
 
