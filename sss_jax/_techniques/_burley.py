@@ -13,7 +13,6 @@ from .._materials import BurleyMaterial
 from .._scene import Buffers, Camera
 from ._burley_gpu import _burley_impl as _burley_impl
 from ._burley_spec import BURLEY_R95, BURLEY_R99, burley_reach_px, needs_truncation
-from ._burley_spec import burley_weight_kernel as _burley_weight_kernel  # noqa: F401  (the spec's, re-exported)
 from ._burley_spec import spiral_rotation as spiral_rotation
 from ._common import (
     MIN_FOOTPRINT_PX,

@@ -21,23 +21,41 @@ from jaxtyping import Array
 
 from .._materials import BurleyMaterial
 from .._scene import Buffers, Camera
-from ._burley_spec import TRUNCATION_ENERGY, frame_rotation, normalise, pixel_planes, sample_term
+from ._burley_spec import (
+    TRUNCATION_ENERGY,
+    fetch_planes,
+    frame_rotation,
+    normalise,
+    pixel_planes,
+    sample_place,
+    sample_weights,
+)
 from ._common import _finish, _prepare, _work_dtype
 
 
 def frame_result(pix: dict, fetch, cos_phi: Array, sin_phi: Array, *, samples: int, truncate: bool, border: str,
-                 weight_channels: int, **kw) -> list[Array]:
+                 weight_channels: int, buffer_shape: tuple[int, int], origin: tuple[int, int],
+                 frame_shape: tuple[int, int], mm_per_unit: Array, interpolation: str) -> list[Array]:
     """One frame's scattered channels (3 planes over the layout's pixels), the spiral turned by ``cos_phi``,
     ``sin_phi``: ``samples`` samples, each channel normalised by its weights (plus, with truncated sampling and
-    ``border="leaves"``, the energy beyond the frame's diagonal, which leaves)."""
+    ``border="leaves"``, the energy beyond the frame's diagonal, which leaves).
+
+    The loop computes each sample's place one iteration ahead and carries it: XLA's CPU backend materialises a
+    loop-carried value once, where a value computed and used in one iteration is recomputed inside every fusion that
+    reads it (the place feeds the gathers, the kernels and the sums of every corner and channel). Same arithmetic."""
+    place = lambda i: sample_place(i, samples, cos_phi, sin_phi, pix, buffer_shape=buffer_shape, origin=origin,
+                                   frame_shape=frame_shape, interpolation=interpolation, truncate=truncate,
+                                   border=border)
     zeros = jnp.zeros_like(pix["z"])
 
     def body(i, acc):
-        num, den = sample_term(i, samples, cos_phi, sin_phi, pix, fetch, truncate=truncate, border=border,
-                               weight_channels=weight_channels, **kw)
-        return tuple(a + b for a, b in zip(acc[0], num)), tuple(a + b for a, b in zip(acc[1], den))
+        num_acc, den_acc, here = acc
+        ahead = place(jnp.minimum(i + 1, samples - 1))
+        num, den = sample_weights(here, pix, fetch, buffer_shape=buffer_shape, mm_per_unit=mm_per_unit,
+                                  interpolation=interpolation, weight_channels=weight_channels, border=border)
+        return (tuple(a + b for a, b in zip(num_acc, num)), tuple(a + b for a, b in zip(den_acc, den)), ahead)
 
-    num, den = jax.lax.fori_loop(0, samples, body, ((zeros,) * 3, (zeros,) * weight_channels))
+    num, den, _ = jax.lax.fori_loop(0, samples, body, ((zeros,) * 3, (zeros,) * weight_channels, place(0)))
     den = list(den)
     if truncate and border == "leaves":
         den = [den[c] + samples * pix["leave"][c] for c in range(weight_channels)]
@@ -80,8 +98,8 @@ def _burley_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, sam
     pix, active = pixel_planes(buffers, material, camera, prep, min_footprint_px=min_footprint_px,
                                weight_channels=weight_channels, dtype=dtype, origin=tuple(origin),
                                frame_shape=frame_shape)
-    packed = jnp.stack([*pix["e"], pix["z"]], axis=-1)  # (N, 4): one gather per corner fetches all four
-    fetch = lambda idx: list(jnp.moveaxis(jnp.take(packed, idx, axis=0), -1, 0))
+    planes = fetch_planes(pix, (h, w))  # the whole buffer's, before compaction; the indices are in range
+    fetch = lambda idx: [jnp.take(plane, idx, mode="clip") for plane in planes]
     if capacity is not None:  # cost follows the scene: only the active pixels (unused slots past the image)
         idx = jnp.nonzero(active.reshape(-1), size=capacity, fill_value=h * w)[0].astype(jnp.int32)
         take = lambda a: jnp.take(a, idx, axis=0, mode="fill", fill_value=0)

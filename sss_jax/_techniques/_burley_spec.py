@@ -38,13 +38,22 @@ BURLEY_R95 = float(np.asarray(burley_inverse_ccdf(np.float64(0.05), np.float64(1
 TRUNCATION_ENERGY = 1e-4
 
 
-def burley_weight_kernel(x: Array) -> Array:
-    """``(exp(-x) + exp(-x/3)) / x``: the Burley profile at ``r = x d`` up to the factor ``8 pi d^2`` that cancels in
-    the per-channel normalisation. ``x = inf`` (d = 0 or no overlap) gives 0; x is never 0 here (r > 0)."""
-    finite = jnp.isfinite(x) & (x > 0)
-    xs = jnp.where(finite, x, 1.0)
-    e3 = jnp.exp(-xs / 3)  # exp(-x) = e3^3: one exponential, not two
-    return jnp.where(finite, e3 * (e3 * e3 + 1) / xs, 0.0)
+def burley_weight(r: Array, inv_r: Array, d: Array, inv_d: Array, ok_d: Array, scale: Array) -> Array:
+    """``scale (exp(-x) + exp(-x/3)) / x`` at ``x = r / d``: the Burley profile at ``r`` up to the factor
+    ``8 pi d^2`` that cancels in the per-channel normalisation, times ``scale``, written as
+    ``scale d (e3 + e3^3) / r`` with ``e3 = exp(-r / (3 d))``: one exponential and no division per channel (``inv_r``
+    = 1/r is the caller's, shared by the channels; 0 where r = 0, and ``d = 0`` gives 0: no NaN, finite gradients).
+    ``ok_d`` (d > 0) masks the square, which keeps XLA's simplifier from turning ``e3 * e3`` into a second
+    exponential."""
+    e3 = jnp.exp(-(r * inv_d) / 3)
+    e3_squared = jnp.where(ok_d, e3, 0.0) * e3
+    return scale * d * e3 * (1 + e3_squared) * inv_r
+
+
+def _safe_reciprocal(x: Array) -> Array:
+    """1/x, 0 where x is not > 0 (double where: finite gradients)."""
+    pos = x > 0
+    return jnp.where(pos, 1.0 / jnp.where(pos, x, 1.0), 0.0)
 
 
 def _hash_u32(x: Array) -> Array:
@@ -118,7 +127,7 @@ def pixel_planes(buffers, material, camera, prep, *, min_footprint_px: float, we
 
     ``row``/``col``: frame coordinates (floats); ``frow``/``fcol``: the same as integers (the rotation hash);
     ``e`` (3 planes), ``z`` (0 where the pixel takes no part), ``dmax`` (widest d, mm), ``ppm`` (px per mm),
-    ``inside`` (the d_max profile's energy within the frame's diagonal), ``inv_d``/``ok_d`` and ``leave`` (the energy
+    ``inside`` (the d_max profile's energy within the frame's diagonal), ``d``/``inv_d``/``ok_d`` and ``leave`` (the energy
     of each weight channel's profile beyond the diagonal, per sample in the weights' units, for ``border="leaves"``
     with truncated sampling) per weight channel."""
     d_table = checked(material.d_mm.astype(dtype), "d_mm")
@@ -150,10 +159,120 @@ def pixel_planes(buffers, material, camera, prep, *, min_footprint_px: float, we
     pix = {"row": flat(rows).astype(dtype), "col": flat(cols).astype(dtype), "frow": flat(rows), "fcol": flat(cols),
            "e": [flat(prep.irradiance[..., c]) for c in range(3)], "z": flat(prep.depth), "dmax": flat(d_max),
            "ppm": flat(ppm), "inside": flat(inside),
+           "d": [flat(d_w[..., c]) for c in range(weight_channels)],
            "inv_d": [flat(inv_d[..., c]) for c in range(weight_channels)],
            "ok_d": [flat(ok_d[..., c]) for c in range(weight_channels)],
            "leave": [flat(leave[..., c]) for c in range(weight_channels)]}
     return pix, active
+
+
+# The planes ``fetch`` reads are the buffer's padded by this many pixels of no surface (depth 0) on every side: a
+# bilinear footprint's top-left corner is clipped into [-FETCH_PAD, h] (then both rows of the footprint lie outside
+# the buffer, or the clip did not move it), so a corner outside the buffer reads "no surface" without a bounds test.
+FETCH_PAD = 2
+
+
+def fetch_planes(pix: dict, buffer_shape: tuple[int, int]) -> list[Array]:
+    """R, G, B and depth of the whole buffer (``pix`` of every pixel, before any compaction), padded by
+    ``FETCH_PAD`` pixels of no surface and flattened: what ``fetch`` reads at the indices ``sample_place`` gives.
+    Separate planes, not one (N, 4) array: on XLA's CPU backend four scalar gathers cost about a quarter of one
+    gather of 4-wide rows."""
+    h, w = buffer_shape
+    return [jnp.pad(plane.reshape(h, w), FETCH_PAD).reshape(-1) for plane in (*pix["e"], pix["z"])]
+
+
+def sample_place(i: Array | int, samples: int, cos_phi: Array, sin_phi: Array, pix: dict, *,
+                 buffer_shape: tuple[int, int], origin: tuple[int, int], frame_shape: tuple[int, int],
+                 interpolation: str, truncate: bool, border: str, inverse_ccdf=unit_inverse_ccdf) -> dict:
+    """Where sample ``i`` of ``samples`` lands for each pixel: the first half of ``sample_term``.
+
+    The sample's radius is the stratified inverse CDF of the pixel's widest-channel profile (truncated at the frame's
+    diagonal where ``truncate``), its angle the golden-angle spiral's turned by the pixel's rotation (``cos_phi``,
+    ``sin_phi``); it is placed in mm on the surface and projected with the pixel's px/mm. Returns ``rho`` (the radius
+    in units of d_max: one scalar per sample unless ``truncate``), ``inv_pdf`` (1 / pdf of that radius up to the
+    per-pixel factor 8 pi d_max^2), ``idx`` (the fetch index, in ``fetch_planes``' padded layout, of the nearest pixel
+    or of the bilinear footprint's top-left corner), ``fx``/``fy`` (bilinear: the position within the footprint) and,
+    with ``border="leaves"``, ``in_frame`` (the part of the fetch inside the frame)."""
+    dtype = pix["z"].dtype
+    u, theta = spiral_sample(jnp.asarray(i).astype(dtype), samples)
+    if truncate:
+        rho = unit_radius_for_cdf(u * pix["inside"], inverse_ccdf)  # radius in units of d_max, per pixel
+    else:  # the tail beyond the diagonal is negligible (``needs_truncation``): one scalar radius per sample
+        rho = inverse_ccdf(1 - u)
+    off = rho * pix["dmax"] * pix["ppm"]
+    cos_t = jnp.cos(theta) * cos_phi - jnp.sin(theta) * sin_phi  # the spiral turned by the pixel's angle
+    sin_t = jnp.sin(theta) * cos_phi + jnp.cos(theta) * sin_phi
+    place = {"rho": rho, "inv_pdf": rho / (jnp.exp(-rho) + jnp.exp(-rho / 3))}
+    height, width = frame_shape
+    h, w = buffer_shape
+    # frame coordinates; clip first: huge or NaN offsets must not overflow the integer cast
+    y = jnp.clip(jnp.where(jnp.isnan(off), -4.0, pix["row"] + off * sin_t), -4.0, height + 3.0)
+    x = jnp.clip(jnp.where(jnp.isnan(off), -4.0, pix["col"] + off * cos_t), -4.0, width + 3.0)
+    row0, col0 = origin
+    padded_width = w + 2 * FETCH_PAD
+    index = lambda ly, lx: (ly + FETCH_PAD).astype(jnp.int32) * padded_width + (lx + FETCH_PAD).astype(jnp.int32)
+    rows_in = lambda yi: (yi >= 0) & (yi <= height - 1)
+    cols_in = lambda xi: (xi >= 0) & (xi <= width - 1)
+    if interpolation == "nearest":
+        yi, xi = jnp.round(y), jnp.round(x)
+        place["idx"] = index(jnp.clip(yi - row0, -1, h), jnp.clip(xi - col0, -1, w))
+        in_frame = jnp.where(rows_in(yi) & cols_in(xi), 1.0, 0.0)
+    else:
+        y0, x0 = jnp.floor(y), jnp.floor(x)
+        place["fy"], place["fx"] = fy, fx = y - y0, x - x0
+        place["idx"] = index(jnp.clip(y0 - row0, -FETCH_PAD, h), jnp.clip(x0 - col0, -FETCH_PAD, w))
+        # the four corners' weights are products of a row's and a column's: so is their sum over the frame
+        in_frame = ((jnp.where(rows_in(y0), 1 - fy, 0.0) + jnp.where(rows_in(y0 + 1), fy, 0.0))
+                    * (jnp.where(cols_in(x0), 1 - fx, 0.0) + jnp.where(cols_in(x0 + 1), fx, 0.0)))
+    if border == "leaves":
+        place["in_frame"] = in_frame
+    return place
+
+
+def sample_weights(place: dict, pix: dict, fetch, *, buffer_shape: tuple[int, int], mm_per_unit: Array,
+                   interpolation: str, weight_channels: int, border: str) -> tuple[list[Array], list[Array]]:
+    """What a sample at ``place`` (``sample_place``) adds to each pixel's numerator (3 channels) and denominator
+    (``weight_channels``): the second half of ``sample_term``.
+
+    Each pixel q a bilinear (or nearest) fetch reads is its own point on the surface: it adds
+    ``frac_q R_c(sqrt(r^2 + dz^2)) / pdf(r)`` to the channel's denominator and that times ``e_q`` to its numerator
+    (no interpolated depth across a step). Pixels without a surface, and pixels of the frame outside this buffer (the
+    padding of ``fetch_planes``: depth 0), add nothing; with ``border="leaves"`` the part of the fetch outside the
+    frame adds the weight of dark surface at the pixel's own depth (``R_c(r) / pdf(r)``) to the denominator only:
+    that light leaves the frame."""
+    inv_pdf = place["inv_pdf"]
+    r_mm = place["rho"] * pix["dmax"]
+    idx = place["idx"]
+    if interpolation == "nearest":
+        corners = [(idx, None)]
+    else:
+        fx, fy = place["fx"], place["fy"]
+        step = buffer_shape[1] + 2 * FETCH_PAD  # one row down in the padded planes
+        corners = [(idx, (1 - fy) * (1 - fx)), (idx + 1, (1 - fy) * fx), (idx + step, fy * (1 - fx)),
+                   (idx + step + 1, fy * fx)]
+    num, den = [0.0] * 3, [0.0] * weight_channels
+    for idx_q, corner_weight in corners:
+        *eq, zq = fetch(idx_q)
+        ok = zq > 0  # validity travels in the depth (0 where a pixel takes no part, and in the padding)
+        v_q = jnp.where(ok, 1.0 if corner_weight is None else corner_weight, 0.0)
+        dz_mm = jnp.where(ok, (zq - pix["z"]) * mm_per_unit, 0.0)
+        r3 = _safe_sqrt(r_mm * r_mm + dz_mm * dz_mm)
+        inv_r3 = _safe_reciprocal(r3)
+        base = v_q * inv_pdf
+        wgt = [burley_weight(r3, inv_r3, pix["d"][c], pix["inv_d"][c], pix["ok_d"][c], base)
+               for c in range(weight_channels)]
+        num = [num[c] + wgt[min(c, weight_channels - 1)] * eq[c] for c in range(3)]
+        den = [den[c] + wgt[c] for c in range(weight_channels)]
+    if border == "leaves":
+        out = 1 - place["in_frame"]
+        if weight_channels == 1:  # grey: the weight at dz = 0 is R/pdf of the sampled profile itself, 1
+            den[0] = den[0] + out * pix["ok_d"][0]
+        else:
+            out_w = out * inv_pdf
+            inv_r = _safe_reciprocal(r_mm)
+            den = [den[c] + burley_weight(r_mm, inv_r, pix["d"][c], pix["inv_d"][c], pix["ok_d"][c], out_w)
+                   for c in range(weight_channels)]
+    return num, den
 
 
 def sample_term(i: Array | int, samples: int, cos_phi: Array, sin_phi: Array, pix: dict, fetch, *,
@@ -161,72 +280,17 @@ def sample_term(i: Array | int, samples: int, cos_phi: Array, sin_phi: Array, pi
                 mm_per_unit: Array, interpolation: str, weight_channels: int, truncate: bool, border: str,
                 inverse_ccdf=unit_inverse_ccdf) -> tuple[list[Array], list[Array]]:
     """What sample ``i`` of ``samples`` adds to each pixel's numerator (3 channels) and denominator
-    (``weight_channels``): the one definition of the pass (Christensen & Burley 2015, screen space).
+    (``weight_channels``): the one definition of the pass (Christensen & Burley 2015, screen space), in two halves:
+    where the sample lands (``sample_place``) and what it weighs there (``sample_weights``).
 
-    The sample's radius is the stratified inverse CDF of the pixel's widest-channel profile (truncated at the frame's
-    diagonal where ``truncate``), its angle the golden-angle spiral's turned by the pixel's rotation (``cos_phi``,
-    ``sin_phi``); it is placed in mm on the surface and projected with the pixel's px/mm. Each pixel q a bilinear
-    (or nearest) fetch reads is its own point on the surface: it adds ``frac_q R_c(sqrt(r^2 + dz^2)) / pdf(r)`` to
-    the channel's denominator and that times ``e_q`` to its numerator (no interpolated depth across a step). Pixels
-    without a surface, and pixels of the frame outside this buffer, add nothing; with ``border="leaves"`` the part of
-    the fetch outside the frame adds the weight of dark surface at the pixel's own depth (``R_c(r) / pdf(r)``) to
-    the denominator only: that light leaves the frame.
-
-    ``pix``: the planes of ``pixel_planes`` for this layout's pixels; ``fetch(idx)``: R, G, B and depth at flat
-    buffer index ``idx`` (row-major, clipped into the buffer). Layout-free (a frame, a compacted set or a Pallas
-    block of pixels)."""
-    dtype = pix["z"].dtype
-    u, theta = spiral_sample(jnp.asarray(i).astype(dtype), samples)
-    if truncate:
-        rho = unit_radius_for_cdf(u * pix["inside"], inverse_ccdf)  # radius in units of d_max, per pixel
-    else:  # the tail beyond the diagonal is negligible (``needs_truncation``): one scalar radius per sample
-        rho = inverse_ccdf(1 - u)
-    r_mm = rho * pix["dmax"]
-    off = r_mm * pix["ppm"]
-    cos_t = jnp.cos(theta) * cos_phi - jnp.sin(theta) * sin_phi  # the spiral turned by the pixel's angle
-    sin_t = jnp.sin(theta) * cos_phi + jnp.cos(theta) * sin_phi
-    # 1 / pdf of this sample (area density of the d_max profile at r), up to the per-pixel factor 8 pi d_max^2
-    inv_pdf = rho / (jnp.exp(-rho) + jnp.exp(-rho / 3))
-    height, width = frame_shape
-    h, w = buffer_shape
-    # frame coordinates; clip first: huge or NaN offsets must not overflow the integer cast
-    y = jnp.clip(jnp.where(jnp.isnan(off), -4.0, pix["row"] + off * sin_t), -4.0, height + 3.0)
-    x = jnp.clip(jnp.where(jnp.isnan(off), -4.0, pix["col"] + off * cos_t), -4.0, width + 3.0)
-    if interpolation == "nearest":
-        corners = [(jnp.round(y), jnp.round(x), None)]
-    else:
-        x0, y0 = jnp.floor(x), jnp.floor(y)
-        fx, fy = x - x0, y - y0
-        corners = [(y0, x0, (1 - fy) * (1 - fx)), (y0, x0 + 1, (1 - fy) * fx), (y0 + 1, x0, fy * (1 - fx)),
-                   (y0 + 1, x0 + 1, fy * fx)]
-    num, den = [0.0] * 3, [0.0] * weight_channels
-    in_frame = 0.0
-    row0, col0 = origin
-    for yi, xi, corner_weight in corners:
-        cw = 1.0 if corner_weight is None else corner_weight
-        framed = (xi >= 0) & (xi <= width - 1) & (yi >= 0) & (yi <= height - 1)
-        ly, lx = yi - row0, xi - col0
-        held = (lx >= 0) & (lx <= w - 1) & (ly >= 0) & (ly <= h - 1)
-        idx = jnp.clip(ly, 0, h - 1).astype(jnp.int32) * w + jnp.clip(lx, 0, w - 1).astype(jnp.int32)
-        *eq, zq = fetch(idx)
-        in_frame = in_frame + jnp.where(framed, cw, 0.0)
-        ok = held & framed & (zq > 0)  # validity travels in the depth (0 where a pixel takes no part)
-        v_q = jnp.where(ok, cw, 0.0)
-        dz_mm = jnp.where(ok, (zq - pix["z"]) * mm_per_unit, 0.0)
-        r3 = _safe_sqrt(r_mm * r_mm + dz_mm * dz_mm)
-        base = v_q * inv_pdf
-        wgt = [base * burley_weight_kernel(jnp.where(pix["ok_d"][c], r3 * pix["inv_d"][c], jnp.inf))
-               for c in range(weight_channels)]
-        num = [num[c] + wgt[min(c, weight_channels - 1)] * eq[c] for c in range(3)]
-        den = [den[c] + wgt[c] for c in range(weight_channels)]
-    if border == "leaves":
-        if weight_channels == 1:  # grey: the weight at dz = 0 is R/pdf of the sampled profile itself, 1
-            den[0] = den[0] + (1 - in_frame) * pix["ok_d"][0]
-        else:
-            out_w = (1 - in_frame) * inv_pdf
-            den = [den[c] + out_w * burley_weight_kernel(jnp.where(pix["ok_d"][c], r_mm * pix["inv_d"][c], jnp.inf))
-                   for c in range(weight_channels)]
-    return num, den
+    ``pix``: the planes of ``pixel_planes`` for this layout's pixels; ``fetch(idx)``: R, G, B and depth at index
+    ``idx`` of ``fetch_planes`` (the buffer padded by pixels of no surface). Layout-free (a frame, a compacted set or
+    a Pallas block of pixels)."""
+    place = sample_place(i, samples, cos_phi, sin_phi, pix, buffer_shape=buffer_shape, origin=origin,
+                         frame_shape=frame_shape, interpolation=interpolation, truncate=truncate, border=border,
+                         inverse_ccdf=inverse_ccdf)
+    return sample_weights(place, pix, fetch, buffer_shape=buffer_shape, mm_per_unit=mm_per_unit,
+                          interpolation=interpolation, weight_channels=weight_channels, border=border)
 
 
 def normalise(num: list[Array], den: list[Array], e: list[Array]) -> list[Array]:

@@ -26,7 +26,7 @@ from jaxtyping import Array
 from .._materials import BurleyMaterial
 from .._scene import Buffers, Camera
 from ._burley_gpu import frame_result, frames_mean, needs_truncation_on_device
-from ._burley_spec import frame_rotation, pixel_planes
+from ._burley_spec import fetch_planes, frame_rotation, pixel_planes
 from ._common import _finish, _prepare, _work_dtype
 from ._separable_gpu import gather_pass, pass_result, pass_tables
 from ._separable_spec import cell_edge
@@ -157,10 +157,10 @@ def _burley_forward(pix, active, buffer_shape, origin, frame_shape, samples, mm_
     total = -(-n_pix // block) * block
     dtype = pix["z"].dtype
     flat = lambda a, fill=0: _padded(a, total, fill)
-    sources = [flat(pix["e"][c]) for c in range(3)] + [flat(pix["z"])]
+    sources = fetch_planes(pix, buffer_shape)  # whole (padded) planes: every sample's fetch lies in them
     wc = weight_channels
     per_pixel = ([flat(pix[k]) for k in _PIXEL_KEYS] + [flat(pix["e"][c]) for c in range(3)]
-                 + [flat(pix["inv_d"][c]) for c in range(wc)]
+                 + [flat(pix["d"][c]) for c in range(wc)] + [flat(pix["inv_d"][c]) for c in range(wc)]
                  + [flat(pix["ok_d"][c].astype(jnp.int32)) for c in range(wc)]
                  + [flat(pix["leave"][c]) for c in range(wc)]
                  + [flat(active.astype(jnp.int32))])
@@ -178,12 +178,12 @@ def _burley_forward(pix, active, buffer_shape, origin, frame_shape, samples, mm_
         def run():
             pixel = {k: blocks[j][...] for j, k in enumerate(_PIXEL_KEYS)}
             pixel["e"] = centre
-            pixel["inv_d"] = [blocks[n_keys + 3 + c][...] for c in range(wc)]
-            pixel["ok_d"] = [blocks[n_keys + 3 + wc + c][...] != 0 for c in range(wc)]
-            pixel["leave"] = [blocks[n_keys + 3 + 2 * wc + c][...] for c in range(wc)]
+            pixel["d"] = [blocks[n_keys + 3 + c][...] for c in range(wc)]
+            pixel["inv_d"] = [blocks[n_keys + 3 + wc + c][...] for c in range(wc)]
+            pixel["ok_d"] = [blocks[n_keys + 3 + 2 * wc + c][...] != 0 for c in range(wc)]
+            pixel["leave"] = [blocks[n_keys + 3 + 3 * wc + c][...] for c in range(wc)]
 
             def fetch(idx):
-                idx = jnp.clip(idx, 0, total - 1)
                 return [s0[idx], s1[idx], s2[idx], sz[idx]]
 
             # the spec's frame: the XLA layouts' own function, run on this block's pixels
@@ -220,8 +220,8 @@ def _burley_fwd(pix, active, buffer_shape, origin, frame_shape, samples, mm_per_
 def _burley_bwd(buffer_shape, origin, frame_shape, samples, interpolation, weight_channels, truncate, border, block,
                 residuals, cotangent):
     def xla(pix, active, mm_per_unit):  # the gather layout of the same frame: its gradient is the forward's
-        packed = jnp.stack([*pix["e"], pix["z"]], axis=-1)
-        fetch = lambda idx: list(jnp.moveaxis(jnp.take(packed, idx, axis=0), -1, 0))
+        planes = fetch_planes(pix, buffer_shape)
+        fetch = lambda idx: [jnp.take(plane, idx, mode="clip") for plane in planes]
         return frame_result(pix, fetch, pix["cos_phi"], pix["sin_phi"], samples=samples, truncate=truncate,
                             border=border, weight_channels=weight_channels, buffer_shape=buffer_shape, origin=origin,
                             frame_shape=frame_shape, mm_per_unit=mm_per_unit, interpolation=interpolation)
