@@ -1,7 +1,7 @@
 """The advisor: the cheapest technique and sample count whose measured error stays under a colour-difference budget.
 
-Every candidate (local shading, ``separable`` at several tap counts, ``burley`` at several sample counts) is run on
-the scene (the demo scene with every object made of the material, or the caller's buffers), timed on this machine
+Every candidate (local shading, ``separable`` at several tap counts, ``burley`` at several sample counts, or the
+techniques the caller names, the engines' passes among them, with the options given) is run on the scene (the demo scene with every object made of the material, or the caller's buffers), timed on this machine
 (median and interquartile range of repeated runs after a compile run) and compared with ``reference``: the error is
 the mean CIEDE2000 over the SSS pixels (colour-science, on the host, linear sRGB at exposure 0). The choice is the
 fastest candidate whose ΔE is within the budget; where the fastest one's interquartile range of times overlaps
@@ -14,7 +14,8 @@ matters as much as the material: ``scene_scale`` multiplies the size of a scene 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -23,15 +24,18 @@ import numpy as np
 from ._timing import run_times
 from ._materials import BurleyMaterial
 from ._scene import Buffers, Camera, demo_scene
-from ._techniques import burley, reference, separable
+from ._sweep import changed_options, technique_runs
+from ._techniques import AbstractTechnique, reference
 
 __all__ = [
     "DEFAULT_CANDIDATES",
+    "DEFAULT_COUNTS",
     "Advice",
     "Candidate",
     "advise",
     "choose",
     "known_materials",
+    "candidate_runs",
     "measure_candidates",
     "resolve_material",
 ]
@@ -40,20 +44,24 @@ DEFAULT_CANDIDATES: tuple[tuple[str, int | None], ...] = (
     ("local", None), ("separable", 5), ("separable", 9), ("separable", 17), ("separable", 25),
     ("burley", 4), ("burley", 8), ("burley", 16), ("burley", 32), ("burley", 64),
 )
+# the counts a named technique is weighed at, by its count option (a technique without one is weighed once)
+DEFAULT_COUNTS: dict[str, tuple[int, ...]] = {"taps": (5, 9, 17, 25), "samples": (4, 8, 16, 32, 64)}
 
 
 @dataclasses.dataclass(frozen=True)
 class Candidate:
-    technique: str  # "local" (albedo * irradiance, no scattering), "separable" or "burley"
+    technique: str  # "local" (albedo * irradiance, no scattering) or a technique's registry name
     count: int | None  # taps or samples
     ms: float  # median time per frame on this machine
     delta_e: float  # mean CIEDE2000 against the reference over SSS pixels
     ms_low: float | None = None  # the timings' 25th percentile (None: one timing, no spread known)
     ms_high: float | None = None  # their 75th percentile
+    options: dict = dataclasses.field(default_factory=dict)  # the technique's options that differ from its defaults
 
     @property
     def label(self) -> str:
-        return self.technique if self.count is None else f"{self.technique} {self.count}"
+        return " ".join([self.technique] + ([str(self.count)] if self.count is not None else [])
+                        + [f"{k}={v}" for k, v in self.options.items()])
 
     @property
     def interval(self) -> tuple[float, float]:
@@ -84,14 +92,15 @@ class Advice:
         return [c for c in self.candidates if c.technique != "local" and c.delta_e > local[0].delta_e]
 
     def table(self) -> str:
-        lines = [f"{'candidate':14s} {'ms/frame':>10s} {'(25-75%)':>15s} {'mean dE2000':>12s}  within budget"]
+        width = max([14] + [len(c.label) for c in self.candidates])
+        lines = [f"{'candidate':{width}s} {'ms/frame':>10s} {'(25-75%)':>15s} {'mean dE2000':>12s}  within budget"]
         worse = self.worse_than_local
         for c in sorted(self.candidates, key=lambda c: c.ms):
             mark = "yes" if c.delta_e <= self.max_delta_e else "no"
             pick = "  <- choice" if c == self.choice else ""
             flag = "  (worse than local shading)" if c in worse else ""
             lo, hi = c.interval
-            lines.append(f"{c.label:14s} {c.ms:10.2f} {f'{lo:.2f}-{hi:.2f}':>15s} {c.delta_e:12.3f}  "
+            lines.append(f"{c.label:{width}s} {c.ms:10.2f} {f'{lo:.2f}-{hi:.2f}':>15s} {c.delta_e:12.3f}  "
                          f"{mark}{pick}{flag}")
         tail = [self.reason]
         if worse:
@@ -102,7 +111,8 @@ class Advice:
     def to_json(self) -> dict:
         as_dict = lambda c: None if c is None else {"technique": c.technique, "count": c.count, "ms": c.ms,
                                                         "ms_low": c.interval[0], "ms_high": c.interval[1],
-                                                        "delta_e": c.delta_e}
+                                                        "delta_e": c.delta_e, "options": dict(c.options),
+                                                        "label": c.label}
         return {"material": self.material, "max_delta_e": self.max_delta_e, "choice": as_dict(self.choice),
                 "candidates": [as_dict(c) for c in self.candidates], "reason": self.reason, "against": self.against,
                 "worse_than_local_shading": [c.label for c in self.worse_than_local]}
@@ -153,26 +163,66 @@ def _scene(size: tuple[int, int], scene_scale: float) -> tuple[Buffers, Camera]:
     return buffers, cam
 
 
+def candidate_runs(*, techniques: Sequence[str | AbstractTechnique] | None = None,
+                   technique_options: Mapping[str, Mapping[str, Any]] | None = None,
+                   candidates: Sequence[tuple[str | AbstractTechnique, int | None]] | None = None
+                   ) -> list[tuple[str, AbstractTechnique | None]]:
+    """``(technique name, object)`` per candidate, local shading first (object None).
+
+    ``candidates``: ``(name or object, count)`` pairs (``("local", None)`` is local shading); a name is built from
+    the registry with ``technique_options[name]`` and the count as its count option. ``techniques``: names (or
+    objects) instead, each weighed at ``DEFAULT_COUNTS`` of its count option, or at the counts given in its options
+    (``{"burley": {"samples": (8, 32)}}``), or once; local shading is added. Default: ``DEFAULT_CANDIDATES``."""
+    from ._techniques import get_technique
+
+    options = technique_options or {}
+    if techniques is not None:
+        if candidates is not None:
+            raise ValueError("give techniques or candidates, not both")
+        return [("local", None)] + [(t.name, t) for t in technique_runs(techniques, options, DEFAULT_COUNTS)]
+    out: list[tuple[str, AbstractTechnique | None]] = []
+    for tech, n in (DEFAULT_CANDIDATES if candidates is None else candidates):
+        if isinstance(tech, AbstractTechnique):
+            t = tech if n is None or tech.count_option is None else tech.replace(**{tech.count_option: n})
+            out.append((t.name, t))
+            continue
+        if tech == "local":
+            out.append(("local", None))
+            continue
+        try:
+            cls = get_technique(tech)
+        except ValueError as exc:
+            raise ValueError(f"unknown candidate technique {tech!r}; {exc}") from None
+        count = {} if n is None or cls.count_option is None else {cls.count_option: n}
+        out.append((cls.name, cls(**{**options.get(cls.name, {}), **count})))
+    return out
+
+
 def measure_candidates(material: BurleyMaterial, *, buffers: Buffers | None = None, camera: Camera | None = None,
                        size: tuple[int, int] = (72, 96), scene_scale: float = 1.0,
-                       candidates: Sequence[tuple[str, int | None]] = DEFAULT_CANDIDATES, repeats: int = 5,
-                       progress: Callable[[str], None] | None = None,
+                       candidates: Sequence[tuple[str | AbstractTechnique, int | None]] | None = None,
+                       repeats: int = 5, progress: Callable[[str], None] | None = None,
                        timer: Callable[[Callable[[], jax.Array], int], list[float]] = time_ms,
-                       truth=None) -> list[Candidate]:
+                       truth=None, techniques: Sequence[str | AbstractTechnique] | None = None,
+                       technique_options: Mapping[str, Mapping[str, Any]] | None = None) -> list[Candidate]:
     """Time (median and interquartile range of ``repeats`` runs) and ΔE2000 (against ``reference``, or against
     ``truth``, an ``(H, W, 3)`` offline render of the given buffers' view, when given) of each candidate on the
     scene; host-side ΔE via colour-science. ``timer(fn, repeats)`` returns the timings in ms (``time_ms``; tests
-    inject their own)."""
+    inject their own). The candidates: ``candidate_runs(techniques=, technique_options=, candidates=)``."""
     from ._metrics import delta_e_2000
     from ._techniques._common import _sss_mask
 
     say = progress or (lambda m: None)
+    runs = candidate_runs(techniques=techniques, technique_options=technique_options, candidates=candidates)
     if (buffers is None) != (camera is None):
         raise ValueError("pass both buffers and camera, or neither (the demo scene)")
     if buffers is None:
         buffers, camera = _scene(size, scene_scale)
     if not scene_scale > 0:
         raise ValueError(f"scene_scale must be > 0, got {scene_scale!r}")
+    for name, t in runs:
+        if t is not None and not t.takes(material):
+            raise ValueError(f"{name} takes no {type(material).__name__} (the advisor's material): leave it out")
     mask = np.asarray(_sss_mask(buffers))
     if not mask.any():
         raise ValueError("the scene has no SSS pixels to measure")
@@ -183,25 +233,23 @@ def measure_candidates(material: BurleyMaterial, *, buffers: Buffers | None = No
                              "view, (H, W, 3)")
     else:
         say(f"reference ({buffers.depth.shape[1]}x{buffers.depth.shape[0]}) ...")
-        ref = np.asarray(reference(buffers, material, camera))
+        ref = np.asarray(reference(buffers, material, camera, **dict((technique_options or {}).get("reference", {}))))
     albedo = np.asarray(buffers.albedo if buffers.albedo is not None else
                         np.broadcast_to(np.asarray(material.albedo).reshape(-1, 3)[0], ref.shape))
     local_fn = jax.jit(lambda e, m, a: jnp.where(m[..., None], a * e, e))
-    runs: dict[str, Callable[[int | None], Callable[[], jax.Array]]] = {
-        "local": lambda n: lambda: local_fn(buffers.irradiance, jnp.asarray(mask), jnp.asarray(albedo)),
-        "separable": lambda n: lambda: separable(buffers, material, camera, taps=n),
-        "burley": lambda n: lambda: burley(buffers, material, camera, samples=n),
-    }
     out = []
-    for i, (tech, n) in enumerate(candidates):
-        if tech not in runs:
-            raise ValueError(f"unknown candidate technique {tech!r}; valid: {', '.join(runs)}")
-        say(f"[{i + 1}/{len(candidates)}] {tech} {n or ''}")
-        fn = runs[tech](n)
+    for i, (name, t) in enumerate(runs):
+        count = None if t is None or t.count_option is None else int(getattr(t, t.count_option))
+        options = {} if t is None else changed_options(t)
+        say(f"[{i + 1}/{len(runs)}] {Candidate(name, count, 0.0, 0.0, options=options).label}")
+        if t is None:
+            fn = lambda: local_fn(buffers.irradiance, jnp.asarray(mask), jnp.asarray(albedo))  # noqa: E731
+        else:
+            fn = lambda t=t: t(buffers, material, camera)  # noqa: E731
         times = np.asarray(timer(fn, repeats), np.float64)
         de = delta_e_2000(np.asarray(fn()), ref, mask=mask)["mean"]
         low, median, high = (round(float(v), 3) for v in np.percentile(times, [25, 50, 75]))
-        out.append(Candidate(tech, n, median, round(float(de), 4), low, high))
+        out.append(Candidate(name, count, median, round(float(de), 4), low, high, options=options))
     return out
 
 
@@ -245,9 +293,11 @@ def choose(candidates: Sequence[Candidate], max_delta_e: float) -> tuple[Candida
 
 def advise(material: str | BurleyMaterial, *, max_delta_e: float = 1.0, buffers: Buffers | None = None,
            camera: Camera | None = None, size: tuple[int, int] = (72, 96), scene_scale: float = 1.0,
-           candidates: Sequence[tuple[str, int | None]] = DEFAULT_CANDIDATES, repeats: int = 5,
+           candidates: Sequence[tuple[str | AbstractTechnique, int | None]] | None = None, repeats: int = 5,
            progress: Callable[[str], None] | None = None,
-           measure: Callable[..., list[Candidate]] | None = None, truth=None) -> Advice:
+           measure: Callable[..., list[Candidate]] | None = None, truth=None,
+           techniques: Sequence[str | AbstractTechnique] | None = None,
+           technique_options: Mapping[str, Mapping[str, Any]] | None = None) -> Advice:
     """Measure the candidates for ``material`` on the scene and pick the cheapest within ``max_delta_e``.
 
     ``material``: a demo material name (``sss_jax._demo.DEMO_MATERIALS``), a preset name or file, or a
@@ -256,6 +306,10 @@ def advise(material: str | BurleyMaterial, *, max_delta_e: float = 1.0, buffers:
     (same keywords as ``measure_candidates``; tests stub it). ``truth``: an offline render of ``buffers``' view,
     ``(H, W, 3)``: the errors are then against it, not the reference. Local shading is the floor: every candidate
     doing worse than it is flagged (``Advice.worse_than_local``, in the table and the JSON).
+    ``techniques``: the techniques to weigh (registry names, the engines' passes among them, or technique objects)
+    instead of the default candidates, each at ``DEFAULT_COUNTS`` of its count option (or the counts its options
+    give), or once; ``technique_options``: ``{name: {option: value}}`` for the techniques built from names (the
+    ``reference``'s too); ``candidates``: explicit ``(name or object, count)`` pairs (``candidate_runs``).
     """
     if not (max_delta_e >= 0):
         raise ValueError(f"max_delta_e must be >= 0, got {max_delta_e!r}")
@@ -263,6 +317,10 @@ def advise(material: str | BurleyMaterial, *, max_delta_e: float = 1.0, buffers:
     if truth is not None and buffers is None:
         raise ValueError("truth needs the buffers (and camera) of the view it renders")
     extra = {} if truth is None else {"truth": truth}
+    if techniques is not None:
+        extra["techniques"] = techniques
+    if technique_options:
+        extra["technique_options"] = technique_options
     cands = (measure or measure_candidates)(mat, buffers=buffers, camera=camera, size=size, scene_scale=scene_scale,
                                             candidates=candidates, repeats=repeats, progress=progress, **extra)
     choice, reason = choose(cands, max_delta_e)

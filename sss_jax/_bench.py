@@ -10,20 +10,23 @@ from __future__ import annotations
 
 import platform
 import time
-from typing import Any, Callable
+from typing import Any, Callable, Mapping, Sequence
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._cost import cost_per_pixel, frame_cost
 from ._metrics import rel_l2
+from ._sweep import as_counts, changed_options, run_label, technique_runs
 from ._timing import run_times, time_call
 from ._demo import demo_burley_material
 from ._materials import BurleyMaterial, STAParams
 from ._scene import Buffers, Camera, demo_scene
 from ._techniques import burley, reference, separable, translucency
 
-__all__ = ["run_bench", "GOALS", "test_patterns", "burley_sampling_error", "sampling_error_figure"]
+__all__ = ["run_bench", "GOALS", "cost_per_pixel", "default_counts", "test_patterns", "burley_sampling_error",
+           "sampling_error_figure"]
 
 GOALS = {
     "separable_vs_sepFilter2D": ("<=", 2.0),
@@ -32,43 +35,6 @@ GOALS = {
     "compile_seconds": ("<", 5.0),
     "peak_memory_vs_input": ("<=", 8.0),
 }
-
-
-# Arithmetic per pixel of the pieces of a pass, as a shader executes them (an add, a multiply, a compare, a select or
-# a transcendental each count one; a fused multiply-add counts two). Counted from the formulation
-# (``_techniques/_separable_gpu.tap_term``, ``_techniques/_burley_gpu.sample_term``), not measured.
-_SEPARABLE_FLOPS_PER_TAP = 10  # offset (mul, clip), its corner(s) (floor, sub), the 3-channel weighted add (3 FMA)
-_SEPARABLE_FLOPS_PER_FETCH = 14  # follow the surface (sub, abs, mul, sub, max), validity (2), frac, 3 x (sub, FMA)
-_BURLEY_FLOPS_PER_SAMPLE = 30  # inverse CCDF (~12 with log, sqrt, exp), sin/cos and position (6), 1/pdf (5), corners
-_BURLEY_FLOPS_PER_FETCH = 33  # validity (3), dz (2), r (3 with sqrt), 3 x kernel (exp, 2 mul, FMA, div), num/den (9)
-_STA_COST = {"fetches": 4, "flops": 40}  # irradiance, normal, thickness, albedo; the transmittance and the light
-
-
-# pixels a filtered fetch reads (bilinear: 4; a linear 1D fetch: 2) and each technique's cost from (count, pixels
-# per fetch): tables by registry name, so a technique added to the bench adds a row, not a branch
-_PIXELS_PER_FETCH = {"burley": 4}
-_COST_MODELS: dict[str, Callable[[int | None, int], dict[str, int]]] = {
-    "sta": lambda count, per_fetch: dict(_STA_COST),
-    "separable": lambda count, per_fetch: {
-        "fetches": 2 * (count * per_fetch + 1),
-        "flops": 2 * (count * _SEPARABLE_FLOPS_PER_TAP + count * per_fetch * _SEPARABLE_FLOPS_PER_FETCH)},
-    "burley": lambda count, per_fetch: {
-        "fetches": count * per_fetch + 1,
-        "flops": count * _BURLEY_FLOPS_PER_SAMPLE + count * per_fetch * _BURLEY_FLOPS_PER_FETCH},
-}
-
-
-def cost_per_pixel(technique: str, count: int | None, interpolation: str = "linear") -> dict[str, int]:
-    """Engine-comparable cost of one pixel of the technique: ``fetches`` (texels read, each RGB + depth, what a
-    shader's texture fetches are) and ``flops`` (arithmetic per pixel, counted from the formulation). The same on
-    every machine, so the trade reads the same where wall times differ by orders of magnitude.
-
-    separable: 2 passes x ``count`` taps x (2 pixels per linear fetch, 1 nearest), plus the centre per pass.
-    burley: ``count`` samples x (4 pixels per bilinear fetch, 1 nearest), plus the centre."""
-    model = _COST_MODELS.get(technique)
-    if model is not None:
-        return model(count, 1 if interpolation == "nearest" else _PIXELS_PER_FETCH.get(technique, 2))
-    raise ValueError(f"no cost model for technique {technique!r}")
 
 
 def machine() -> dict[str, Any]:
@@ -157,11 +123,107 @@ _DEFAULT_INTERPOLATION = {name: _default(fn, "interpolation") for name, fn in ((
                                                                                ("burley", burley))}
 
 
+def _one_if_needed(t, material, buffers: Buffers, camera: Camera):
+    """``material``, or its first row where ``t`` takes one material only (it says so when asked its reach)."""
+    if not isinstance(material, BurleyMaterial) or material.count == 1:
+        return material
+    try:
+        t.reach_px(buffers, material, camera)
+        return material
+    except ValueError:
+        return BurleyMaterial(material.albedo[0], material.d_mm[0])
+
+
+def _objects_result(rows, configs, res_grid, ratio_res, repeats, say, cv2, fftconvolve, quick, options) -> dict:
+    """The bench of chosen techniques: its rows, the peers at the ratio resolution and each technique's time there
+    against them (shown, no goals: the goals are set for the defaults)."""
+    w, h = ratio_res
+    say(f"peers and the techniques at {w}x{h} ...")
+    scene = demo_scene(h, w)
+    b, cam = scene.buffers, scene.camera
+    peers = _peers(b, repeats, cv2, fftconvolve)
+    other = {}
+    for tech, n, run_full, _, _, obj, _ in configs:
+        _, seconds = _compile_and_time(lambda: run_full(b, cam, scene), repeats)
+        label = run_label(obj)
+        other[f"{label} ms"] = round(1e3 * seconds, 3)
+        for peer in ("cv2.sepFilter2D_25", "cv2.filter2D_25x25"):
+            if peer in peers:
+                other[f"{label} vs {peer}"] = round(seconds / peers[peer], 3)
+    base = [r for r in rows if (r["width"], r["height"]) == res_grid[0]]
+    front = _front(base)
+    for r in rows:
+        r["pareto"] = any(r is f for f in front)
+    return {"machine": machine(), "date": time.strftime("%Y-%m-%d"), "quick": quick, "ratio_resolution": list(ratio_res),
+            "rows": rows, "peers_ms": {k: round(1e3 * v, 3) for k, v in peers.items()}, "timings_ms": {},
+            "ratios": {}, "other_ratios": other, "footprint_skip": [], "burley_sampling": [],
+            "technique_options": {k: {o: str(v) for o, v in d.items()} for k, d in options.items()},
+            "pareto": [dict(technique=r["technique"], count=r["count"], label=r["label"],
+                            ms_per_frame=r["ms_per_frame"], error_demo=r["error_demo"]) for r in front]}
+
+
+def _front(base: list[dict]) -> list[dict]:
+    """The Pareto front (error against time) of ``base``'s rows."""
+    front = []
+    for r in sorted(base, key=lambda r: (r["ms_per_frame"], r["error_demo"])):
+        if not front or r["error_demo"] < front[-1]["error_demo"]:
+            front.append(r)
+    return front
+
+
+def _peers(b: Buffers, repeats: int, cv2, fftconvolve) -> dict[str, float]:
+    """The peers' median times (s) on ``b``'s irradiance: OpenCV's separable and dense 25-tap filters, SciPy's FFT."""
+    if cv2 is None:
+        return {}
+    img = np.ascontiguousarray(np.asarray(b.irradiance, np.float32))
+    k25, k_dense = _peer_kernels()
+    # the peers take milliseconds: more repeats cost little and steady the ratios' denominators
+    peer_repeats = max(repeats, 11)
+    return {
+        "cv2.sepFilter2D_25": _median_time(lambda: cv2.sepFilter2D(img, -1, k25, k25), peer_repeats),
+        "cv2.filter2D_25x25": _median_time(lambda: cv2.filter2D(img, -1, k_dense), peer_repeats),
+        "scipy.fftconvolve_25x25": _median_time(
+            lambda: fftconvolve(img, k_dense[..., None], mode="same", axes=(0, 1)), peer_repeats),
+    }
+
+
+def _peer_kernels() -> tuple[np.ndarray, np.ndarray]:
+    """The same 25-tap Gaussian OpenCV's getGaussianKernel(25, 4.0) makes (sum-normalised), and its 25x25 product."""
+    k25 = np.exp(-0.5 * ((np.arange(25) - 12) / 4.0) ** 2).astype(np.float32)[:, None]
+    k25 /= k25.sum()
+    return k25, (k25 @ k25.T).astype(np.float32)
+
+
+def default_counts(quick: bool = False) -> dict[str, tuple[int, ...]]:
+    """The bench's grid of counts by option name: separable's taps and Burley's samples (``--quick``: fewer)."""
+    return {"taps": (9, 25) if quick else (5, 9, 17, 25, 33, 65),
+            "samples": (8, 32) if quick else (4, 8, 16, 32, 64, 128)}
+
+
+def _material_for(t, mat: BurleyMaterial, sta: STAParams):
+    """What the bench gives ``t``: the demo's Burley material table, else the STA's parameters; one material (the
+    first) for a pass that takes one (``jimenez``: one kernel per shader)."""
+    for m in (mat, sta):
+        if t.takes(m):
+            return m
+    raise ValueError(f"the bench has no material {t.name} takes (it has a BurleyMaterial and STAParams)")
+
+
 def run_bench(*, quick: bool = False, repeats: int = 3, progress: Callable[[str], None] | None = None,
-              grid: dict[str, Any] | None = None) -> dict:
+              grid: dict[str, Any] | None = None, techniques: Sequence[Any] | None = None,
+              technique_options: Mapping[str, Mapping[str, Any]] | None = None) -> dict:
     """Measure the grid; returns the table (rows), the peers, the ratios with their goals, and the Pareto front.
 
-    ``grid`` overrides any of ``taps``, ``samples``, ``resolutions`` (list of (w, h)) and ``ratio_resolution``.
+    ``grid`` overrides any of ``taps``, ``samples``, ``resolutions`` (list of (w, h)), ``ratio_resolution``, and the
+    error columns' frames: ``error_size`` (the demo scene's (h, w)) and ``pattern_size`` (the test patterns' side).
+    ``technique_options``: ``{technique name: {option: value}}``, the options of the techniques the bench runs
+    (the grid's ``sta``, ``separable``, ``burley`` and the ``reference`` of the error columns); a count given there
+    (``{"separable": {"taps": 9}}``) is the grid's only count for that technique.
+    ``techniques``: instead of the default grid, these techniques (registry names, built with their
+    ``technique_options`` and run once per count of the grid where they have a count option and the options give
+    none; or technique objects, run as they are), each at every resolution, with the error columns, the cost per
+    pixel as its shader executes it on the demo frame (``_cost.frame_cost``), and its time at the ratio resolution
+    against the peers (no goals: those are the defaults').
     """
     try:  # the peers run on the host; a GPU machine may lack them: the bench then reports no peer ratios
         import cv2
@@ -170,8 +232,9 @@ def run_bench(*, quick: bool = False, repeats: int = 3, progress: Callable[[str]
         cv2 = fftconvolve = None
 
     say = progress or (lambda m: None)
-    taps_grid = (9, 25) if quick else (5, 9, 17, 25, 33, 65)
-    samples_grid = (8, 32) if quick else (4, 8, 16, 32, 64, 128)
+    options = {k: dict(v) for k, v in (technique_options or {}).items()}
+    counts = default_counts(quick)
+    taps_grid, samples_grid = counts["taps"], counts["samples"]
     res_grid = ((256, 256), (384, 384)) if quick else ((256, 256), (512, 512), (1280, 720), (1920, 1080))
     ratio_res = (640, 360) if quick else (1920, 1080)
     if jax.default_backend() == "gpu":  # the frame sizes real-time runs at, where the goals are set
@@ -182,19 +245,33 @@ def run_bench(*, quick: bool = False, repeats: int = 3, progress: Callable[[str]
         samples_grid = tuple(grid.get("samples", samples_grid))
         res_grid = tuple(tuple(r) for r in grid.get("resolutions", res_grid))
         ratio_res = tuple(grid.get("ratio_resolution", ratio_res))
+    # a count given as an option is the grid's only count for that technique
+    if techniques is None and "taps" in options.get("separable", {}):
+        taps_grid = as_counts(options["separable"].pop("taps"))
+    if techniques is None and "samples" in options.get("burley", {}):
+        samples_grid = as_counts(options["burley"].pop("samples"))
+    opt = lambda name: options.get(name, {})  # noqa: E731 - the given options of one technique
     mat = demo_burley_material()
     sta = STAParams(distortion=0.2, power=4.0, scale=(1.0, 0.8, 0.6), ambient=0.05, thickness_mm=(6.0, 3.5, 2.0))
 
+    err_scene = demo_scene(*tuple((grid or {}).get("error_size", (48, 64) if grid else (96, 128))))
+    objects = None
+    if techniques is not None:  # built first: a bad option is an error before anything runs
+        objects = technique_runs(techniques, options, {"taps": taps_grid, "samples": samples_grid},
+                                 light=err_scene.back_light)
+        if not objects:
+            raise ValueError("techniques: give at least one technique")
+
     # --- errors against the reference (resolution-independent: measured once on a small frame) --------------------
     say("reference images for the error columns ...")
-    err_scene = demo_scene(*((48, 64) if grid else (96, 128)))
     eb, ecam = err_scene.buffers, err_scene.camera
     emask = np.asarray(eb.material_id) > 0
-    ref_demo = np.asarray(reference(eb, mat, ecam))
+    ref_options = opt("reference")
+    ref_demo = np.asarray(reference(eb, mat, ecam, **ref_options))
     pat_cam = Camera(80.0, 10.0)
     pat_mat = BurleyMaterial(albedo=(1.0, 1.0, 1.0), d_mm=(8.0, 4.0, 2.0))
-    patterns = test_patterns(32 if grid else 64)
-    ref_pat = {k: np.asarray(reference(b, pat_mat, pat_cam)) for k, b in patterns.items()}
+    patterns = test_patterns(int((grid or {}).get("pattern_size", 32 if grid else 64)))
+    ref_pat = {k: np.asarray(reference(b, pat_mat, pat_cam, **ref_options)) for k, b in patterns.items()}
 
     def errors(run_demo: Callable, run_pattern: Callable) -> dict[str, float]:
         out = {"demo": rel_l2(run_demo(eb, ecam), ref_demo, mask=emask)}
@@ -202,31 +279,51 @@ def run_bench(*, quick: bool = False, repeats: int = 3, progress: Callable[[str]
             out[k] = rel_l2(run_pattern(b, pat_cam), ref_pat[k])
         return out
 
-    configs: list[tuple[str, int | None, Callable, Callable, Callable]] = [
-        ("sta", None, lambda b, c, s: translucency(b, sta, c, s.back_light),
-         lambda b, c: translucency(b, sta, c, err_scene.back_light),
-         lambda b, c: translucency(b, sta, c, err_scene.back_light)),
-    ]
-    for n in taps_grid:
-        configs.append(("separable", n, lambda b, c, s, n=n: separable(b, mat, c, taps=n),
-                        lambda b, c, n=n: separable(b, mat, c, taps=n),
-                        lambda b, c, n=n: separable(b, pat_mat, c, taps=n)))
-    for n in samples_grid:
-        configs.append(("burley", n, lambda b, c, s, n=n: burley(b, mat, c, samples=n),
-                        lambda b, c, n=n: burley(b, mat, c, samples=n),
-                        lambda b, c, n=n: burley(b, pat_mat, c, samples=n)))
+    # (technique name, count, run on a bench frame, on the error frame, on a pattern, the object, its material)
+    configs: list[tuple[str, int | None, Callable, Callable, Callable, Any, Any]] = []
+    if objects is not None:
+        for t in objects:
+            m = _material_for(t, mat, sta)
+            if m is mat and not t.takes(pat_mat):
+                raise ValueError(f"{t.name} takes no BurleyMaterial of one row")
+            count = None if t.count_option is None else int(getattr(t, t.count_option))
+            pm = pat_mat if m is mat else m
+            m = _one_if_needed(t, m, eb, ecam)
+            configs.append((t.name, count, lambda b, c, s, t=t, m=m: t(b, m, c), lambda b, c, t=t, m=m: t(b, m, c),
+                            lambda b, c, t=t, pm=pm: t(b, pm, c), t, m))
+    else:
+        from ._techniques import Burley, Separable, Translucency
+
+        sta_object = Translucency(err_scene.back_light, **opt("sta"))
+        configs.append(("sta", None, lambda b, c, s: translucency(b, sta, c, s.back_light, **opt("sta")),
+                        lambda b, c: translucency(b, sta, c, err_scene.back_light, **opt("sta")),
+                        lambda b, c: translucency(b, sta, c, err_scene.back_light, **opt("sta")), sta_object, sta))
+        for n in taps_grid:
+            configs.append(("separable", n, lambda b, c, s, n=n: separable(b, mat, c, taps=n, **opt("separable")),
+                            lambda b, c, n=n: separable(b, mat, c, taps=n, **opt("separable")),
+                            lambda b, c, n=n: separable(b, pat_mat, c, taps=n, **opt("separable")),
+                            Separable(taps=n, **opt("separable")), mat))
+        for n in samples_grid:
+            configs.append(("burley", n, lambda b, c, s, n=n: burley(b, mat, c, samples=n, **opt("burley")),
+                            lambda b, c, n=n: burley(b, mat, c, samples=n, **opt("burley")),
+                            lambda b, c, n=n: burley(b, pat_mat, c, samples=n, **opt("burley")),
+                            Burley(samples=n, **opt("burley")), mat))
 
     rows = []
     for (w, h) in res_grid:
         scene = demo_scene(h, w)
         b, cam = scene.buffers, scene.camera
         input_bytes = sum(x.nbytes for x in jax.tree.leaves(b))
-        for tech, n, run_full, run_demo, run_pat in configs:
-            say(f"{tech} {n or ''} at {w}x{h} ...")
+        for tech, n, run_full, run_demo, run_pat, obj, obj_material in configs:
+            label = run_label(obj)
+            say(f"{label} at {w}x{h} ...")
             compile_s, seconds = _compile_and_time(lambda: run_full(b, cam, scene), repeats)
-            row = dict(technique=tech, count=n, width=w, height=h, compile_seconds=round(compile_s, 3),
-                       ms_per_frame=round(1e3 * seconds, 3), input_bytes=input_bytes,
-                       cost_per_pixel=cost_per_pixel(tech, n, _DEFAULT_INTERPOLATION.get(tech, "linear")))
+            row = dict(technique=tech, count=n, label=label, options=changed_options(obj), width=w, height=h,
+                       compile_seconds=round(compile_s, 3), ms_per_frame=round(1e3 * seconds, 3),
+                       input_bytes=input_bytes,
+                       cost_per_pixel=cost_per_pixel(tech, n, getattr(obj, "interpolation", "linear"))
+                       if objects is None else frame_cost(obj, b, obj_material, cam),
+                       cost_on_frame=frame_cost(obj, b, obj_material, cam))
             mem = _memory_bytes(jax.jit(lambda bb, cc: run_full(bb, cc, scene)), b, cam)
             row["peak_memory_bytes"] = mem
             row["peak_memory_vs_input"] = None if mem is None else round(mem / input_bytes, 2)
@@ -234,10 +331,12 @@ def run_bench(*, quick: bool = False, repeats: int = 3, progress: Callable[[str]
                 row["errors"] = errors(run_demo, run_pat)
             rows.append(row)
     # the errors are per configuration: copy them to every resolution's row
-    by_cfg = {(r["technique"], r["count"]): r["errors"] for r in rows if "errors" in r}
+    by_cfg = {r["label"]: r["errors"] for r in rows if "errors" in r}
     for r in rows:
-        r["errors"] = by_cfg[(r["technique"], r["count"])]
+        r["errors"] = by_cfg[r["label"]]
         r["error_demo"] = r["errors"]["demo"]
+    if objects is not None:
+        return _objects_result(rows, configs, res_grid, ratio_res, repeats, say, cv2, fftconvolve, quick, options)
 
     # --- peers and the issue's ratios, side by side at one resolution ---------------------------------------------
     w, h = ratio_res
@@ -245,24 +344,16 @@ def run_bench(*, quick: bool = False, repeats: int = 3, progress: Callable[[str]
     scene = demo_scene(h, w)
     b, cam = scene.buffers, scene.camera
     img = np.ascontiguousarray(np.asarray(b.irradiance, np.float32))
-    # the same 25-tap Gaussian OpenCV's getGaussianKernel(25, 4.0) makes (sum-normalised)
-    k25 = np.exp(-0.5 * ((np.arange(25) - 12) / 4.0) ** 2).astype(np.float32)[:, None]
-    k25 /= k25.sum()
-    k_dense = (k25 @ k25.T).astype(np.float32)
-    # the peers take milliseconds: more repeats cost little and steady the ratios' denominators
+    k25, _ = _peer_kernels()
     peer_repeats = max(repeats, 11)
-    peers = {} if cv2 is None else {
-        "cv2.sepFilter2D_25": _median_time(lambda: cv2.sepFilter2D(img, -1, k25, k25), peer_repeats),
-        "cv2.filter2D_25x25": _median_time(lambda: cv2.filter2D(img, -1, k_dense), peer_repeats),
-        "scipy.fftconvolve_25x25": _median_time(
-            lambda: fftconvolve(img, k_dense[..., None], mode="same", axes=(0, 1)), peer_repeats),
-    }
+    peers = _peers(b, repeats, cv2, fftconvolve)
     peer = lambda name: peers.get(name, float("nan"))
     planar, k25_jax = jnp.asarray(np.moveaxis(img, -1, 0)), jnp.asarray(k25[:, 0])
     xla_plain_separable(planar, k25_jax).block_until_ready()  # compiled before it is timed
     t_xla_plain = _median_time(lambda: xla_plain_separable(planar, k25_jax), peer_repeats)
-    c_sep, t_sep = _compile_and_time(lambda: separable(b, mat, cam, taps=25), repeats)
-    c_bur, t_bur = _compile_and_time(lambda: burley(b, mat, cam, samples=32), repeats)
+    # the ratios' passes with the options given (a count given is the grid's: the ratios keep 25 taps, 32 samples)
+    c_sep, t_sep = _compile_and_time(lambda: separable(b, mat, cam, taps=25, **opt("separable")), repeats)
+    c_bur, t_bur = _compile_and_time(lambda: burley(b, mat, cam, samples=32, **opt("burley")), repeats)
     # the point-fetch lever (HDRP's): a quarter of the fetches and kernel evaluations, side by side with the default
     _, t_bur_nearest = _compile_and_time(lambda: burley(b, mat, cam, samples=32, interpolation="nearest"), repeats)
     # 10% coverage: the same frame with SSS on a tenth of the pixels (a band of rows) against SSS on all of them;
@@ -318,10 +409,7 @@ def run_bench(*, quick: bool = False, repeats: int = 3, progress: Callable[[str]
 
     # --- Pareto front (error against time) at the first resolution ----------------------------------------------------
     base = [r for r in rows if (r["width"], r["height"]) == res_grid[0]]
-    front = []
-    for r in sorted(base, key=lambda r: (r["ms_per_frame"], r["error_demo"])):
-        if not front or r["error_demo"] < front[-1]["error_demo"]:
-            front.append(r)
+    front = _front(base)
     for r in rows:
         r["pareto"] = any(r is f for f in front)
     return {
@@ -346,6 +434,7 @@ def run_bench(*, quick: bool = False, repeats: int = 3, progress: Callable[[str]
         "burley_sampling": sampling,
         "pareto": [dict(technique=r["technique"], count=r["count"], ms_per_frame=r["ms_per_frame"],
                         error_demo=r["error_demo"]) for r in front],
+        "technique_options": {k: {o: str(v) for o, v in d.items()} for k, d in options.items() if d},
     }
 
 
@@ -358,12 +447,15 @@ def plot_pareto(result: dict, path) -> None:
     fig = Figure(figsize=(6.4, 4.2), dpi=110)
     ax = fig.add_subplot(1, 1, 1)
     colours = {"sta": "tab:orange", "separable": "tab:blue", "burley": "tab:green"}
+    others = iter(["tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:olive", "tab:cyan", "tab:grey"])
+    for tech in dict.fromkeys(r["technique"] for r in rows):  # every technique the rows hold, one colour each
+        colours.setdefault(tech, next(others, "black"))
     for tech, c in colours.items():
         pts = [r for r in rows if r["technique"] == tech]
         ax.scatter([r["ms_per_frame"] for r in pts], [r["error_demo"] for r in pts], color=c, label=tech, zorder=3)
         for r in pts:
-            if r["count"]:
-                ax.annotate(str(r["count"]), (r["ms_per_frame"], r["error_demo"]), fontsize=7,
+            if r["count"] or r.get("options"):
+                ax.annotate(str(r["count"] or "") + " ".join(f" {k}={v}" for k, v in (r.get("options") or {}).items()), (r["ms_per_frame"], r["error_demo"]), fontsize=7,
                             xytext=(3, 3), textcoords="offset points")
     front = result["pareto"]
     ax.plot([f["ms_per_frame"] for f in front], [f["error_demo"] for f in front], "k--", lw=1, label="Pareto front")

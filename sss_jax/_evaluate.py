@@ -23,11 +23,14 @@ from ._machine import machine_info
 from ._materials import BurleyMaterial, DirectionalLight, ProfileMaterial, STAParams, TwoGaussianMaterial
 from ._report import FrameImages, ReportData, TechniqueRun
 from ._techniques._base import AbstractTechnique
+from ._cost import frame_cost
+from ._sweep import changed_options
 from ._timing import time_call
 
 __all__ = ["evaluate_frames", "read_truth", "REPORT_TECHNIQUES"]
 
-REPORT_TECHNIQUES = ("sta", "separable", "burley")
+# what a report runs: the techniques and the engines' own passes (the reference is what they are measured against)
+REPORT_TECHNIQUES = ("sta", "separable", "burley", "hdrp", "eevee-next", "jimenez")
 _CACHE_VERSION = 1
 
 
@@ -159,13 +162,16 @@ def _technique_object(t: str | AbstractTechnique, context: Mapping[str, Any],
     return cls(**options, **own)
 
 
-def _changed_options(t: AbstractTechnique) -> dict[str, Any]:
-    """The options of ``t`` that differ from its class's defaults (its count aside): what a run records."""
-    import dataclasses
-
-    defaults = {f.name: f.default for f in dataclasses.fields(t)}
-    return {k: v for k, v in t.options().items()
-            if k != t.count_option and isinstance(v, (str, int, float, bool, type(None))) and v != defaults[k]}
+def _pooled_cost(per_frame: list[tuple[dict, int]]) -> dict[str, Any] | None:
+    """The frames' costs per SSS pixel pooled over their SSS pixels (the rule and frames of the first)."""
+    if not per_frame:
+        return None
+    weights = np.asarray([n for _, n in per_frame], np.float64)
+    pooled = dict(per_frame[0][0])
+    for key in ("samples", "fetches", "flops", "active_fraction"):
+        values = np.asarray([c[key] for c, _ in per_frame], np.float64)
+        pooled[key] = round(float(np.sum(values * weights) / max(weights.sum(), 1.0)), 4)
+    return pooled
 
 
 def evaluate_frames(
@@ -195,8 +201,12 @@ def evaluate_frames(
 ) -> ReportData:
     """Render, time and collect what ``sss_jax.report`` lays out, for EXR frames read as ``sss-jax apply`` reads them.
 
-    ``techniques``: registry names (of ``REPORT_TECHNIQUES``) or technique objects (``sj.Burley(pattern="fixed")``);
-    each technique whose ``count_option`` is ``"taps"`` or ``"samples"`` runs once per count of ``taps``/``samples``.
+    ``techniques``: registry names (of ``REPORT_TECHNIQUES``: the engines' passes ``hdrp``, ``eevee-next``,
+    ``jimenez`` among them) or technique objects (``sj.Burley(pattern="fixed")``, ``sj.HdrpPass(quality="high")``);
+    each technique whose ``count_option`` is ``"taps"`` or ``"samples"`` runs once per count of ``taps``/``samples``,
+    the others once (two objects of one technique are told apart by their options in the labels). Each run records
+    its cost per SSS pixel as its shader executes it (``_cost.frame_cost``: samples, texels, flops; pooled over the
+    frames' SSS pixels) beside its wall time.
     ``material``: the Burley (or tabulated-profile) material table of the reference and of ``burley`` (one row per
     material id, or one row for every id > 0); ``separable_material`` (default ``material``) the separable's
     kernels; ``sta``: the ``STAParams`` of the STA (the material it takes) and ``light`` its back light, required
@@ -288,6 +298,7 @@ def evaluate_frames(
                "depth_kind": depth_kind, "use_albedo_pass": use_albedo_pass}
     images: list[list[np.ndarray]] = [[] for _ in configs]
     seconds: list[list[float]] = [[] for _ in configs]
+    costs: list[list[tuple[dict, int]]] = [[] for _ in configs]  # (cost per SSS pixel, SSS pixels) per frame
     frame_images, inputs_info, notes, ref_images, ref_seconds = [], [], [], [], []
     try:
         for f in frames:
@@ -323,6 +334,9 @@ def evaluate_frames(
                 img, sec, _ = time_call(lambda: tech(b, tech_material, cam), repeats)
                 images[k].append(finish(img))
                 seconds[k].append(sec)
+                cost = frame_cost(tech, b, tech_material, cam)
+                if cost is not None:
+                    costs[k].append((cost, int(mask.sum())))
                 bar.update(1)
             frame_images.append(FrameImages(name=name, shaded=shaded, reference=ref_images[-1], material_id=ids,
                                             truth=truth_images[len(frame_images)] if truth_images else None,
@@ -334,8 +348,17 @@ def evaluate_frames(
     finally:
         bar.close()
 
+    # two runs of one technique and count (e.g. hdrp at two quality levels) are told apart by their options
+    plain = [t.name if n is None else f"{t.name} {n}" for t, _, n in configs]
+    tags = [" ".join(f"{k}={v}" for k, v in changed_options(t).items()) if plain.count(p) > 1 else ""
+            for p, (t, _, _) in zip(plain, configs)]
+    labels = [p + (f" {g}" if g else "") for p, g in zip(plain, tags)]
+    if len(set(labels)) != len(labels):
+        twice = sorted({lab for lab in labels if labels.count(lab) > 1})
+        raise SSSInputError(f"technique run(s) given twice: {', '.join(twice)}")
     runs = tuple(TechniqueRun(t.name, n, 1e3 * float(np.mean(seconds[k])), tuple(images[k]),
-                              options=_changed_options(t), conserves_energy=t.conserves_energy)
+                              options=changed_options(t), conserves_energy=t.conserves_energy,
+                              cost_per_pixel=_pooled_cost(costs[k]), tag=tags[k])
                  for k, (t, _, n) in enumerate(configs))
     ref_run = TechniqueRun("reference", None, 1e3 * float(np.mean(ref_seconds)), tuple(ref_images))
     info = {"albedo": _tidy(material.albedo)}

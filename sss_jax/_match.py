@@ -464,9 +464,11 @@ def _result_name(result) -> tuple[str, str]:
     return "unknown", str(optx.RESULTS[result]).strip()
 
 
-def _fit_technique(technique: str | AbstractTechnique, **available) -> tuple[AbstractTechnique, _AbstractFit]:
+def _fit_technique(technique: str | AbstractTechnique, options: Mapping[str, Any] | None = None,
+                   **available) -> tuple[AbstractTechnique, _AbstractFit]:
     """The technique object to fit and its fit: ``technique`` itself, or the class registered under that name built
-    with the fit's own options and those of ``available`` it has fields for."""
+    with the fit's own options, those of ``available`` it has fields for, and ``options`` (the caller's, over
+    both)."""
     from ._techniques import TECHNIQUES
 
     names = [cls.name for cls in _FITS]
@@ -475,13 +477,17 @@ def _fit_technique(technique: str | AbstractTechnique, **available) -> tuple[Abs
         if cls not in _FITS:
             raise ValueError(f"unknown technique {technique!r}; valid techniques to fit: {', '.join(names)}")
         fields = {f.name: f for f in dataclasses.fields(cls)}
+        given = dict(options or {})
+        unknown = sorted(set(given) - set(fields))
+        if unknown:
+            raise ValueError(f"technique {technique!r} has no option(s) {', '.join(unknown)}")
         options = {k: v for k, v in available.items() if k in fields and v is not None}
         missing = [n for n, f in fields.items() if n not in options and f.default is dataclasses.MISSING
                    and f.default_factory is dataclasses.MISSING]
         if missing:
             raise ValueError(f"technique {technique!r} needs {', '.join(f'{n}=' for n in missing)}"
                              "DirectionalLight(direction, colour)")
-        technique = cls(**_FITS[cls].build, **options)
+        technique = cls(**{**_FITS[cls].build, **options, **given})
     if type(technique) not in _FITS:
         raise ValueError(f"technique {technique.name!r} cannot be fitted; valid techniques to fit: {', '.join(names)}")
     return technique, _FITS[type(technique)]
@@ -508,6 +514,7 @@ def match_render(
     rtol: float = 1e-3,
     atol: float = 1e-6,
     gain: float = 100.0,
+    technique_options: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> MatchResult:
     """Fit ``technique``'s material per material id so its output on ``frames`` matches their truth renders.
 
@@ -521,6 +528,8 @@ def match_render(
     ``thickness`` in scene units where frames carry none). ``samples`` (Burley) and ``taps`` (separable) are the
     technique's sample counts: the fit is for that count. ``loss``: ``"huber"`` (``huber_delta`` in units of the
     material's mean truth value) or ``"l2"``. ``holdout``: frames measured before and after, not fitted.
+    ``technique_options``: ``{technique name: {option: value}}``, further options of the technique built from its
+    name (``{"burley": {"border": "leaves"}}``; what ``sss-jax fit --render`` passes from its flags).
     Solver: optimistix Levenberg–Marquardt (``rtol``, ``atol``, ``max_steps``), ``throw=False``.
     """
     import optimistix as optx
@@ -539,7 +548,11 @@ def match_render(
         raise ValueError(f"taps must be an odd positive integer, got {taps!r}")
     if not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
         raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
-    technique, fit = _fit_technique(technique, samples=int(samples), taps=int(taps), light=light,
+    named = technique if isinstance(technique, str) else None
+    given = dict((technique_options or {}).get(named, {})) if named is not None else {}
+    if technique_options and named is None:
+        raise ValueError("technique_options are for a technique given by name; a technique object has its own")
+    technique, fit = _fit_technique(technique, given, samples=int(samples), taps=int(taps), light=light,
                                     thickness=None if thickness is None else float(thickness))
     for f in frames + holdout:
         if not isinstance(f, MatchFrame):
@@ -592,6 +605,7 @@ def match_render(
     p_fit = _natural(fit, host(y), np.asarray(albedo))
     fitted = fit.material({k: jnp.asarray(v, dtype) for k, v in p_fit.items()})
     options, engines = fit.record(technique, p_fit, ids)
+    options.update({k: v if isinstance(v, (str, int, float, bool, type(None))) else str(v) for k, v in given.items()})
     options["fit_albedo"] = bool(fit_albedo)
     loss_info = {"name": loss, "note": "plain least squares on rel_l2 per material" if loss == "l2" else
                  "Huber on each pixel's residual in units of its material's mean truth value (quadratic up to "

@@ -48,8 +48,8 @@ def test_layout_numbers_match_hand_computation(tmp_path):
     assert set(doc) == {"inputs", "material", "machine", "techniques", "local_shading", "notes", "flip"}
     rows = {(r["technique"], r["count"]): r for r in doc["techniques"]}
     assert set(rows) == {("separable", 9), ("burley", 8), ("burley", 16)}
-    assert set(rows[("burley", 8)]) == {"technique", "count", "ms_per_frame", "vs_reference", "vs_truth",
-                                        "worse_than_local_shading"}
+    assert set(rows[("burley", 8)]) == {"technique", "count", "label", "options", "cost_per_pixel", "ms_per_frame",
+                                        "vs_reference", "vs_truth", "worse_than_local_shading"}
     # local shading here is r itself: 0 against the reference, ||r - 0.8 r|| / ||0.8 r|| = 0.25 against the truth;
     # 1.1 r is worse on both (0.1 > 0, 0.375 > 0.25), r itself on neither (equal is not worse)
     assert doc["local_shading"]["vs_reference"]["rel_l2"] == 0.0
@@ -189,7 +189,7 @@ def _tiny_exr(path, **extra):
     ("missing", "file not found"),
     ("truth_size", "truth is 5x4 but the input frame is 10x8"),
     ("truth_channels", r"truth channel\(s\) \['Combined.R'"),
-    ("technique", "--techniques: unknown \\['ssss'\\]"),
+    ("technique", "--techniques: unknown technique 'ssss'"),
     ("sta_light", "--techniques sta needs --light-dir"),
     ("material", "needs the material"),
     ("taps", "taps must be odd positive integers"),

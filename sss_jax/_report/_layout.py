@@ -94,12 +94,17 @@ def _check_extra(extra_sections: Sequence[ExtraSection]) -> list[tuple[str, str,
 
 def _best_runs(runs: Sequence[TechniqueRun]) -> list[TechniqueRun]:
     """Per technique, the run with the largest count (the one the maps show)."""
-    best: dict[str, TechniqueRun] = {}
+    best: dict[tuple[str, str], TechniqueRun] = {}
     for r in runs:
-        cur = best.get(r.technique)
+        cur = best.get((r.technique, r.tag))
         if cur is None or (r.count or 0) > (cur.count or 0):
-            best[r.technique] = r
+            best[(r.technique, r.tag)] = r
     return list(best.values())
+
+
+def _jsonable(value):
+    """An option's value for JSON: numbers, strings, booleans and None as they are, anything else as text."""
+    return value if isinstance(value, (str, int, float, bool, type(None))) else str(value)
 
 
 def _scale(maps: dict[str, np.ndarray], keys: Sequence[str], mask: np.ndarray) -> float:
@@ -151,7 +156,9 @@ def report(data: ReportData, out_dir: str | pathlib.Path, *,
     entries = []
     all_runs = runs + ([data.reference_run] if data.reference_run is not None else [])
     for run in all_runs:
-        entries.append({"technique": run.technique, "count": run.count,
+        entries.append({"technique": run.technique, "count": run.count, "label": run.label,
+                        "options": {k: _jsonable(v) for k, v in run.options.items()},
+                        "cost_per_pixel": run.cost_per_pixel,
                         "ms_per_frame": None if run.ms_per_frame is None else float(run.ms_per_frame),
                         "vs_reference": metrics(run, "reference"),
                         "vs_truth": metrics(run, "truth") if has_truth else None})
@@ -168,7 +175,7 @@ def report(data: ReportData, out_dir: str | pathlib.Path, *,
         e["worse_than_local_shading"] = worse
         for k, what in (("vs_truth", "the truth"), ("vs_reference", "the reference")):
             if worse[k]:
-                label = e["technique"] + ("" if e["count"] is None else f" {e['count']}")
+                label = e["label"]
                 flag_notes.append(f"{label} does worse than local shading against {what} on these frames: rel L2 "
                                   f"{e[k]['rel_l2']:.4f} against {local[k]['rel_l2']:.4f} (no SSS at all).")
     notes = tuple(data.notes) + tuple(flag_notes)
@@ -195,18 +202,26 @@ def report(data: ReportData, out_dir: str | pathlib.Path, *,
                        "HDR-ꟻLIP (mean; NVIDIA's flip-evaluator, 0 = identical, 1 = most different; "
                        f"{html.escape(flip_note)}), against "
                        "the dense reference" + (" and against the offline render (truth)" if has_truth else "")
-                       + ". Times are medians per frame after compilation, on the machine below. Rows on the Pareto "
-                       "front (nothing both faster and closer to the reference) are shaded.")
+                       + ". Times are medians per frame after compilation, on the machine below. The cost per pixel "
+                       "is what the technique's shader (the engine's own, for the engines' passes) executes per SSS "
+                       "pixel and frame: samples or taps, texels fetched, arithmetic, counted from the formulation "
+                       "and the same on any machine (a TAA pass pays it once per frame it accumulates). Rows on the "
+                       "Pareto front (nothing both faster and closer to the reference) are shaded.")
     rows = []
     for e in entries:
-        row = {"technique": e["technique"], "count": e["count"], "ms / frame": e["ms_per_frame"],
+        cost = e["cost_per_pixel"] or {}
+        row = {"technique": e["technique"], "count": e["count"],
+               "options": " ".join(f"{k}={v}" for k, v in e["options"].items()) or None,
+               "ms / frame": e["ms_per_frame"], "samples / px": cost.get("samples"),
+               "fetches / px": cost.get("fetches"), "flops / px": cost.get("flops"),
                "rel L2 vs ref": e["vs_reference"]["rel_l2"], "ΔE mean vs ref": e["vs_reference"]["delta_e_mean"],
                "ΔE p95 vs ref": e["vs_reference"]["delta_e_p95"], "ꟻLIP vs ref": e["vs_reference"]["flip_mean"]}
         if has_truth:
             row.update({"rel L2 vs truth": e["vs_truth"]["rel_l2"], "ΔE mean vs truth": e["vs_truth"]["delta_e_mean"],
                         "ΔE p95 vs truth": e["vs_truth"]["delta_e_p95"], "ꟻLIP vs truth": e["vs_truth"]["flip_mean"]})
         rows.append(row)
-    row = {"technique": "local shading (no SSS)", "count": None, "ms / frame": None,
+    row = {"technique": "local shading (no SSS)", "count": None, "options": None, "ms / frame": None,
+           "samples / px": None, "fetches / px": None, "flops / px": None,
            "rel L2 vs ref": local["vs_reference"]["rel_l2"], "ΔE mean vs ref": local["vs_reference"]["delta_e_mean"],
            "ΔE p95 vs ref": local["vs_reference"]["delta_e_p95"]}
     if has_truth:
@@ -323,7 +338,8 @@ def report(data: ReportData, out_dir: str | pathlib.Path, *,
     page.table(sec, [{"what": k, "value": v} for k, v in data.machine.items()], "machine", key="machine")
 
     doc: dict[str, Any] = {"inputs": data.inputs, "material": data.material, "machine": data.machine,
-                           "techniques": [{k: e[k] for k in ("technique", "count", "ms_per_frame", "vs_reference",
+                           "techniques": [{k: e[k] for k in ("technique", "count", "label", "options",
+                                                             "cost_per_pixel", "ms_per_frame", "vs_reference",
                                                              "vs_truth", "worse_than_local_shading") if k in e}
                                           for e in entries],
                            "local_shading": local, "notes": list(notes), "flip": flip_info}

@@ -58,8 +58,9 @@ class FrameImages:
 
 @dataclasses.dataclass(frozen=True)
 class TechniqueRun:
-    """One technique at one count (taps or samples; None for STA): ``images`` one per frame, in the frames' order,
-    linear RGB ``(H, W, 3)``; ``ms_per_frame`` wall time per frame in milliseconds (None when not timed)."""
+    """One technique at one count (taps or samples; None for STA and the engines' passes): ``images`` one per frame,
+    in the frames' order, linear RGB ``(H, W, 3)``; ``ms_per_frame`` wall time per frame in milliseconds (None when
+    not timed); ``options`` the technique's options that differ from its defaults."""
 
     technique: str
     count: int | None
@@ -68,6 +69,11 @@ class TechniqueRun:
     options: dict[str, Any] = dataclasses.field(default_factory=dict)
     # whether the technique redistributes light (None: as the registry's class of ``technique`` says)
     conserves_energy: bool | None = None
+    # what a pixel costs as the technique's shader executes it (``_cost.frame_cost``: samples, fetches, flops per SSS
+    # pixel and frame), pooled over the frames; None where unknown
+    cost_per_pixel: dict[str, Any] | None = None
+    # told apart from another run of the same technique and count (its options, e.g. "quality=high"); "" if none
+    tag: str = ""
 
     @property
     def adds_light(self) -> bool:
@@ -80,7 +86,8 @@ class TechniqueRun:
 
     @property
     def label(self) -> str:
-        return self.technique if self.count is None else f"{self.technique} {self.count}"
+        return " ".join([self.technique] + ([str(self.count)] if self.count is not None else [])
+                        + ([self.tag] if self.tag else []))
 
 
 @dataclasses.dataclass(frozen=True)

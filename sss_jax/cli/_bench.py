@@ -14,7 +14,44 @@ EPILOG = """examples:
   sss-jax bench --quick                       # reduced grid, under two minutes on a 2-core CPU
                                               # (on a GPU: 256x256, 1920x1080 and 3840x2160, ratios at 1920x1080)
   sss-jax bench --json bench.json --out-dir bench_out   # full grid: table CSV, Pareto plot, JSON
+  sss-jax bench --quick --technique separable --taps 9 --border leaves   # one configuration
+  sss-jax bench --quick --technique hdrp,eevee-next,jimenez --quality high --frames 16 --taps 17
+
+Without --technique the bench runs its grid (STA, separable at each --taps, Burley at each --samples) and the
+performance goals at the defaults. With --technique it runs those techniques (the engines' passes too), each at
+every --taps/--samples value where it has that option (else at the grid's counts of its count option, or once),
+with the cost per pixel as its shader executes it on the demo frame, and its time against the peers (no goals).
+Technique flags (--border, --pattern, --quality, ...) reach every technique of the run that has that option.
 """
+
+
+def _registered() -> tuple[str, ...]:
+    from .._techniques import TECHNIQUES
+
+    return tuple(TECHNIQUES)
+
+
+def _names(text: str) -> tuple[str, ...]:
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    unknown = [n for n in names if n not in _registered()]
+    if unknown or not names:
+        raise argparse.ArgumentTypeError(f"unknown technique(s) {', '.join(unknown) or '(none)'}; registered: "
+                                         f"{', '.join(_registered())}")
+    return names
+
+
+def _ints(text: str) -> tuple[int, ...]:
+    try:
+        values = tuple(int(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated positive integers, got {text!r}") from None
+    if not values or min(values) < 1:
+        raise argparse.ArgumentTypeError(f"expected comma-separated positive integers, got {text!r}")
+    return values
+
+
+# what the grid runs (the reference: the error columns)
+GRID = ("sta", "separable", "burley", "reference")
 
 
 def register(subparsers) -> None:
@@ -31,9 +68,33 @@ def register(subparsers) -> None:
     p.add_argument("--json", type=pathlib.Path, help="write the whole result as JSON")
     p.add_argument("--out-dir", type=pathlib.Path, help="write table.csv and pareto.png here")
     p.add_argument("--repeats", type=int, help="timed runs per configuration, median (default 3; 2 with --quick)")
-    # the techniques' own options (the counts are the bench's grid)
+    p.add_argument("--technique", type=_names, metavar="NAME[,NAME...]",
+                   help="bench these techniques instead of the grid (registered: " + ", ".join(_registered()) + ")")
+    p.add_argument("--taps", type=_ints, metavar="N[,N...]", help="taps to run, for every technique of the run with a "
+                   "taps option (default: the grid's 5..65, 9,25 with --quick; jimenez: its own 17)")
+    p.add_argument("--samples", type=_ints, metavar="N[,N...]", help="samples to run, for every technique of the run "
+                   "with a samples option (default: the grid's 4..128, 8,32 with --quick)")
+    # the techniques' own options (the counts are the flags above)
     add_technique_flags(p, exclude=("samples", "taps", "radius_px", "albedo", "thickness"))
     p.set_defaults(func=run)
+
+
+def _add_counts(args, options: dict, running) -> None:
+    """``--taps``/``--samples`` into the options of every running technique with that option; an error where none
+    has it (the flag would do nothing)."""
+    import dataclasses
+
+    from .._techniques import TECHNIQUES
+
+    for name in ("taps", "samples"):
+        values = getattr(args, name)
+        if values is None:
+            continue
+        takers = [t for t in running if name in {f.name for f in dataclasses.fields(TECHNIQUES[t])}]
+        if not takers:
+            raise ValueError(f"--{name}: none of the techniques run ({', '.join(running)}) has {name}")
+        for t in takers:
+            options[t][name] = values
 
 
 def run(args) -> int:
@@ -49,16 +110,18 @@ def run(args) -> int:
     if args.repeats < 1:
         print("sss-jax bench: --repeats must be >= 1", file=sys.stderr)
         return 2
-    from .._techniques import TECHNIQUES
-
     try:
-        options = {t: technique_options(args, t, others=TECHNIQUES) for t in TECHNIQUES}
+        running = (*args.technique, "reference") if args.technique else GRID
+        options = {t: technique_options(args, t, others=running) for t in running}
+        _add_counts(args, options, running)
         extra = option_arguments(run_bench, options, "bench")
-    except ValueError as exc:
+        if args.technique:
+            extra["techniques"] = list(args.technique)
+        result = run_bench(quick=args.quick, repeats=args.repeats,
+                           progress=lambda m: print(m, file=sys.stderr, flush=True), **extra)
+    except (ValueError, TypeError) as exc:
         print(f"sss-jax bench: {exc}", file=sys.stderr)
         return 2
-    result = run_bench(quick=args.quick, repeats=args.repeats, progress=lambda m: print(m, file=sys.stderr, flush=True),
-                       **extra)
     m = result["machine"]
     print(f"\nmachine: backend {m['backend']}, device {m['device']}, formulation {m['impl']}, jax {m['jax']}")
     print("cost per pixel as a shader runs it (texel fetches, flops: counted from the formulation, the same on any "
@@ -67,8 +130,9 @@ def run(args) -> int:
           f"{'compile s':>9s} {'rel L2 demo':>11s} {'edge':>7s} {'line':>7s} {'point':>7s}  pareto")
     for r in result["rows"]:
         e, c = r["errors"], r["cost_per_pixel"]
-        print(f"{r['technique']:10s} {r['count'] or '':>4} {r['width']}x{r['height']:<5} {r['ms_per_frame']:10.2f} "
-              f"{c['fetches']:8d} {c['flops']:7d} {r['compile_seconds']:9.2f} {e['demo']:11.4f} "
+        name = " ".join([r["technique"]] + [f"{k}={v}" for k, v in (r.get("options") or {}).items()])
+        print(f"{name:10s} {r['count'] or '':>4} {r['width']}x{r['height']:<5} {r['ms_per_frame']:10.2f} "
+              f"{c['fetches']:8g} {c['flops']:7g} {r['compile_seconds']:9.2f} {e['demo']:11.4f} "
               f"{e['shadow_edge']:7.4f} {e['thin_line']:7.4f} {e['point_light']:7.4f}  {'*' if r['pareto'] else ''}")
     w, h = result["ratio_resolution"]
     peers = ", ".join(f"{k} {v:.2f}" for k, v in result["peers_ms"].items()) or "none (OpenCV/SciPy absent)"

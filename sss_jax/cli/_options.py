@@ -264,3 +264,36 @@ def option_arguments(function, options: dict[str, dict[str, Any]], command: str)
         raise ValueError(f"{', '.join(flags)}: this version's {command} cannot pass options to "
                          f"{', '.join(left)} yet")
     return passed
+
+
+def technique_entries(text: str, valid: Iterable[str], *, flag: str = "--techniques") -> list[tuple[str, dict]]:
+    """``name[:option=value[:option=value...]],...`` as ``[(name, {option: value})]``: the techniques of a command
+    that runs several, each with options of its own (``hdrp:quality=low,hdrp:quality=high``), values parsed as the
+    option's flag parses them. Errors name ``flag``, the entry and what is wrong (an unknown technique or option, a
+    value outside the option's choices)."""
+    valid = tuple(valid)
+    out = []
+    for entry in (e.strip() for e in text.split(",")):
+        if not entry:
+            continue
+        name, *pairs = (part.strip() for part in entry.split(":"))
+        if name not in valid:
+            raise ValueError(f"{flag}: unknown technique {name!r} in {entry!r}; valid: {', '.join(valid)}")
+        specs = technique_option_specs([name])
+        options: dict[str, Any] = {}
+        for pair in pairs:
+            key, sep, value = pair.partition("=")
+            key = key.strip().replace("-", "_")
+            if not sep or not key:
+                raise ValueError(f"{flag}: {entry!r}: expected {name}:option=value, got {pair!r}")
+            if key not in specs:
+                raise ValueError(f"{flag}: {entry!r}: {name} has no option {key!r}; its options: "
+                                 f"{', '.join(sorted(specs))}")
+            try:
+                options[key] = _parse_value(value, specs[key])
+            except argparse.ArgumentTypeError as exc:
+                raise ValueError(f"{flag}: {entry!r}: {key}: {exc}") from None
+        out.append((name, options))
+    if not out:
+        raise ValueError(f"{flag}: give at least one technique; valid: {', '.join(valid)}")
+    return out

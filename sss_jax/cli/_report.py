@@ -11,14 +11,21 @@ import sys
 import tempfile
 
 from . import rgb_triple
-from ._options import WarningPrinter, add_technique_flags, sta_thickness_warning, technique_options
-from ._options import option_arguments as option_arguments_for
+from ._options import WarningPrinter, add_technique_flags, sta_thickness_warning, technique_entries
+from ._options import technique_options
 
 EPILOG = """examples:
   sss-jax report frame.exr --out rep --albedo 0.85,0.75,0.55 --d-mm 31.8,19.9,11.9
   sss-jax report irradiance_backlit.exr --out rep --truth burley_backlit.exr --truth-channels Combined \\
       --albedo 0.85,0.75,0.55 --d-mm 31.83,19.89,11.94 --techniques separable,burley --taps 9,25 --samples 8,32
   sss-jax report 'shots/*.exr' --out rep --preset skin1,marble --light-dir 0.3,-0.4,0.9
+  sss-jax report frame.exr --out rep --truth cycles.exr --albedo 0.85,0.75,0.55 --d-mm 31.8,19.9,11.9 \
+      --techniques burley,hdrp:quality=low,hdrp:quality=high,eevee-next,jimenez --samples 32 --frames 16
+
+The engines' own passes (hdrp, eevee-next, jimenez) run as each engine executes its pass; the summary gives each
+run's cost per pixel as its shader executes it (samples, texels fetched, flops per SSS pixel and frame) beside the
+time on this machine. Technique flags (--border, --quality, --frames, ...) reach every technique of the report
+that has the option; an entry's own options (hdrp:quality=high) override them for that entry.
 
 Frames are read as `sss-jax apply` reads them (R,G,B + Z, Blender multilayer passes, or --channel-map; camera from
 the flags, the EXR header or a sidecar <name>.json). Several materials: --preset a,b,... (id k takes the k-th).
@@ -38,6 +45,8 @@ def _ints(text: str) -> tuple[int, ...]:
 # technique options the report sets through flags of its own (the counts it sweeps, the reference's window, STA's
 # albedo and thickness)
 OWN_FLAGS = ("samples", "taps", "radius_px", "albedo", "thickness")
+DEFAULT_TECHNIQUES = "sta,separable,burley"
+DEFAULT_TAPS, DEFAULT_SAMPLES = (9, 17, 25), (8, 16, 32, 64)
 
 
 def register(subparsers) -> None:
@@ -54,11 +63,15 @@ def register(subparsers) -> None:
     p.add_argument("--out", required=True, type=pathlib.Path, help="output directory (created if missing)")
     p.add_argument("--truth", nargs="+", help="offline render(s) of the same view, one per input")
     p.add_argument("--truth-channels", help="truth pass (Blender: Combined, the default) or R,G,B channel names")
-    p.add_argument("--techniques", default="sta,separable,burley",
-                   help="comma-separated, from sta, separable, burley (default all; sta only with --light-dir)")
-    p.add_argument("--taps", type=_ints, default=(9, 17, 25), help="separable taps to run (default 9,17,25)")
-    p.add_argument("--samples", type=_ints, default=(8, 16, 32, 64), help="Burley samples to run (default 8,16,32,64)")
     from .._evaluate import REPORT_TECHNIQUES
+
+    p.add_argument("--techniques", default=DEFAULT_TECHNIQUES, metavar="NAME[:OPTION=VALUE...],...",
+                   help=f"comma-separated, from {', '.join(REPORT_TECHNIQUES)} (default {DEFAULT_TECHNIQUES}; sta "
+                   "only with --light-dir); the engines' own passes are hdrp, eevee-next and jimenez; an entry may "
+                   "carry options of its own, e.g. hdrp:quality=low,hdrp:quality=high,eevee-next:frames=64")
+    p.add_argument("--taps", type=_ints, default=None, help="taps to run: separable at each (default 9,17,25); "
+                   "given, jimenez at each too (it takes 11, 17, 25; else its own 17)")
+    p.add_argument("--samples", type=_ints, default=None, help="Burley samples to run (default 8,16,32,64)")
 
     add_technique_flags(p, techniques=REPORT_TECHNIQUES, exclude=OWN_FLAGS)
     m = p.add_argument_group("material (as sss-jax apply)")
@@ -136,27 +149,40 @@ def materials(args):
     return mat, sep, sta, info
 
 
-def _with_options(evaluate_frames, techniques: list[str], options: dict[str, dict], sta):
-    """``(techniques, keyword arguments)`` for ``evaluate_frames`` with the given technique options: technique objects
-    built from the registry for the techniques that have options given, where it takes objects; else the options
-    as its keywords take them (``option_arguments``)."""
+def _runs(entries: list[tuple[str, dict]], args, sta) -> list:
+    """What ``evaluate_frames`` runs for the ``--techniques`` entries: a name where nothing is given for it (the
+    report builds it), else a technique object from the registry with the flags' options, the entry's own over
+    them, and what it has fields for (the STA's light, thickness, albedo); jimenez (taps without a count sweep)
+    once per ``--taps`` value where ``--taps`` is given."""
     import dataclasses
-    import inspect
 
-    accepted = inspect.signature(evaluate_frames).parameters
-    if "AbstractTechnique" not in str(accepted["techniques"].annotation):
-        return techniques, option_arguments_for(evaluate_frames, options, "report")
-    from .._techniques import TECHNIQUES, technique
+    from .._techniques import TECHNIQUES
 
-    built = []
-    for name in techniques:
-        if not options.get(name):
-            built.append(name)
+    names = [n for n, _ in entries]
+    flags = {n: technique_options(args, n, others=names) for n in dict.fromkeys(names)}
+    runs = []
+    for name, own in entries:
+        cls = TECHNIQUES[name]
+        fields = {f.name for f in dataclasses.fields(cls)}
+        if cls.count_option is not None and cls.count_option in own:
+            raise ValueError(f"--techniques {name}:{cls.count_option}=...: the report sweeps {name}'s "
+                             f"{cls.count_option}; give them as --{cls.count_option}")
+        options = {**flags[name], **own}
+        context = {"light": None if sta is None else sta[1], "thickness": args.thickness, "albedo": args.albedo}
+        extra = {k: v for k, v in context.items() if k in fields and v is not None and k not in options}
+        counts = [{}]
+        if cls.count_option is None and "taps" in fields and "taps" not in own and args.taps is not None:
+            counts = [{"taps": n} for n in args.taps]
+        if not options and counts == [{}]:
+            runs.append(name)
             continue
-        fields = {f.name for f in dataclasses.fields(TECHNIQUES[name])}
-        extra = {"light": sta[1]} if "light" in fields and sta is not None else {}
-        built.append(technique(name, **extra, **options[name]))
-    return built, {}
+        for count in counts:
+            try:
+                runs.append(cls(**extra, **options, **count))
+            except ValueError as exc:
+                flag = "--taps" if count else "--techniques/the technique flags"
+                raise ValueError(f"{flag}: {exc}") from None
+    return runs
 
 
 def _warn_sta_thickness(args, params) -> None:
@@ -185,10 +211,8 @@ def run(args) -> int:
     from .._report import report
 
     try:
-        techniques = [t.strip() for t in args.techniques.split(",") if t.strip()]
-        unknown = [t for t in techniques if t not in REPORT_TECHNIQUES]
-        if unknown or not techniques:
-            raise ValueError(f"--techniques: unknown {unknown or '(none)'}; valid: {', '.join(REPORT_TECHNIQUES)}")
+        entries = technique_entries(args.techniques, REPORT_TECHNIQUES)
+        techniques = [n for n, _ in entries]
         for name in ("focal_px", "mm_per_unit"):
             v = getattr(args, name)
             if v is not None and not (0 < v < float("inf")):
@@ -199,13 +223,13 @@ def run(args) -> int:
         shown = WarningPrinter("sss-jax report")
         notes = []
         if "sta" in techniques and sta is None:
-            if args.techniques != "sta,separable,burley":
+            if args.techniques != DEFAULT_TECHNIQUES:
                 raise ValueError("--techniques sta needs --light-dir X,Y,Z (the back light's direction)")
-            techniques.remove("sta")
+            entries = [e for e in entries if e[0] != "sta"]
+            techniques = [n for n, _ in entries]
             notes.append("STA left out: it needs the back light's direction (--light-dir X,Y,Z).")
-        options = {t: technique_options(args, t, others=techniques) for t in techniques}
         run_sta = "sta" in techniques
-        techniques, option_arguments = _with_options(evaluate_frames, techniques, options, sta)
+        runs = _runs(entries, args, sta)
         # the reference cache lives in OUT/cache; on a first run it is built in a scratch folder and moved in only
         # when the report is complete, so bad input or an interruption leaves nothing in OUT
         cache = args.out / "cache"
@@ -215,9 +239,9 @@ def run(args) -> int:
                 if sta is not None and run_sta:
                     _warn_sta_thickness(args, sta[0])
                 data = evaluate_frames(
-                    args.inputs, mat, truth=args.truth, truth_channels=args.truth_channels, techniques=techniques,
-                    taps=args.taps, samples=args.samples, separable_material=sep, sta=sta, sta_thickness=args.thickness,
-                    **option_arguments,
+                    args.inputs, mat, truth=args.truth, truth_channels=args.truth_channels, techniques=runs,
+                    taps=args.taps or DEFAULT_TAPS, samples=args.samples or DEFAULT_SAMPLES, separable_material=sep,
+                    sta=sta, sta_thickness=args.thickness,
                     focal_px=args.focal_px, mm_per_unit=args.mm_per_unit, channel_map=args.channel_map,
                     depth_kind=args.depth_kind, use_albedo_pass=args.albedo is None, radius_px=args.radius_px,
                     cache_dir=scratch or cache, repeats=args.repeats, material_info=info, progress=not args.no_progress)
@@ -237,6 +261,11 @@ def run(args) -> int:
         print(f"sss-jax report: {exc}", file=sys.stderr)
         return 2
     rows = [(r.label, r.ms_per_frame) for r in data.runs]
+    for r in data.runs:  # what each run costs as its shader executes it, beside the time here
+        c = r.cost_per_pixel or {}
+        cost = (f"; {c['samples']:g} samples, {c['fetches']:g} texels, {c['flops']:g} flops per SSS pixel and frame"
+                if c else "")
+        print(f"  {r.label}: {r.ms_per_frame:.1f} ms per frame here{cost}")
     for note in notes:  # what the report left out and why (also in report.json's notes)
         print(f"sss-jax report: note: {note}", file=sys.stderr)
     print(f"report: {html}")
