@@ -143,6 +143,58 @@ def test_slab_model_against_a_path_traced_back_lit_medium():
             assert np.all(np.abs(got / want - 1) < 0.6 * np.abs(old / want - 1)), (t, got / want, old / want)
 
 
+def test_edge_loss_and_held_mask():
+    from scipy import integrate
+
+    from sss_jax._match import edge_loss, held_mask, match_frame
+
+    # the share of Burley's 2D profile beyond a straight edge, by 2D quadrature of R(r) = (e^-r + e^-r/3) / (8 pi r)
+    R = lambda r: (math.exp(-r) + math.exp(-r / 3)) / (8 * math.pi * r)
+    mat = sj.BurleyMaterial([0.5] * 3, [1.0, 0.5, 0.25])
+    for x0 in (0.0, 1.0, 3.0, 8.0):
+        want = integrate.dblquad(lambda y, x: R(math.hypot(x, y)), x0, 80, -80, 80)[0]
+        got = edge_loss(np.array([x0]), mat, np.array([0]), np.array([1.0]))[0]  # the widest channel: d = 1
+        assert got == pytest.approx(want, rel=1e-6, abs=1e-9), x0
+    # the two-Gaussian separable kernel a(x) a(y): the normal tails, w Q(x / s1) + (1 - w) Q(x / s2)
+    tg = sj.TwoGaussianMaterial([0.5] * 3, [0.3] * 3, [1.0] * 3, [4.0] * 3)
+    q = lambda z: 0.5 * math.erfc(z / math.sqrt(2))
+    assert edge_loss(np.array([3.0]), tg, np.array([0]), np.array([1.0]))[0] == pytest.approx(
+        0.3 * q(3.0) + 0.7 * q(0.75), rel=1e-9)
+    # a frame: the held pixels are those ~8.2 d (d = 2 px) or more from every edge (99% of the energy inside)
+    shape = (64, 80)
+    b = sj.Buffers(irradiance=jnp.ones(shape + (3,)), depth=jnp.full(shape, 100.0))
+    f = match_frame(b, sj.Camera(200.0, 1.0), np.ones(shape + (3,)))  # 2 px per mm: d = 1 mm is 2 px
+    m = held_mask(f, mat)
+    ys, xs = np.nonzero(m)
+    assert 14 <= xs.min() <= 19 and 14 <= ys.min() <= 19 and xs.max() == 79 - xs.min() and ys.max() == 63 - ys.min()
+    assert held_mask(f, mat, held_fraction=0.9).sum() > m.sum() > 0
+
+
+@pytest.mark.usefixtures("float32")
+def test_fit_reports_the_pixels_it_scored():
+    from sss_jax._match import held_mask, match_frame, match_render
+
+    shape = (24, 32)
+    e = np.full(shape + (3,), 0.2, np.float32)
+    e[:, 16:] = 1.0
+    b = sj.Buffers(irradiance=jnp.asarray(e), depth=jnp.full(shape, 100.0, jnp.float32))
+    cam = sj.Camera(100.0, 1.0)  # 1 px per mm
+    mat = sj.BurleyMaterial([0.6, 0.5, 0.4], [0.8, 0.5, 0.3])
+    truth = np.asarray(sj.burley(b, mat, cam, samples=8, pattern="fixed"))
+    f = match_frame(b, cam, truth)
+    r = match_render(f, mat, samples=8, max_steps=2)
+    held = held_mask(f, mat)
+    assert r.scored["frames"][0]["scored_pixels"] == int(held.sum()) and 0 < held.sum() < held.size
+    assert r.scored["frames"][0]["sss_pixels"] == held.size and np.array_equal(r.score_masks[0], held)
+    assert r.to_json()["scored"]["rule"].startswith("SSS pixels holding >= 0.99")
+    assert set(r.errors["fitted"]["scored"]) == {"before", "after"}
+    r_all = match_render(f, mat, samples=8, max_steps=2, score="all")
+    assert r_all.scored["frames"][0]["scored_pixels"] == held.size
+    # a kernel wider than the frame leaves nothing to score: said, with the way out
+    with pytest.raises(ValueError, match="no pixel of material id.*score='all'"):
+        match_render(f, sj.BurleyMaterial([0.6, 0.5, 0.4], [20.0, 10.0, 5.0]), samples=8, max_steps=1)
+
+
 def test_advise_flags_candidates_worse_than_local_shading():
     from sss_jax._advise import Candidate, advise, measure_candidates
 
