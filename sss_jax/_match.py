@@ -15,6 +15,13 @@ material's mean truth value, counts quadratically up to ``huber_delta`` and line
 fireflies and what screen space cannot know (light entering unseen surfaces) pull less on the fit. Errors reported
 before and after are always the plain ``rel_l2``.
 
+Which pixels are scored (``score``): by default (``"held"``) only those whose kernel the frame holds -- at least
+``held_fraction`` (0.99) of the starting kernel's energy inside the frame, from its 1D marginal beyond each frame
+edge (``held_mask``) --, so that d is not bent to make up for light a screen-space pass cannot see beyond the frame
+(a close-up's light from outside it); ``"all"`` scores every SSS pixel. The result says which pixels it scored
+(``MatchResult.scored``: counts per frame and material, the rule; ``score_masks``: the masks) and reports the errors
+on the scored pixels beside the plain ones on all SSS pixels.
+
 Solver: optimistix Levenberg–Marquardt on the residual vector, parameters in log space (d, widths, STA terms:
 positive) or logit space (albedo, ``w``: in (0, 1)), ``throw=False``; its result code and iterations are kept.
 Several frames are fitted at once (one material, many views); frames given as ``holdout`` are not fitted, only
@@ -43,11 +50,13 @@ from ._materials import BurleyMaterial, DirectionalLight, STAParams, TwoGaussian
 from ._scene import Buffers, Camera
 from ._techniques._base import AbstractTechnique
 
-__all__ = ["MATCH_TECHNIQUES", "MATCH_LOSSES", "MatchFrame", "MatchResult", "match_frame", "load_match_frame",
-           "read_truth", "match_render", "match_report_html", "write_match_html"]
+__all__ = ["MATCH_TECHNIQUES", "MATCH_LOSSES", "MATCH_SCORES", "MatchFrame", "MatchResult", "match_frame",
+           "load_match_frame", "read_truth", "match_render", "match_report_html", "write_match_html", "held_mask",
+           "edge_loss"]
 
 MATCH_TECHNIQUES = ("burley", "separable", "sta")  # the registry names of the classes in _FITS (a test checks)
 MATCH_LOSSES = ("huber", "l2")
+MATCH_SCORES = ("held", "all")
 METRIC = "rel_l2 = ||out - truth||_2 / ||truth||_2 over RGB on the material's SSS pixels (finite depth, id == k; " \
          "'all': id > 0), pooled over the frames"
 _MAX_ID = 255
@@ -209,6 +218,12 @@ class _AbstractFit:
     def render(self, technique, frame, p: Mapping[str, Any]):
         return technique(frame.buffers, self.material(p), frame.camera)
 
+    def beyond_edge(self, material, distance_px: np.ndarray, px_per_mm: np.ndarray) -> np.ndarray | None:
+        """Host side: per pixel and channel ``(..., 3)``, the share of ``material``'s kernel (its rows already picked
+        per pixel: arrays ``(..., 3)``) beyond a straight frame edge ``distance_px`` away; None: the technique has no
+        kernel that reaches past the frame (every pixel is held)."""
+        return None
+
     def record(self, technique, p_fit: Mapping[str, Any], ids) -> tuple[dict, dict | None]:
         """The technique's options the fit was for, and the engines' blocks of the fitted material (or None)."""
         count = technique.count_option
@@ -225,6 +240,22 @@ class _BurleyFit(_AbstractFit):
 
     def material(self, p):
         return BurleyMaterial(p["albedo"], p["d_mm"])
+
+    def beyond_edge(self, material, distance_px, px_per_mm):
+        """The 1D marginal of ``R(r) = (e^{-r/d} + e^{-r/3d}) / (8 pi d r)`` is ``(K0(x/d) + K0(x/3d)) / (4 pi d)``
+        (``int e^{-sqrt(x^2+y^2)/d} / sqrt(x^2+y^2) dy = 2 K0(|x|/d)``), so the share beyond x is
+        ``[(pi/2 - int_0^{x/d} K0) + 3 (pi/2 - int_0^{x/3d} K0)] / (4 pi)`` (scipy ``iti0k0``; 1/2 at the edge)."""
+        from scipy.special import iti0k0
+
+        d = np.asarray(material["d_mm"], np.float64) * px_per_mm
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = np.where(d > 0, distance_px / np.where(d > 0, d, 1.0), np.inf)
+
+        def tail(z):
+            finite = np.isfinite(z)
+            return np.where(finite, np.pi / 2 - iti0k0(np.where(finite, z, 0.0))[1], 0.0)
+
+        return (tail(u) + 3 * tail(u / 3)) / (4 * np.pi)
 
     def record(self, technique, p_fit, ids):
         from .engines import engine_blocks
@@ -254,6 +285,19 @@ class _SeparableFit(_AbstractFit):
 
     def material(self, p):
         return TwoGaussianMaterial(p["albedo"], p["w"], p["sigma_near_mm"], p["sigma_far_mm"])
+
+    def beyond_edge(self, material, distance_px, px_per_mm):
+        """The separable kernel is a(x) a(y) with a the two-Gaussian mixture: the share beyond x is
+        ``w Q(x / s_near) + (1 - w) Q(x / s_far)``, Q the standard normal tail."""
+        from scipy.special import erfc
+
+        def q(sigma_mm):
+            s = np.asarray(sigma_mm, np.float64) * px_per_mm
+            with np.errstate(divide="ignore", invalid="ignore"):
+                return np.where(s > 0, 0.5 * erfc(distance_px / (np.sqrt(2) * np.where(s > 0, s, 1.0))), 0.0)
+
+        w = np.asarray(material["w"], np.float64)
+        return w * q(material["sigma_near_mm"]) + (1 - w) * q(material["sigma_far_mm"])
 
 
 class _TranslucencyFit(_AbstractFit):
@@ -297,6 +341,9 @@ def _fits():
 
 # the fit of each technique class that can be fitted to a render
 _FITS: dict[type, _AbstractFit] = _fits()
+# the fit that owns a material's kernel (the start of a held-pixel score; edge_loss)
+_FITS_BY_MATERIAL = {BurleyMaterial: next(f for f in _FITS.values() if isinstance(f, _BurleyFit)),
+                     TwoGaussianMaterial: next(f for f in _FITS.values() if isinstance(f, _SeparableFit))}
 
 
 def _natural(fit: _AbstractFit, y: Mapping[str, Any], albedo) -> dict[str, Any]:
@@ -304,6 +351,63 @@ def _natural(fit: _AbstractFit, y: Mapping[str, Any], albedo) -> dict[str, Any]:
     xp = jnp if any(isinstance(v, jax.Array) for v in y.values()) else np
     a = 1 / (1 + xp.exp(-y["logit_albedo"])) if "logit_albedo" in y else albedo
     return fit.natural(y, a, xp)
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# which pixels are scored: those whose kernel the frame holds
+# ------------------------------------------------------------------------------------------------------------------
+
+
+def _kernel_rows(material) -> tuple[_AbstractFit | None, dict[str, np.ndarray]]:
+    """The fit whose kernel ``material`` is, and its kernel parameters as ``(M, 3)`` float64 tables."""
+    if isinstance(material, BurleyMaterial):
+        return _FITS_BY_MATERIAL[BurleyMaterial], {"d_mm": np.asarray(material.d_mm, np.float64).reshape(-1, 3)}
+    if isinstance(material, TwoGaussianMaterial):
+        names = ("w", "sigma_near_mm", "sigma_far_mm")
+        return _FITS_BY_MATERIAL[TwoGaussianMaterial], {
+            n: np.asarray(getattr(material, n), np.float64).reshape(-1, 3) for n in names}
+    return None, {}
+
+
+def edge_loss(distance_px, material, rows, px_per_mm) -> np.ndarray:
+    """Host side: the share of a pixel's kernel beyond a straight frame edge ``distance_px`` away, the largest over
+    channels, shape of ``distance_px``. ``rows``: each pixel's material row (id - 1), ``px_per_mm``: its mm -> px
+    factor at the pixel's depth. A ``BurleyMaterial``'s kernel is the Burley profile (its 1D marginal by K0
+    integrals), a ``TwoGaussianMaterial``'s the separable two-Gaussian (normal tails); a material of no kernel
+    (STA's) loses nothing: 0."""
+    fit, table = _kernel_rows(material)
+    if fit is None:
+        return np.zeros(np.shape(distance_px))
+    rows = np.asarray(rows)
+    picked = {n: t[np.clip(rows, 0, t.shape[0] - 1)] for n, t in table.items()}  # (..., 3) per pixel
+    x = np.asarray(distance_px, np.float64)[..., None]  # (..., 1) against (..., 3) channels
+    loss = fit.beyond_edge(picked, x, np.asarray(px_per_mm, np.float64)[..., None])
+    return np.asarray(loss).max(axis=-1)
+
+
+def held_mask(frame: MatchFrame, material, *, held_fraction: float = 0.99) -> np.ndarray:
+    """Host side: ``(H, W)`` bool, the SSS pixels of ``frame`` whose kernel (``material``'s, at the pixel's own
+    depth) the frame holds: at least ``held_fraction`` of its energy inside the frame, the shares beyond the four
+    edges (``edge_loss``) summed (a bound: a corner's share counts twice)."""
+    if not (0.0 < held_fraction < 1.0):
+        raise ValueError(f"held_fraction must lie in (0, 1), got {held_fraction}")
+    ids = frame.material_id
+    h, w = ids.shape
+    depth = np.asarray(frame.buffers.depth, np.float64)
+    sss = ids > 0
+    safe = np.where(sss & np.isfinite(depth) & (depth > 0), depth, np.inf)
+    px_per_mm = float(frame.camera.focal_px) / (safe * float(frame.camera.mm_per_unit))
+    rows = np.maximum(ids - 1, 0)
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
+    lost = sum(edge_loss(dist, material, rows, px_per_mm) for dist in (xs + 0.5, w - xs - 0.5, ys + 0.5, h - ys - 0.5))
+    return sss & (1.0 - lost >= held_fraction)
+
+
+def _scored_ids(frame: MatchFrame, material, score: str, held_fraction: float) -> np.ndarray:
+    """The id map of the pixels scored: the frame's own (``"all"``), or 0 where the kernel is not held."""
+    if score == "all":
+        return frame.material_id
+    return np.where(held_mask(frame, material, held_fraction=held_fraction), frame.material_id, 0).astype(np.int32)
 
 
 # ------------------------------------------------------------------------------------------------------------------
@@ -360,8 +464,9 @@ def _render_jit(problem: _Problem, frame: _FrameData, y):
     return _render(problem, frame, y)
 
 
-def _frame_data(frame: MatchFrame, norms: Mapping[int, float], means: Mapping[int, float], dtype) -> _FrameData:
-    ids = frame.material_id
+def _frame_data(frame: MatchFrame, norms: Mapping[int, float], means: Mapping[int, float], dtype,
+                scored: np.ndarray | None = None) -> _FrameData:
+    ids = frame.material_id if scored is None else scored  # the weights: the scored pixels only
     weight = np.zeros(ids.shape, np.float64)
     scale = np.ones(ids.shape, np.float64)
     for k, n in norms.items():
@@ -372,15 +477,17 @@ def _frame_data(frame: MatchFrame, norms: Mapping[int, float], means: Mapping[in
     return _FrameData(b, Camera(jnp.asarray(frame.camera.focal_px, dtype), jnp.asarray(frame.camera.mm_per_unit, dtype),
                                 frame.camera.principal_point),
                       jnp.asarray(frame.truth, dtype), jnp.asarray(weight, dtype), jnp.asarray(scale, dtype),
-                      jnp.asarray(ids, jnp.int32))
+                      jnp.asarray(frame.material_id, jnp.int32))
 
 
-def _pooled_stats(frames: Sequence[MatchFrame], ids: Sequence[int]) -> tuple[dict[int, float], dict[int, float]]:
+def _pooled_stats(frames: Sequence[MatchFrame], ids: Sequence[int],
+                  scored: Sequence[np.ndarray] | None = None) -> tuple[dict[int, float], dict[int, float]]:
     norms, means = {}, {}
+    scored = [f.material_id for f in frames] if scored is None else scored
     for k in ids:
         sq, total, count = 0.0, 0.0, 0
-        for f in frames:
-            t = f.truth[f.material_id == k].astype(np.float64)
+        for f, m in zip(frames, scored):
+            t = f.truth[m == k].astype(np.float64)
             sq += float(np.sum(t**2))
             total += float(np.sum(t))
             count += t.size
@@ -394,24 +501,27 @@ def _pooled_stats(frames: Sequence[MatchFrame], ids: Sequence[int]) -> tuple[dic
 # ------------------------------------------------------------------------------------------------------------------
 
 
-def _errors(frames: Sequence[MatchFrame], outputs: Sequence[np.ndarray], ids: Sequence[int]) -> dict[str, Any]:
-    """rel_l2 per material id and over all SSS pixels, pooled over ``frames`` and per frame (NumPy, float64)."""
+def _errors(frames: Sequence[MatchFrame], outputs: Sequence[np.ndarray], ids: Sequence[int],
+            scored: Sequence[np.ndarray] | None = None) -> dict[str, Any]:
+    """rel_l2 per material id and over all SSS pixels (``scored``: over these id maps' pixels instead), pooled over
+    ``frames`` and per frame (NumPy, float64)."""
+    scored = [f.material_id for f in frames] if scored is None else scored
 
     def rel(pairs):
         num = sum(float(np.sum((o - t) ** 2)) for o, t in pairs)
         den = sum(float(np.sum(t**2)) for _, t in pairs)
         return math.sqrt(num / den) if den > 0 else None
 
-    def groups(f, out):
+    def groups(f, out, ids_map):
         o, t = out.astype(np.float64), f.truth.astype(np.float64)
-        g = {"all": (o[f.material_id > 0], t[f.material_id > 0])}
+        g = {"all": (o[ids_map > 0], t[ids_map > 0])}
         for k in ids:
-            m = f.material_id == k
+            m = ids_map == k
             if m.any():
                 g[f"id{k}"] = (o[m], t[m])
         return g
 
-    per = [groups(f, o) for f, o in zip(frames, outputs)]
+    per = [groups(f, o, m) for f, o, m in zip(frames, outputs, scored)]
     keys = ["all"] + [f"id{k}" for k in ids]
     pooled = {k: rel([g[k] for g in per if k in g]) for k in keys}
     return {"pooled": {k: v for k, v in pooled.items() if v is not None},
@@ -433,7 +543,11 @@ class MatchResult:
     "holdout"}`` each ``{"before": ..., "after": ...}`` as ``_errors`` gives (``holdout`` None without held-back
     frames); ``solver``: name, result (``optx.RESULTS`` name and message), iterations, seconds; ``engines``:
     ``{"id<k>": engine_blocks(...)}`` for a Burley fit (None otherwise); ``images``: per frame the truth, before
-    and after renders and the id map (host arrays, for the report; not in ``to_json``)."""
+    and after renders and the id map (host arrays, for the report; not in ``to_json``); ``scored``: which pixels
+    the fit scored (``rule``, ``score``, ``held_fraction``, per frame ``{"frame", "role", "sss_pixels",
+    "scored_pixels", "per_id": {"id<k>": [scored, of]}}``) and ``errors[role]["scored"]``, the errors before and
+    after on them; ``score_masks``: per frame (fitted, then held back) its ``(H, W)`` bool mask (not in
+    ``to_json``)."""
 
     technique: str
     material: Any
@@ -446,11 +560,13 @@ class MatchResult:
     errors: dict
     engines: dict | None
     images: tuple = dataclasses.field(repr=False, default=())
+    scored: dict | None = None
+    score_masks: tuple = dataclasses.field(repr=False, default=())
 
     def to_json(self) -> dict[str, Any]:
         return {"technique": self.technique, "options": self.options, "material_ids": list(self.ids),
                 "start": self.start, "fitted": self.parameters, "metric": METRIC, "loss": self.loss,
-                "solver": self.solver, "errors": self.errors, "engines": self.engines}
+                "solver": self.solver, "errors": self.errors, "engines": self.engines, "scored": self.scored}
 
 
 def _result_name(result) -> tuple[str, str]:
@@ -515,6 +631,8 @@ def match_render(
     atol: float = 1e-6,
     gain: float = 100.0,
     technique_options: Mapping[str, Mapping[str, Any]] | None = None,
+    score: str = "held",
+    held_fraction: float = 0.99,
 ) -> MatchResult:
     """Fit ``technique``'s material per material id so its output on ``frames`` matches their truth renders.
 
@@ -531,6 +649,10 @@ def match_render(
     ``technique_options``: ``{technique name: {option: value}}``, further options of the technique built from its
     name (``{"burley": {"border": "leaves"}}``; what ``sss-jax fit --render`` passes from its flags).
     Solver: optimistix Levenberg–Marquardt (``rtol``, ``atol``, ``max_steps``), ``throw=False``.
+    ``score``: ``"held"`` (default) fits and scores only the SSS pixels whose starting kernel the frame holds to
+    ``held_fraction`` (``held_mask``: d is not bent to make up for light lost beyond the frame), ``"all"`` every SSS
+    pixel; ``MatchResult.scored`` says which. The technique's own ``border`` (an option of the object) decides how
+    its kernel meets the frame in the render; the score decides which pixels count.
     """
     import optimistix as optx
 
@@ -542,6 +664,10 @@ def match_render(
         raise ValueError(f"unknown loss {loss!r}; valid losses: {', '.join(MATCH_LOSSES)}")
     if not (huber_delta > 0):
         raise ValueError(f"huber_delta must be > 0, got {huber_delta}")
+    if score not in MATCH_SCORES:
+        raise ValueError(f"unknown score {score!r}; valid scores: {', '.join(MATCH_SCORES)}")
+    if not (0.0 < held_fraction < 1.0):
+        raise ValueError(f"held_fraction must lie in (0, 1), got {held_fraction}")
     if not isinstance(samples, (int, np.integer)) or samples < 1:
         raise ValueError(f"samples must be a positive integer, got {samples!r}")
     if not isinstance(taps, (int, np.integer)) or taps < 1 or taps % 2 == 0:
@@ -567,11 +693,20 @@ def match_render(
     y0, albedo = fit.start(material, count)
     if fit_albedo:
         y0["logit_albedo"] = _logit(albedo)
+    # the kernel whose reach decides the scored pixels: the start's (separable from Burley: its two-Gaussian)
+    kernel = fit.material(_natural(fit, y0, albedo))
+    scored_fit = [_scored_ids(f, kernel, score, held_fraction) for f in frames]
+    scored_hold = [_scored_ids(f, kernel, score, held_fraction) for f in holdout]
+    unscored = [k for k in ids if not any(np.any(m == k) for m in scored_fit)]
+    if unscored:
+        raise ValueError(f"{', '.join(f.name for f in frames)}: no pixel of material id(s) {unscored} holds "
+                         f"{held_fraction:g} of its kernel's energy inside the frame: nothing to score "
+                         "(score='all', --score all, scores every SSS pixel)")
     # one dtype for parameters and images (lineax wants the Jacobian's input and output to agree): JAX's default
     # float, float32 unless x64 is on
     dtype = jnp.result_type(float)
-    norms, means = _pooled_stats(frames, ids)
-    data = tuple(_frame_data(f, norms, means, dtype) for f in frames)
+    norms, means = _pooled_stats(frames, ids, scored_fit)
+    data = tuple(_frame_data(f, norms, means, dtype, m) for f, m in zip(frames, scored_fit))
     problem = _Problem(data, jnp.asarray(albedo, dtype), jnp.asarray(gain, dtype), technique, fit, loss,
                        float(huber_delta))
     y0 = {k: jnp.asarray(v, dtype) for k, v in y0.items()}
@@ -592,12 +727,16 @@ def match_render(
 
     before, after = run(frames, y0), run(frames, y)
     errors = {"fitted": {"frames": [f.name for f in frames], "before": _errors(frames, before, ids),
-                         "after": _errors(frames, after, ids)}, "holdout": None}
+                         "after": _errors(frames, after, ids),
+                         "scored": {"before": _errors(frames, before, ids, scored_fit),
+                                    "after": _errors(frames, after, ids, scored_fit)}}, "holdout": None}
     images = [(f.name, "fitted", f.truth, b, a, f.material_id) for f, b, a in zip(frames, before, after)]
     if holdout:
         hb, ha = run(holdout, y0), run(holdout, y)
         errors["holdout"] = {"frames": [f.name for f in holdout], "before": _errors(holdout, hb, ids),
-                             "after": _errors(holdout, ha, ids)}
+                             "after": _errors(holdout, ha, ids),
+                             "scored": {"before": _errors(holdout, hb, ids, scored_hold),
+                                        "after": _errors(holdout, ha, ids, scored_hold)}}
         images += [(f.name, "holdout", f.truth, b, a, f.material_id) for f, b, a in zip(holdout, hb, ha)]
 
     host = lambda yy: {k: np.asarray(v, np.float64) for k, v in yy.items()}
@@ -607,6 +746,17 @@ def match_render(
     options, engines = fit.record(technique, p_fit, ids)
     options.update({k: v if isinstance(v, (str, int, float, bool, type(None))) else str(v) for k, v in given.items()})
     options["fit_albedo"] = bool(fit_albedo)
+    if getattr(technique, "border", None) is not None:
+        options["border"] = technique.border
+    held_rule = f"SSS pixels holding >= {held_fraction:g} of the starting kernel's energy inside the frame"
+    rule = ("every SSS pixel" if score == "all" else held_rule if _kernel_rows(kernel)[0] is not None else
+            "every SSS pixel (the technique's kernel does not reach past the frame)")
+    scored = {"rule": rule, "score": score, "held_fraction": float(held_fraction), "frames": [
+        {"frame": f.name, "role": role, "sss_pixels": int(np.count_nonzero(f.material_id > 0)),
+         "scored_pixels": int(np.count_nonzero(m > 0)),
+         "per_id": {f"id{k}": [int(np.count_nonzero(m == k)), int(np.count_nonzero(f.material_id == k))] for k in ids}}
+        for role, fs, ms in (("fitted", frames, scored_fit), ("holdout", holdout, scored_hold))
+        for f, m in zip(fs, ms)]}
     loss_info = {"name": loss, "note": "plain least squares on rel_l2 per material" if loss == "l2" else
                  "Huber on each pixel's residual in units of its material's mean truth value (quadratic up to "
                  "huber_delta, linear beyond), against the truth as given (not denoised)"}
@@ -618,7 +768,8 @@ def match_render(
         solver={"name": "optimistix.LevenbergMarquardt", "rtol": rtol, "atol": atol, "max_steps": int(max_steps),
                 "result": name, "message": message, "iterations": int(sol.stats["num_steps"]),
                 "seconds": round(seconds, 3), "parameters": sorted(y0)},
-        errors=errors, engines=engines, images=tuple(images))
+        errors=errors, engines=engines, images=tuple(images), scored=scored,
+        score_masks=tuple(m > 0 for m in scored_fit + scored_hold))
 
 
 # ------------------------------------------------------------------------------------------------------------------

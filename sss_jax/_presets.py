@@ -116,7 +116,12 @@ def load_preset(name_or_path: str | os.PathLike) -> Preset:
             tr = data["transmittance"]
             if not isinstance(tr, dict) or not all(k in tr for k in ("thickness_mm", "T", "resolved")):
                 raise SSSInputError(f"{path}: transmittance must be an object with thickness_mm, T and resolved")
-            medium = MediumMaterial.from_tables(burley, [tr])
+            # the medium's single-scattering albedo (its exit distribution's, _slab.slab_exit) from the source
+            src = data.get("source") if isinstance(data.get("source"), dict) else {}
+            alb = src.get("medium", {}).get("single_scattering_albedo") if isinstance(src.get("medium"), dict) \
+                else None
+            table = tr if alb is None or "albedo" in tr else {**tr, "albedo": alb}
+            medium = MediumMaterial.from_tables(burley, [table])
     except SSSInputError:
         raise
     except (ValueError, TypeError) as exc:

@@ -135,12 +135,124 @@ def test_slab_model_against_a_path_traced_back_lit_medium():
     for t, inner in _slab_interiors(b, mask).items():
         assert inner.sum() > 1000
         got, old, want = out[inner].mean(0), total[inner].mean(0), truth[inner].mean(0)
-        # measured (README): 4 mm 1.12 / 0.99 / 0.89, 2 mm 1.30 / 1.16 / 1.03, 1 mm 1.49 / 1.39 / 1.24 of the truth
-        # (the total of before: 1.08-0.97, 1.81-1.55, 3.62-2.93); thin slabs are still too bright, see README
-        if t == 4.0:
-            np.testing.assert_allclose(got, want, rtol=0.15)
+        # measured (README): 1 mm 0.97 / 0.98 / 0.97, 2 mm 0.99 / 0.98 / 0.99, 4 mm 1.02 / 1.02 / 1.10 of the truth
+        # (with the thick-slab diffusion exit before: 1.49 / 1.39 / 1.24, 1.30 / 1.16 / 1.03, 1.12 / 0.99 / 0.89; the
+        # total with a Lambertian exit: 3.62-2.93, 1.81-1.55, 1.08-0.97); 4 mm blue is the table's T_d (0.0074 against
+        # the walk's 0.0067 of scripts/slab_exit.py)
+        np.testing.assert_allclose(got, want, rtol=0.12, err_msg=f"{t} mm")
         if t <= 2.0:  # where the unscattered beam is a large share, the error falls by at least 40%
             assert np.all(np.abs(got / want - 1) < 0.6 * np.abs(old / want - 1)), (t, got / want, old / want)
+
+
+def _exit_by_diffusion_solve(mu_view, tau, alpha, mu_light, n=3000):
+    """P(mu_view) of an index-matched slab by finite differences (independent of _slab): the diffusion fluence of the
+    scattered light, -phi''/3 + (1 - alpha) phi = alpha e^{-z/mu_light}, phi = (2/3)|phi'| on both faces (scipy
+    solve_banded), the source alpha (phi + e^{-z/mu_light}), its emergent radiance int S e^{-(tau-z)/mu} dz / mu
+    (trapezoid), over its flux int L 2 mu dmu (Gauss-Legendre in mu)."""
+    from scipy.linalg import solve_banded
+
+    z = np.linspace(0.0, tau, n)
+    h = z[1] - z[0]
+    ab = np.zeros((3, n))
+    rhs = alpha * np.exp(-z / mu_light)
+    ab[1], ab[0, 1:], ab[2, :-1] = 2 / (3 * h * h) + (1 - alpha), -1 / (3 * h * h), -1 / (3 * h * h)
+    ab[1, 0], ab[0, 1], rhs[0] = 1 + 2 / (3 * h), -2 / (3 * h), 0.0  # phi_0 = (2/3)(phi_1 - phi_0) / h
+    ab[1, -1], ab[2, -2], rhs[-1] = 1 + 2 / (3 * h), -2 / (3 * h), 0.0
+    source = alpha * (solve_banded((1, 1), ab, rhs) + np.exp(-z / mu_light))
+    radiance = lambda m: np.trapezoid(source * np.exp(-(tau - z) / m), z) / m
+    x, w = np.polynomial.legendre.leggauss(64)
+    x, w = 0.5 * (x + 1), 0.5 * w
+    return radiance(mu_view) / np.sum(w * np.array([radiance(m) for m in x]) * 2 * x)
+
+
+def test_slab_exit_distribution():
+    from sss_jax._slab import diffuse_exit, slab_exit
+
+    # against the independent diffusion solve: thin and thick, absorbing and not, oblique light
+    cases = np.array([(tau, alpha, mu_light, mu) for tau, alpha, mu_light in (
+        (0.77, 0.959, 0.958), (2.1, 0.838, 0.958), (5.96, 0.678, 0.958), (1.0, 1.0, 0.6), (8.0, 0.99, 1.0))
+        for mu in (0.3, 0.7, 0.98)])
+    want = [_exit_by_diffusion_solve(mu, tau, alpha, mu_light) for tau, alpha, mu_light, mu in cases]
+    got = slab_exit(cases[:, 3], cases[:, 0], cases[:, 1], cases[:, 2], 1.0)
+    np.testing.assert_allclose(got, want, rtol=0.01)
+    # and against the NumPy Monte Carlo walk of scripts/slab_exit.py (200,000 photons, exit cosines 0.97-1, skin1's
+    # 1 / 2 / 4 mm slabs lit at 0.958): the radiance the walk lets out near the normal, per channel
+    mc = {(0.77, 0.959): 0.826, (1.05, 0.838): 0.861, (1.49, 0.678): 0.978, (3.09, 0.959): 1.116,
+          (4.20, 0.838): 1.293, (5.96, 0.678): 1.518}
+    tau, alpha = np.array(list(mc)).T
+    np.testing.assert_allclose(slab_exit(0.985, tau, alpha, 0.958, 1.0), list(mc.values()), rtol=0.05)
+    # the thin limit: once-scattered light grows with the path through the slab, P -> 1 / (2 mu) (limb-brightening)
+    mu = np.array([0.25, 0.5, 1.0])
+    np.testing.assert_allclose(slab_exit(mu, 1e-4, 0.7, 0.9, 1.0), 1 / (2 * mu), rtol=2e-3)
+    # a thick conservative slab tends to the diffusion approximation's exit; the flux is that of a Lambertian exit
+    assert float(slab_exit(0.9, 12.0, 1.0, 1.0, 1.0)) == pytest.approx(float(diffuse_exit(0.9, 1.0)), rel=0.03)
+    x, w = np.polynomial.legendre.leggauss(200)
+    x, w = 0.5 * (x + 1), 0.5 * w
+    for eta in (1.0, 1.3):
+        p = np.asarray(slab_exit(jnp.asarray(x), 1.5, 0.9, 0.8, eta))
+        assert np.sum(w * p * 2 * x) == pytest.approx(1.0, abs=5e-3), eta
+    # finite gradients at the limits: no thickness, a conservative medium, a grazing view and light, inf thickness
+    for args in ((0.5, 0.0, 0.8, 0.9, 1.0), (0.5, 1.0, 1.0, 0.9, 1.3), (0.0, 2.0, 0.5, 0.0, 1.3),
+                 (0.9, 1.0, 0.0, 0.9, 1.0), (0.9, np.inf, 0.5, 0.9, 1.0)):
+        g = jax.grad(lambda *a: slab_exit(*a), argnums=(0, 1, 2, 3))(*map(jnp.asarray, args))
+        assert np.all(np.isfinite(np.asarray(g))), (args, g)
+    # float32 (a user's run) agrees with float64 on a thick slab
+    with jax.enable_x64(False):
+        p32 = float(slab_exit(jnp.float32(0.9), jnp.float32(11.0), jnp.float32(0.5), jnp.float32(0.9),
+                              jnp.float32(1.0)))
+    assert p32 == pytest.approx(float(slab_exit(0.9, 11.0, 0.5, 0.9, 1.0)), rel=1e-4)
+
+
+def test_edge_loss_and_held_mask():
+    from scipy import integrate
+
+    from sss_jax._match import edge_loss, held_mask, match_frame
+
+    # the share of Burley's 2D profile beyond a straight edge, by 2D quadrature of R(r) = (e^-r + e^-r/3) / (8 pi r)
+    R = lambda r: (math.exp(-r) + math.exp(-r / 3)) / (8 * math.pi * r)
+    mat = sj.BurleyMaterial([0.5] * 3, [1.0, 0.5, 0.25])
+    for x0 in (0.0, 1.0, 3.0, 8.0):
+        want = integrate.dblquad(lambda y, x: R(math.hypot(x, y)), x0, 80, -80, 80)[0]
+        got = edge_loss(np.array([x0]), mat, np.array([0]), np.array([1.0]))[0]  # the widest channel: d = 1
+        assert got == pytest.approx(want, rel=1e-6, abs=1e-9), x0
+    # the two-Gaussian separable kernel a(x) a(y): the normal tails, w Q(x / s1) + (1 - w) Q(x / s2)
+    tg = sj.TwoGaussianMaterial([0.5] * 3, [0.3] * 3, [1.0] * 3, [4.0] * 3)
+    q = lambda z: 0.5 * math.erfc(z / math.sqrt(2))
+    assert edge_loss(np.array([3.0]), tg, np.array([0]), np.array([1.0]))[0] == pytest.approx(
+        0.3 * q(3.0) + 0.7 * q(0.75), rel=1e-9)
+    # a frame: the held pixels are those ~8.2 d (d = 2 px) or more from every edge (99% of the energy inside)
+    shape = (64, 80)
+    b = sj.Buffers(irradiance=jnp.ones(shape + (3,)), depth=jnp.full(shape, 100.0))
+    f = match_frame(b, sj.Camera(200.0, 1.0), np.ones(shape + (3,)))  # 2 px per mm: d = 1 mm is 2 px
+    m = held_mask(f, mat)
+    ys, xs = np.nonzero(m)
+    assert 14 <= xs.min() <= 19 and 14 <= ys.min() <= 19 and xs.max() == 79 - xs.min() and ys.max() == 63 - ys.min()
+    assert held_mask(f, mat, held_fraction=0.9).sum() > m.sum() > 0
+
+
+@pytest.mark.usefixtures("float32")
+def test_fit_reports_the_pixels_it_scored():
+    from sss_jax._match import held_mask, match_frame, match_render
+
+    shape = (24, 32)
+    e = np.full(shape + (3,), 0.2, np.float32)
+    e[:, 16:] = 1.0
+    b = sj.Buffers(irradiance=jnp.asarray(e), depth=jnp.full(shape, 100.0, jnp.float32))
+    cam = sj.Camera(100.0, 1.0)  # 1 px per mm
+    mat = sj.BurleyMaterial([0.6, 0.5, 0.4], [0.8, 0.5, 0.3])
+    truth = np.asarray(sj.burley(b, mat, cam, samples=8, pattern="fixed"))
+    f = match_frame(b, cam, truth)
+    r = match_render(f, mat, samples=8, max_steps=2)
+    held = held_mask(f, mat)
+    assert r.scored["frames"][0]["scored_pixels"] == int(held.sum()) and 0 < held.sum() < held.size
+    assert r.scored["frames"][0]["sss_pixels"] == held.size and np.array_equal(r.score_masks[0], held)
+    assert r.to_json()["scored"]["rule"].startswith("SSS pixels holding >= 0.99")
+    assert set(r.errors["fitted"]["scored"]) == {"before", "after"}
+    r_all = match_render(f, mat, samples=8, max_steps=2, score="all")
+    assert r_all.scored["frames"][0]["scored_pixels"] == held.size
+    # a kernel wider than the frame leaves nothing to score: said, with the way out
+    with pytest.raises(ValueError, match="no pixel of material id.*score='all'"):
+        match_render(f, sj.BurleyMaterial([0.6, 0.5, 0.4], [20.0, 10.0, 5.0]), samples=8, max_steps=1)
 
 
 def test_advise_flags_candidates_worse_than_local_shading():

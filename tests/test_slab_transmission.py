@@ -131,11 +131,13 @@ def test_translucency_slab_adds_the_diffusely_transmitted_light():
     tau = 2.0 / (d_mm * np.array([_searchlight(a) for a in albedo]))
     T_diffuse = T - np.exp(-tau)
     np.testing.assert_allclose(np.asarray(sj.slab_diffuse_transmittance(2.0, albedo, d_mm)), T_diffuse, rtol=1e-5)
-    # index-matched exit of the diffusion approximation, L(mu) ~ 1 + 1.5 mu normalised to the Lambertian flux:
-    # int_0^1 (1 + 1.5 mu) 2 mu dmu = 2, so P(mu) = (1 + 1.5 mu) / 2
-    P = (1.0 + 1.5 * _view_cosines((4, 5), 500.0)) / 2.0
+    # the exit distribution of this slab (issue #27: limb-brightened when thin, not the thick-slab diffusion exit
+    # (1 + 1.5 mu) / 2): its tau, the medium's single-scattering albedo, the light at 0.8 to the back face, eta 1;
+    # slab_exit itself is checked against a NumPy diffusion solve and a Monte Carlo walk in test_real_frames.py
+    alpha = np.asarray(_slab.single_scattering_albedo(albedo))
+    P = np.asarray(_slab.slab_exit(_view_cosines((4, 5), 500.0)[..., None], tau, alpha, 0.8, 1.0))
     # T holds all of the medium's absorption: the albedo tints the front-lit irradiance only (issue #18)
-    expected = albedo * 0.25 + np.array([2.0, 1.0, 0.5]) * T_diffuse * 0.8 * P[..., None]
+    expected = albedo * 0.25 + np.array([2.0, 1.0, 0.5]) * T_diffuse * 0.8 * P
     np.testing.assert_allclose(out, expected, rtol=1e-5)
     # the slab's total passes more light than the profile's CCDF at this thickness (docs/engines.md)
     assert np.all(T > np.asarray(sj.thin_transmittance(2.0, d_mm)))
@@ -268,9 +270,14 @@ def test_preset_medium_drives_translucency():
     np.testing.assert_allclose(T_d, T - ballistic, rtol=1e-5)
     # ... and against adding-doubling's total less the same beam: within 10% where above 0.01 (issue #18's bar)
     np.testing.assert_allclose(T_d, _adding_doubling_skin1(2.0) - ballistic, rtol=0.1)
-    P = np.asarray(_slab.diffuse_exit(_view_cosines((4, 5), 500.0), 1.3))
+    # P: the exit distribution of a 2 mm slab of the medium (its own tau and single-scattering albedo, lit at 0.8)
+    np.testing.assert_allclose(np.asarray(preset.medium.albedo_ss[0]),
+                               SKIN1_SIGMA_S_PRIME / (SKIN1_SIGMA_S_PRIME + SKIN1_SIGMA_A), rtol=1e-6)
+    tau = 2.0 * (SKIN1_SIGMA_S_PRIME + SKIN1_SIGMA_A)
+    alpha = np.asarray(preset.medium.albedo_ss[0])
+    P = np.asarray(_slab.slab_exit(_view_cosines((4, 5), 500.0)[..., None], tau, alpha, 0.8, 1.3))
     albedo = np.asarray(preset.burley.albedo[0])
-    expected = albedo * 0.25 + np.array([2.0, 1.0, 0.5]) * T_d * 0.8 * P[..., None]
+    expected = albedo * 0.25 + np.array([2.0, 1.0, 0.5]) * T_d * 0.8 * P
     np.testing.assert_allclose(out, expected, rtol=1e-5)
     # thicker passes less in all, never negative; t = 0 is the two faces alone, (1 - R)/(1 + R), all unscattered
     t = jnp.linspace(0.0, 40.0, 401)

@@ -15,7 +15,7 @@ from .._custom_types import ParamLike
 from .._materials import BurleyMaterial, DirectionalLight, STAParams
 from .._profiles import burley_cdf
 from .._scene import Buffers, Camera, camera_positions, normals_from_depth
-from .._slab import MediumMaterial, diffuse_exit, slab_diffuse_transmittance
+from .._slab import MediumMaterial, slab_diffuse_transmittance, slab_exit, slab_optical
 from ._common import _is_concrete, _prepare, _work_dtype
 
 
@@ -118,16 +118,20 @@ def _transmission_impl(buffers: Buffers, material: BurleyMaterial, camera: Camer
     else:
         T = medium.diffuse_transmittance(t[..., 0], prep.rows)
     transmitted = jnp.where(jnp.isfinite(thick_mm)[..., None], T, 0.0)
+    # light reaching the back face: the cosine between the back-facing normal and the light
+    back_cos = jnp.clip(jnp.sum(-normal * light.direction.astype(dtype).reshape(1, 1, 3), axis=-1), 0.0, 1.0)
     if model == "slab":
-        # the view-dependent exit of diffuse light through the front face (Fresnel, refraction; Lambertian is 1)
+        # the view-dependent exit of diffuse light through the front face, as the slab lets it out: limb-brightened
+        # when thin, peaked towards the normal when thick and absorbing (Fresnel, refraction; Lambertian is 1)
         pos = camera_positions(prep.depth, camera)
         view = -pos / jnp.linalg.norm(pos, axis=-1, keepdims=True)
         mu_view = jnp.clip(jnp.sum(normal * view, axis=-1), 0.0, 1.0)
-        eta = jnp.ones(prep.rows.shape, dtype) if medium is None else medium.eta.astype(dtype)[
-            jnp.clip(prep.rows, 0, medium.eta.shape[0] - 1)]
-        transmitted = transmitted * diffuse_exit(mu_view, eta)[..., None]
-    # light reaching the back face: the cosine between the back-facing normal and the light
-    back_cos = jnp.clip(jnp.sum(-normal * light.direction.astype(dtype).reshape(1, 1, 3), axis=-1), 0.0, 1.0)
+        if medium is None:
+            tau, alpha = slab_optical(t, medium_albedo, d)
+            eta = jnp.ones(prep.rows.shape, dtype)
+        else:
+            tau, alpha, eta = medium.optical(t[..., 0], prep.rows)
+        transmitted = transmitted * slab_exit(mu_view[..., None], tau, alpha, back_cos[..., None], eta[..., None])
     added = light.colour.astype(dtype).reshape(1, 1, 3) * transmitted * back_cos[..., None]
     out = prep.albedo_out * (prep.irradiance + (added if model == "thin" else 0.0)) + (added if model == "slab" else 0.0)
     out = jnp.where(prep.valid[..., None], out, buffers.irradiance.astype(dtype))

@@ -140,6 +140,12 @@ def _register_match(p) -> None:
     m.add_argument("--huber-delta", type=float, default=0.5,
                    help="Huber threshold in units of the material's mean truth value (default 0.5)")
     m.add_argument("--max-steps", type=int, default=20, help="Levenberg-Marquardt steps at most (default 20)")
+    m.add_argument("--score", choices=("held", "all"), default="held",
+                   help="pixels the fit scores: held (default: those whose starting kernel the frame holds, so d is "
+                        "not bent to make up for light beyond the frame) or all SSS pixels")
+    m.add_argument("--held-fraction", type=float, default=0.99,
+                   help="with --score held: the share of the kernel's energy inside the frame a scored pixel needs "
+                        "(default 0.99)")
     m.add_argument("--focal-px", type=float, help="focal length in pixels")
     m.add_argument("--mm-per-unit", type=float, help="millimetres per scene unit of the depth buffer")
     m.add_argument("--depth-kind", choices=("planar", "distance"), default="planar")
@@ -208,7 +214,8 @@ def _run_match(args) -> int:
             raise ValueError("--report needs --technique burley or separable (the report's reference is a profile)")
         result = match_render(frames, material, technique=args.technique, holdout=holdout, samples=args.samples,
                               taps=args.taps, light=light, thickness=args.thickness, fit_albedo=args.fit_albedo,
-                              loss=args.loss, huber_delta=args.huber_delta, max_steps=args.max_steps, **extra)
+                              loss=args.loss, huber_delta=args.huber_delta, max_steps=args.max_steps,
+                              score=args.score, held_fraction=args.held_fraction, **extra)
     except (ValueError, TypeError, OSError, SSSInputError) as exc:
         print(f"sss-jax fit: {exc}", file=sys.stderr)
         return 2
@@ -234,6 +241,11 @@ def _run_match(args) -> int:
           f"{e['fitted']['after']['pooled']['all']:.4f}"
           + ("" if e["holdout"] is None else f", held back {e['holdout']['before']['pooled']['all']:.4f} -> "
              f"{e['holdout']['after']['pooled']['all']:.4f}"))
+    sc = result.scored
+    fitted = [f for f in sc["frames"] if f["role"] == "fitted"]
+    print(f"  scored {sum(f['scored_pixels'] for f in fitted)} of {sum(f['sss_pixels'] for f in fitted)} "
+          f"SSS pixels ({sc['rule']}); rel_l2 on them {e['fitted']['scored']['before']['pooled']['all']:.4f} -> "
+          f"{e['fitted']['scored']['after']['pooled']['all']:.4f}")
     for k, params in result.parameters.items():
         print(f"  {k}: " + "; ".join(f"{n} = {', '.join(f'{v:.4g}' for v in (x if isinstance(x, list) else [x]))}"
                                      for n, x in params.items()))
