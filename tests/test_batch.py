@@ -465,6 +465,27 @@ def test_tiles_give_the_untiled_frame_under_the_defaults(frames, tmp_path, monke
         assert tiles, "expected tiles"
 
 
+def test_apply_in_tiles_gives_the_untiled_frame(frames, tmp_path, monkeypatch):
+    # the same comparison through the command line: the reference (it places tiles now) with the leaving border,
+    # whose frame edge the tiles must take from the frame (the default border is compared through process_frames)
+    import sss_jax._batch as batch
+    from sss_jax.cli import main
+
+    layouts = []
+    real = batch._run_tiled
+    monkeypatch.setattr(batch, "_run_tiled", lambda tech, frame, *a: layouts.append(a[3].layout) or real(
+        tech, frame, *a))
+    args = ["--technique", "reference", "--radius-px", "4", "--albedo", "0.8,0.6,0.5", "--d-mm", "3,1.4,0.8",
+            "--border", "leaves"]
+    assert main(["apply", str(frames / "f1.exr"), "-o", str(tmp_path / "whole.exr")] + args) == 0
+    assert main(["apply", str(frames / "f1.exr"), "-o", str(tmp_path / "tiled.exr"), "--tile-pixels", "576"]
+                + args) == 0
+    whole, tiled = read_rgb(tmp_path / "whole.exr"), read_rgb(tmp_path / "tiled.exr")
+    assert np.max(np.abs(tiled - whole)) <= 1e-4
+    assert np.max(np.abs(tiled - read_rgb(frames / "f1.exr"))) > 1e-2  # it scattered
+    assert layouts and all(ty * tx < 40 * 48 for ty, tx in layouts)  # in tiles
+
+
 # ------------------------------------------------------------------------------------------------------------------
 # long frames: in pieces (tiles, the technique's own pieces), with progress and an estimate; a signal stops them
 # within about one call
