@@ -49,6 +49,7 @@ from ._errors import (
     ReferenceWindowWarning as ReferenceWindowWarning,
     SamplingWarning as SamplingWarning,
     SSSInputError as SSSInputError,
+    TilePlacementError as TilePlacementError,
 )
 from ._techniques import (
     AbstractTechnique as AbstractTechnique,

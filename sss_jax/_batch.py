@@ -29,8 +29,14 @@
 - **manifest**: ``out_dir/sss_jax_manifest.json`` (one per process across hosts) lists every frame's input,
   output, status, message, warnings and seconds, rewritten atomically as each frame finishes; runs into one folder
   merge their entries frame by frame under a lock, so it never says a complete frame failed.
-- **signals**: SIGINT and SIGTERM stop the run between frames (between tiles in a tiled frame) and leave the
-  manifest true.
+- **long frames**: a frame whose calls would pass the work bound (``call_seconds``: about a second on this
+  project's 2-core CPU, by the technique's cost per pixel) runs in pieces: tiles, and where a tile (or the frame)
+  is still too long, the technique's own pieces (``AbstractTechnique.pieces``: Burley's frames in groups with the
+  seed that gives each group its rotations; its samples first spread over frames where a call would take several
+  bounds, ``spread``). The clamp's note says what runs, in how many calls and about how long, before the frame
+  runs; ``on_progress`` (or a bar) reports the calls done and the time left.
+- **signals**: SIGINT and SIGTERM stop the run between frames and between a frame's calls (within about one call:
+  seconds) and leave the manifest true; the interrupted frame writes nothing.
 
 Frames of a sequence get their own rotation: a technique's ``seed`` is mixed with the frame number (``frame_seed``).
 Across hosts, each process calls ``jax.distributed.initialize()`` first and then processes
@@ -74,7 +80,7 @@ from ._kernels import separable_kernel_from_profile, two_gaussian_kernel
 from ._materials import BurleyMaterial, DirectionalLight, ProfileMaterial, STAParams, TwoGaussianMaterial
 from ._profiles import BurleyProfile, burley_inverse_ccdf
 from ._scene import Buffers, Camera, validate_buffers
-from ._errors import ReferenceWindowWarning, SamplingWarning
+from ._errors import ReferenceWindowWarning, SamplingWarning, TilePlacementError
 from ._techniques import AbstractTechnique, get_technique
 from ._techniques import technique as make_technique
 
@@ -88,8 +94,17 @@ MANIFEST_NAME = "sss_jax_manifest.json"
 # 12 B/px) come on top.
 TILE_PIXELS = 1 << 21
 # Work bound per call (seconds on this project's 2-core CPU, from the README's timings): a KeyboardInterrupt lands
-# between calls, so no call should run much longer than this.
+# between calls, so no call should run much longer than this. SSS_JAX_CALL_SECONDS overrides it (a test forces
+# pieces on a small frame with it).
 CALL_SECONDS = 1.0
+# Pieces are cut to a quarter of the work bound by the estimate: the estimate is this project's 2-core CPU, and a
+# loaded or slower machine takes several times as long per call (a call costs little more than its work).
+PIECES_PER_BOUND = 4
+# A call estimated past this many work bounds spreads its technique's work (``AbstractTechnique.spread``: Burley's
+# samples into frames) so that it can run in pieces; below it only exact pieces are taken (tiles, frame groups).
+SPREAD_CALLS = 4
+# Progress inside a frame: one line at most this often (seconds), for a frame that runs in several calls.
+PROGRESS_EVERY_S = 2.0
 # Footprint pixels of the reach of the techniques' own checks (the 99%-energy footprint below which a pixel keeps
 # its local shading, MIN_FOOTPRINT_PX in the techniques)
 _MIN_FOOTPRINT_PX = 0.5
@@ -352,10 +367,14 @@ def _starts(n: int, t: int) -> list[int]:
 
 
 def _tile(frame: Frame, y0: int, x0: int, ty: int, tx: int, r: int, use_albedo: bool):
-    """The tile's buffers: rows y0-r..y0+ty+r, columns x0-r..x0+tx+r of the frame, cut at the frame's edge (the
-    technique knows where the frame ends from ``frame_shape``), and the tile's origin in the frame."""
+    """The tile's buffers: rows y0-r..y0+ty+r, columns x0-r..x0+tx+r of the frame, moved inside the frame where
+    they would pass its edge (more halo on the other side: the technique knows where the frame ends from
+    ``frame_shape``), so every tile of a frame has one shape (one compilation); and the tile's origin in the
+    frame."""
     h, w = frame.shape
-    sy0, sy1, sx0, sx1 = max(y0 - r, 0), min(y0 + ty + r, h), max(x0 - r, 0), min(x0 + tx + r, w)
+    ey, ex = min(ty + 2 * r, h), min(tx + 2 * r, w)
+    sy0, sx0 = min(max(y0 - r, 0), h - ey), min(max(x0 - r, 0), w - ex)
+    sy1, sx1 = sy0 + ey, sx0 + ex
     cut = lambda a: None if a is None else jnp.asarray(np.ascontiguousarray(a[sy0:sy1, sx0:sx1]))
     ids = None if frame.material_id is None else jnp.asarray(frame.material_id[sy0:sy1, sx0:sx1], jnp.int32)
     return Buffers(irradiance=cut(frame.irradiance), depth=cut(frame.depth),
@@ -501,8 +520,18 @@ def _seconds_per_px(tech) -> float:
     return 4e-8
 
 
-def _cannot_place_tiles(exc: BaseException) -> bool:
-    return isinstance(exc, ValueError) and "cannot place a tile" in str(exc)
+def call_seconds() -> float:
+    """The work bound per call: ``SSS_JAX_CALL_SECONDS`` where set (a positive number), else ``CALL_SECONDS``."""
+    text = os.environ.get("SSS_JAX_CALL_SECONDS")
+    if not text:
+        return CALL_SECONDS
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not value > 0:
+        raise ValueError(f"SSS_JAX_CALL_SECONDS must be a positive number of seconds, got {text!r}")
+    return value
 
 
 # ------------------------------------------------------------------------------------------------------------------
@@ -723,13 +752,20 @@ def _is_complete(job: _Job, png: bool, header: dict | None, record: str) -> bool
 
 @dataclasses.dataclass
 class _FramePlan:
-    """How one frame runs: its technique (counts clamped, the frame's seed), the clamp's message and work estimate,
-    and the tile layout (None: whole)."""
+    """How one frame runs: its technique (counts clamped, work spread, the frame's seed), the clamp's message and
+    work estimate, the tile layout (None: whole) and the pieces each tile runs as (None: one call)."""
 
     tech: Any
     notes: list[str]
     layout: tuple[int, int] | None = None
     overlap: int = 0
+    pieces: tuple[tuple[Any, float], ...] | None = None
+    tiles: int = 1
+    estimate_s: float = 0.0
+
+    @property
+    def calls(self) -> int:
+        return self.tiles * (1 if self.pieces is None else len(self.pieces))
 
 
 def _work_estimate(tech, buffers: Buffers, seconds_per_px: float) -> float:
@@ -741,38 +777,74 @@ def _work_estimate(tech, buffers: Buffers, seconds_per_px: float) -> float:
 
 def _plan_frame(tech, buffers: Buffers, material, camera: Camera, tile_pixels: int, cost: "_Cost",
                 tiles_allowed: bool = True) -> _FramePlan:
+    """The frame's plan: counts clamped to the footprint; tiles where the frame passes the memory bound
+    (``tile_pixels``) or the work bound (``call_seconds``); and where one call (the frame, or a tile: it computes
+    its halo too) would still pass the work bound, the technique's own pieces (``AbstractTechnique.pieces``; its
+    work spread first where a call would take several bounds), so that progress shows and a signal lands within a
+    few seconds."""
     notes = []
     tech, message = _clamp(tech, buffers, material, camera)
-    if message:
-        estimate = _work_estimate(tech, buffers, cost.per_px(tech))
-        notes.append(f"{message}; it runs {_count_text(tech)}, about {_seconds_text(estimate)} per frame on this "
-                     f"machine ({cost.source(tech)})")
-    plan = _FramePlan(tech, notes)
+    clamped = tech
     h, w = buffers.depth.shape[-2:]
+    bound = call_seconds()
     seconds_per_px = cost.per_px(tech)
-    budget = min(tile_pixels, int(CALL_SECONDS / seconds_per_px) if seconds_per_px else tile_pixels)
-    if h * w <= budget or not tiles_allowed:
-        return plan
-    overlap = int(tech.reach_px(buffers, material, camera))
-    # the inner part at least as wide as the overlap: a tile never computes more than ~9x its own pixels (a wide
-    # window on a small frame then runs whole, past the work bound, rather than in tiles made of overlap)
-    side = max(math.isqrt(max(budget, 1)), 3 * overlap + 8)
-    inner = side - 2 * overlap
-    # as few tiles as fit, of equal size (1600 px in tiles of at most 1352: two of 800, not 1352 and a shifted 1352)
-    ty, tx = -(-h // -(-h // inner)), -(-w // -(-w // inner))
-    if (ty, tx) != (h, w):
-        plan.layout, plan.overlap = (ty, tx), overlap
+    budget = min(tile_pixels, int(bound / seconds_per_px) if seconds_per_px else tile_pixels)
+    plan = _FramePlan(tech, notes)
+    call_px = h * w
+    if h * w > budget and tiles_allowed:
+        overlap = int(tech.reach_px(buffers, material, camera))
+        # the inner part at least as wide as the overlap: a tile never computes more than ~9x its own pixels (a wide
+        # window on a small frame then runs whole, or in pieces, rather than in tiles made of overlap)
+        side = max(math.isqrt(max(budget, 1)), 3 * overlap + 8)
+        inner = side - 2 * overlap
+        # as few tiles as fit, of equal size (1600 px in tiles of at most 1352: two of 800, not 1352 and a shifted
+        # 1352)
+        ty, tx = -(-h // -(-h // inner)), -(-w // -(-w // inner))
+        tiles = len(_starts(h, ty)) * len(_starts(w, tx))
+        tile_px = min(ty + 2 * overlap, h) * min(tx + 2 * overlap, w)
+        # tiles only for the work bound (the frame fits the memory bound) that would compute their halos over and
+        # over: the frame whole, in the technique's pieces, where it has them
+        wasteful = h * w <= tile_pixels and tiles * tile_px > 1.5 * h * w
+        if (ty, tx) != (h, w) and not (wasteful and _pieces_for(tech, seconds_per_px * h * w, bound) is not None):
+            plan.layout, plan.overlap, plan.tiles, call_px = (ty, tx), overlap, tiles, tile_px
+    call_s = seconds_per_px * call_px
+    if call_s > bound:
+        plan.tech, plan.pieces = _spread_pieces(tech, call_s, bound)
+    plan.estimate_s = seconds_per_px * call_px * plan.tiles
+    if message:
+        note = (f"{message}; it runs {_count_text(plan.tech)}, about {_seconds_text(plan.estimate_s)} per frame on "
+                f"this machine ({cost.source(plan.tech)})")
+        if plan.calls > 1:
+            note += f", in {plan.calls} calls"
+        if plan.tech is not clamped:
+            note += (f" ({_count_text(clamped)} run as {_count_text(plan.tech)}: the work spread so that each call "
+                     "is short, progress shows and Ctrl-C stops it within seconds)")
+        notes.append(note)
     return plan
+
+
+def _spread_pieces(tech, call_s: float, bound: float):
+    """The technique (its work spread where one call would take several bounds) and its pieces for a call of
+    ``call_s`` seconds (None: it does not split)."""
+    want = math.ceil(PIECES_PER_BOUND * call_s / bound)
+    if call_s > SPREAD_CALLS * bound:
+        tech = tech.spread(want)
+    return tech, tech.pieces(want)
+
+
+def _pieces_for(tech, call_s: float, bound: float):
+    return _spread_pieces(tech, call_s, bound)[1] if call_s > bound else None
 
 
 def _count_text(tech) -> str:
     opts = _technique_options(tech)
-    shown = [f"{opts[k]} {k.replace('_', ' ')}" for k in ("samples", "taps", "radius_px", "frames") if k in opts]
+    shown = [f"{opts[k]} {k.replace('_', ' ')}" for k in ("samples", "taps", "radius_px", "frames") if k in opts
+             and not (k == "frames" and opts[k] == 1)]
     return ", ".join(shown) or "its options"
 
 
 def _seconds_text(s: float) -> str:
-    return f"{s:.2g} s" if s < 120 else f"{s / 60:.1f} min"
+    return f"{s:.2g} s" if s < 10 else (f"{s:.0f} s" if s < 120 else f"{s / 60:.1f} min")
 
 
 class _Cost:
@@ -829,9 +901,28 @@ def _run_group(tech, material, buffers: Buffers, camera: Camera, seeds):
     return jax.vmap(one)(buffers, camera, seeds)
 
 
+def _run_pieces(plan: _FramePlan, buffers: Buffers, material, camera: Camera, on_call, **place) -> np.ndarray:
+    """One buffer (the frame or a tile) as the plan's pieces: each a call, weighted and summed; ``on_call`` after
+    each (progress; a signal lands between calls). The frame's warnings were computed on the whole frame."""
+    pieces = ((plan.tech, 1.0),) if plan.pieces is None else plan.pieces
+    total = None
+    with warnings.catch_warnings():
+        for category in _TECHNIQUE_WARNINGS:
+            warnings.simplefilter("ignore", category)
+        for tech, weight in pieces:
+            res = np.asarray(tech(buffers, material, camera, **place))
+            if len(pieces) == 1:
+                total = res
+            else:  # float64 sums: the pieces' rounding stays below the result's
+                total = res.astype(np.float64) * weight if total is None else total + res.astype(np.float64) * weight
+            on_call()
+    return np.asarray(total, dtype=res.dtype)
+
+
 def _run_tiled(tech, frame: Frame, use_albedo: bool, material, camera: Camera, plan: _FramePlan, on_tile) -> np.ndarray:
     """The frame in tiles overlapping by the technique's reach; each tile says where it lies in the frame
-    (``origin``, ``frame_shape``), so the rotation hash and the frame border are the frame's."""
+    (``origin``, ``frame_shape``), so the rotation hash and the frame border are the frame's. ``on_tile`` after
+    each call (a tile runs as the plan's pieces)."""
     ty, tx = plan.layout
     h, w = frame.shape
     r = plan.overlap
@@ -840,13 +931,48 @@ def _run_tiled(tech, frame: Frame, use_albedo: bool, material, camera: Camera, p
     for y, x in [(y, x) for y in _starts(h, ty) for x in _starts(w, tx)]:
         b, (oy, ox) = _tile(frame, y, x, ty, tx, r, use_albedo)
         validate_buffers(b, materials=count)
-        with warnings.catch_warnings():  # the frame's warnings were computed on the whole frame (check)
-            for category in _TECHNIQUE_WARNINGS:
-                warnings.simplefilter("ignore", category)
-            res = np.asarray(tech(b, material, camera, origin=(oy, ox), frame_shape=(h, w)))
+        res = _run_pieces(dataclasses.replace(plan, tech=tech), b, material, camera, on_tile, origin=(oy, ox),
+                          frame_shape=(h, w))
         out[y:y + ty, x:x + tx] = res[y - oy:y - oy + ty, x - ox:x - ox + tx]
-        on_tile()
     return out
+
+
+class _FrameProgress:
+    """Progress inside a frame that runs in several calls (tiles, pieces): a tqdm bar under the batch's, or lines
+    for ``on_progress`` (at most one every ``PROGRESS_EVERY_S``, the time left from the calls so far)."""
+
+    def __init__(self, name: str, plan: _FramePlan, bar, on_progress):
+        self.name, self.total, self.printer = name, plan.calls, on_progress
+        self.done, self.t0 = 0, time.perf_counter()
+        self.last, self.first = self.t0, None
+        self.bar = None
+        if bar is not None and on_progress is None and self.total > 1:
+            from tqdm.auto import tqdm
+
+            self.bar = tqdm(total=self.total, unit="call", desc=name, leave=False)
+        if self.printer is not None and self.total > 1:
+            self.printer(f"{name}: {self.total} calls ({plan.tiles} tile(s) x {self.total // plan.tiles} "
+                         f"piece(s)), about {_seconds_text(plan.estimate_s)} by the estimate")
+
+    def tick(self) -> None:
+        self.done += 1
+        if self.bar is not None:
+            self.bar.update(1)
+        now = time.perf_counter()
+        if self.first is None:
+            self.first = now  # the first call compiles: the rate comes from the calls after it, once there are some
+        if self.printer is not None and self.total > 1 and (now - self.last >= PROGRESS_EVERY_S
+                                                            or self.done == self.total):
+            elapsed = now - self.t0
+            per_call = (now - self.first) / (self.done - 1) if self.done > 1 else elapsed
+            left = per_call * (self.total - self.done)
+            self.printer(f"{self.name}: {self.done} of {self.total} calls ({100 * self.done // self.total}%), "
+                         f"{_seconds_text(elapsed)}, about {_seconds_text(left)} left")
+            self.last = now
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
 
 
 # ------------------------------------------------------------------------------------------------------------------
@@ -897,10 +1023,11 @@ class _Batch:
     """One run's state: the technique and material, the records, the manifest, the results, the progress."""
 
     def __init__(self, tech, material, *, parameters, header, png, half, existing, book, signals, bar, on_frame_done,
-                 devices):
+                 devices, on_progress=None):
         self.tech, self.material, self.parameters, self.header = tech, material, parameters, header
         self.png, self.half, self.existing, self.book, self.signals = png, half, existing, book, signals
         self.bar, self.on_frame_done, self.devices = bar, on_frame_done, devices
+        self.on_progress = on_progress
         self.results: list[FrameResult] = []
         self.warned = _Warnings(bar)
         self.cost = _Cost()
@@ -944,7 +1071,7 @@ class _Batch:
         """The frame's files (the PNG preview first, then the EXR: an EXR with its resume record means the frame
         is complete), atomically, and its manifest entry together with them; a failure names the file and the
         frame fails, the batch goes on."""
-        self.warned.frame(job.src, notes + warned)
+        self.warned.frame(job.src, warned)  # the notes (the clamp) were said before the frame ran
         rules = {k: v for k, v in _technique_options(tech).items() if k != "technique"}
         attrs = {**self.header, **self.record(job)[0], "sss_jax:technique": _technique_options(tech)["technique"],
                  "sss_jax:focal_px": float(camera.focal_px), "sss_jax:mm_per_unit": float(camera.mm_per_unit),
@@ -989,22 +1116,22 @@ class _Batch:
             frame, buffers, camera = self.read(job, read_options, use_albedo)
             tech = self.tech if not self.seeded else _with_seed(self.tech, self.seed_of(job))
             plan = _plan_frame(tech, buffers, self.material, camera, tile_pixels, self.cost, self.tiles_allowed)
-            if plan.layout is None and len(self.devices) > 1:
+            self.warned.frame(job.src, plan.notes)  # the clamp, what runs and its estimate: before it runs
+            if plan.calls == 1 and len(self.devices) > 1:
                 # several devices: frames grouped and vmapped; checks on the host before tracing
                 warned = [str(w) for w in plan.tech.check(buffers, self.material, camera)]
                 self.queue(job, buffers, camera, plan, warned, time.perf_counter() - t0)
                 return
-            image = None
-            if plan.layout is not None:
+            if plan.calls == 1:
+                image, warned = _run_whole(plan.tech, buffers, self.material, camera)
+            else:
                 warned = [str(w) for w in plan.tech.check(buffers, self.material, camera)]
                 try:
-                    image = self.tiled(job, frame, camera, plan, use_albedo)
-                except ValueError as exc:
-                    if not _cannot_place_tiles(exc):
-                        raise
-                    self.tiles_allowed = False  # this technique cannot place a tile yet: frames run whole
-            if image is None:
-                image, warned = _run_whole(plan.tech, buffers, self.material, camera)
+                    image = self.in_calls(job, frame, buffers, camera, plan, use_albedo)
+                except TilePlacementError:  # this technique cannot place a tile: its frames run whole (or in pieces)
+                    self.tiles_allowed = False
+                    plan = _plan_frame(tech, buffers, self.material, camera, tile_pixels, self.cost, False)
+                    image = self.in_calls(job, frame, buffers, camera, plan, use_albedo)
         except (OSError, ValueError) as exc:
             self.fail(job, exc)
             return
@@ -1012,21 +1139,16 @@ class _Batch:
         self.cost.measured(plan.tech, frame.shape[0] * frame.shape[1], seconds)
         self.write(job, image, camera, plan.tech, seconds, plan.notes, warned)
 
-    def tiled(self, job, frame, camera, plan, use_albedo) -> np.ndarray:
-        ty, tx = plan.layout
+    def in_calls(self, job, frame, buffers, camera, plan, use_albedo) -> np.ndarray:
+        """The frame as the plan's calls (tiles, each as the plan's pieces), with progress."""
         h, w = frame.shape
-        count = len(_starts(h, ty)) * len(_starts(w, tx))
-        tile_bar = None
-        if self.bar is not None:
-            from tqdm.auto import tqdm
-
-            tile_bar = tqdm(total=count, unit="tile", desc=f"{job.src.name} ({w}x{h})", leave=False)
+        progress = _FrameProgress(f"{job.src.name} ({w}x{h})", plan, self.bar, self.on_progress)
         try:
-            return _run_tiled(plan.tech, frame, use_albedo, self.material, camera, plan,
-                              (lambda: tile_bar.update(1)) if tile_bar is not None else (lambda: None))
+            if plan.layout is None:
+                return _run_pieces(plan, buffers, self.material, camera, progress.tick)
+            return _run_tiled(plan.tech, frame, use_albedo, self.material, camera, plan, progress.tick)
         finally:
-            if tile_bar is not None:
-                tile_bar.close()
+            progress.close()
 
     def queue(self, job, buffers, camera, plan, warned, read_s) -> None:
         present = tuple(getattr(buffers, n) is not None for n in ("albedo", "normal", "thickness", "material_id"))
@@ -1095,6 +1217,7 @@ def process_frames(
     process_index: int | None = None,
     process_count: int | None = None,
     on_frame_done: Callable[[FrameResult], None] | None = None,
+    on_progress: Callable[[str], None] | None = None,
 ) -> BatchResult:
     """Apply ``technique`` to every frame and write ``out_dir/<input path relative to the inputs' common folder>``
     with the ``.exr`` extension (or the given ``outputs``, one per input, each ending in ``.exr``), with an sRGB PNG
@@ -1118,7 +1241,10 @@ def process_frames(
       Runs into one folder merge their entries frame by frame under a lock on the folder.
     - ``tile_pixels``: the most pixels (overlap included) one call of the technique sees; larger frames (or frames
       whose work would keep one call busy for more than about a second) run in tiles overlapping by the technique's
-      reach, each told its origin in the frame and the frame's shape: the untiled frame's pixels.
+      reach, each told its origin in the frame and the frame's shape: the untiled frame's pixels. A call still past
+      the work bound runs as the technique's pieces (``AbstractTechnique.pieces``), so a signal lands within seconds.
+    - ``on_progress``: called with a line of text as a frame that runs in several calls progresses (the calls done,
+      the time so far and left), at most every two seconds; without it, ``progress`` shows a bar per frame.
 
     Every file is written atomically (a temporary beside it, fsync, verified to decode, renamed); temporaries that
     killed runs left beside this run's outputs are removed first. Counts beyond what the frame's footprint can use
@@ -1134,6 +1260,7 @@ def process_frames(
     tech, material = _technique_object(technique, {**named, **dict(technique_options or {})}, material)
     if not (isinstance(tile_pixels, (int, np.integer)) and tile_pixels >= 1):
         raise ValueError(f"tile_pixels must be a positive integer, got {tile_pixels!r}")
+    call_seconds()  # the work bound from the environment, checked before any frame
 
     paths = expand_inputs(inputs)
     targets = _targets(paths, None if out_dir is None else pathlib.Path(out_dir), outputs)
@@ -1166,7 +1293,7 @@ def process_frames(
     signals = _Signals()
     run = _Batch(tech, material, parameters=parameters, header=_material_attributes(material), png=png, half=half,
                  existing=existing, book=book, signals=signals, bar=bar, on_frame_done=on_frame_done,
-                 devices=list(jax.devices() if devices is None else devices))
+                 devices=list(jax.devices() if devices is None else devices), on_progress=on_progress)
     read_options = dict(channel_map=channel_map, focal_px=focal_px, mm_per_unit=mm_per_unit, depth_kind=depth_kind)
     traces = _TRACES[0]
     state = "interrupted"

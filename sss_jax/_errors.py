@@ -21,3 +21,8 @@ class ReferenceWindowWarning(UserWarning):
 class NoSSSPixelsWarning(UserWarning):
     """A frame has no pixel a technique scatters (no surface, or every surface's id is 0): its output is its input,
     not a result."""
+
+
+class TilePlacementError(ValueError):
+    """A technique whose formulation takes no ``origin``/``frame_shape`` was handed a tile of a larger frame: it
+    cannot place it (a batch then runs that technique's frames whole)."""

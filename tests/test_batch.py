@@ -1,5 +1,6 @@
 """Batch processing: sharding over devices, resuming after an interruption, per-frame failures, process shares."""
 
+import inspect
 import json
 import math
 import pathlib
@@ -456,8 +457,128 @@ def test_tiles_give_the_untiled_frame_under_the_defaults(frames, tmp_path, monke
                         "pattern": "rotated"}.items():
         if name in rules:
             assert rules[name] == value
-    if technique in ("sta", "burley"):  # these place tiles now (the others once they take origin/frame_shape)
+    # every technique whose function takes origin/frame_shape runs in tiles (separable once it takes them); the
+    # others run whole
+    places = technique != "separable" or {"origin", "frame_shape"} <= set(inspect.signature(sj.separable).parameters)
+    assert bool(tiles) == places, (technique, tiles)
+    if technique in ("sta", "burley", "reference"):  # these place tiles now
         assert tiles, "expected tiles"
+
+
+def test_apply_in_tiles_gives_the_untiled_frame(frames, tmp_path, monkeypatch):
+    # the same comparison through the command line: the reference (it places tiles now) with the leaving border,
+    # whose frame edge the tiles must take from the frame (the default border is compared through process_frames)
+    import sss_jax._batch as batch
+    from sss_jax.cli import main
+
+    layouts = []
+    real = batch._run_tiled
+    monkeypatch.setattr(batch, "_run_tiled", lambda tech, frame, *a: layouts.append(a[3].layout) or real(
+        tech, frame, *a))
+    args = ["--technique", "reference", "--radius-px", "4", "--albedo", "0.8,0.6,0.5", "--d-mm", "3,1.4,0.8",
+            "--border", "leaves"]
+    assert main(["apply", str(frames / "f1.exr"), "-o", str(tmp_path / "whole.exr")] + args) == 0
+    assert main(["apply", str(frames / "f1.exr"), "-o", str(tmp_path / "tiled.exr"), "--tile-pixels", "576"]
+                + args) == 0
+    whole, tiled = read_rgb(tmp_path / "whole.exr"), read_rgb(tmp_path / "tiled.exr")
+    assert np.max(np.abs(tiled - whole)) <= 1e-4
+    assert np.max(np.abs(tiled - read_rgb(frames / "f1.exr"))) > 1e-2  # it scattered
+    assert layouts and all(ty * tx < 40 * 48 for ty, tx in layouts)  # in tiles
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# long frames: in pieces (tiles, the technique's own pieces), with progress and an estimate; a signal stops them
+# within about one call
+# ------------------------------------------------------------------------------------------------------------------
+
+
+def test_burley_frames_split_into_pieces_that_give_the_whole_call(frames):
+    f = _io.read_frame(frames / "f1.exr")
+    b, cam = f.to_buffers(), sj.Camera(f.focal_px, 10.0)
+    t = sj.Burley(samples=8, frames=6, seed=4_000_000_000)  # a seed near 2^32: the shifted seeds wrap
+    pieces = t.pieces(4)
+    assert [p.frames for p, _ in pieces] == [2, 2, 2] and math.isclose(sum(w for _, w in pieces), 1.0)
+    summed = sum(w * np.asarray(p(b, MAT, cam), np.float64) for p, w in pieces)
+    whole = np.asarray(t(b, MAT, cam))
+    assert np.abs(summed - whole).max() <= 1e-5  # frame k of a piece is frame a + k of the whole: same rotations
+    assert np.abs(np.asarray(pieces[1][0].replace(seed=t.seed)(b, MAT, cam)) - np.asarray(
+        pieces[1][0](b, MAT, cam))).max() > 1e-3  # (the shifted seed matters)
+    # what does not split: one frame, the fixed spiral (its frame 0 is unturned whatever the seed)
+    assert sj.Burley(frames=1).pieces(4) is None and sj.Burley(pattern="fixed", frames=6).pieces(4) is None
+    # spreading moves samples into frames, keeping at least 64 a frame; the fixed spiral and small counts stay
+    assert sj.Burley(samples=1024).spread(10).options() == sj.Burley(samples=64, frames=16).options()
+    assert sj.Burley(samples=32).spread(10) == sj.Burley(samples=32)
+    assert sj.Burley(samples=1024, pattern="fixed").spread(10) == sj.Burley(samples=1024, pattern="fixed")
+
+
+def test_a_long_frame_runs_in_pieces_with_progress_and_gives_the_whole_frame(frames, tmp_path, monkeypatch):
+    # a work bound of 0.1 ms per call (SSS_JAX_CALL_SECONDS) makes this small frame long: 8 TAA frames in pieces
+    monkeypatch.setenv("SSS_JAX_CALL_SECONDS", "1e-4")
+    lines = []
+    r = process_frames(str(frames / "f1.exr"), "burley", MAT, out_dir=tmp_path, samples=8, progress=False,
+                       technique_options={"frames": 8}, devices=jax.devices()[:1], on_progress=lines.append)
+    assert r.ok
+    f = _io.read_frame(frames / "f1.exr")
+    whole = np.asarray(sj.burley(f.to_buffers(), MAT, sj.Camera(f.focal_px, 10.0), samples=8, frames=8,
+                                 seed=frame_seed(0, 1)))
+    np.testing.assert_allclose(read_rgb(tmp_path / "f1.exr"), whole, rtol=1e-5, atol=1e-6)
+    assert re.match(r"f1\.exr \(48x40\): \d+ calls \(\d+ tile\(s\) x \d+ piece\(s\)\), about .* by the estimate",
+                    lines[0]), lines
+    assert re.match(r"f1\.exr \(48x40\): (\d+) of \1 calls \(100%\), .*, about 0 s left", lines[-1]), lines
+    rules = json.loads(_io.read_header(tmp_path / "f1.exr")[0]["sss_jax:rules"])
+    assert (rules["samples"], rules["frames"]) == (8, 8)  # exact pieces: the technique that ran is the one asked for
+    monkeypatch.setenv("SSS_JAX_CALL_SECONDS", "soon")
+    with pytest.raises(ValueError, match="SSS_JAX_CALL_SECONDS must be a positive number of seconds, got 'soon'"):
+        process_frames(str(frames / "f1.exr"), "burley", MAT, out_dir=tmp_path / "x", samples=8, progress=False)
+
+
+def test_apply_with_a_huge_count_says_the_clamp_and_estimate_shows_progress_and_stops_on_sigint(frames, tmp_path):
+    # what a user did on the Blender frame (--samples 10000000: minutes on one frame, silent, deaf to Ctrl-C), on a
+    # small frame made long by a small work bound per call (SSS_JAX_CALL_SECONDS)
+    import os
+    import subprocess
+    import sys
+    import threading
+    import time
+
+    src = copy_frame(frames, "f0.exr", tmp_path / "src" / "f0.exr")
+    out = tmp_path / "out"
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=1", SSS_JAX_CALL_SECONDS="0.01",
+               PYTHONPATH=str(pathlib.Path(__file__).resolve().parents[1]))
+    child = subprocess.Popen([sys.executable, "-m", "sss_jax", "apply", str(src), "--out-dir", str(out),
+                              "--technique", "burley", "--albedo", "0.8,0.6,0.5", "--d-mm", "3,1.4,0.8",
+                              "--samples", "10000000", "--frames", "64"], env=env, stderr=subprocess.PIPE, text=True)
+    lines, progressed = [], threading.Event()
+
+    def read():
+        for line in child.stderr:
+            lines.append(line)
+            if " left" in line:
+                progressed.set()
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    assert progressed.wait(300), "".join(lines)[-3000:]
+    child.send_signal(signal.SIGINT)
+    sent = time.monotonic()
+    child.wait(timeout=120)
+    after = time.monotonic() - sent
+    reader.join(10)
+    text = "".join(lines)
+    assert child.returncode == 130, text[-3000:]
+    # the clamp said what runs and about how long, before the frame ran
+    clamp = re.search(r"warning: .*samples 10000000 clamped to (\d+): .*; it runs (\d+) samples, (\d+) frames, about "
+                      r"(.+) per frame on this machine .*, in (\d+) calls", text)
+    assert clamp, text[-3000:]
+    bound, samples, taa, calls = (int(clamp[i]) for i in (1, 2, 3, 5))
+    assert samples * taa == bound * 64 and samples >= 64  # the same samples per pixel, spread over frames
+    done = [int(m[1]) for m in re.finditer(rf"f0\.exr \(48x40\): (\d+) of {calls} calls", text)]
+    assert done and max(done) < calls  # it stopped before finishing ...
+    assert after < 60, after  # ... within about a call of the signal (loosely: the frame had seconds left)
+    book = json.loads((out / MANIFEST_NAME).read_text())
+    assert book["state"] == "interrupted" and [f["status"] for f in book["frames"]] == ["pending"]
+    assert sorted(p.name for p in out.iterdir()) == [MANIFEST_NAME]  # nothing half-written
+    assert "interrupted: only complete frames were written" in text
 
 
 # ------------------------------------------------------------------------------------------------------------------

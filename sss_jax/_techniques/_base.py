@@ -30,6 +30,7 @@ from typing import Any, Callable, ClassVar
 import equinox as eqx
 from jaxtyping import Array, Float
 
+from .._errors import TilePlacementError
 from .._scene import Buffers, Camera
 from ._dispatch import check_tile
 
@@ -82,6 +83,19 @@ class AbstractTechnique(eqx.Module):
         """Host side: the warnings (``SamplingWarning``, ``ReferenceWindowWarning``) a call with these inputs
         raises; none by default."""
         return []
+
+    def pieces(self, count: int) -> tuple[tuple["AbstractTechnique", float], ...] | None:
+        """This technique's work as about ``count`` calls, ``(technique, weight)`` pairs whose results, weighted and
+        summed, are this technique's pixels (to rounding): a long frame runs in pieces, each short enough for
+        progress and Ctrl-C. ``None`` (the default): its work does not split (tiles are then the only pieces)."""
+        return None
+
+    def spread(self, count: int) -> "AbstractTechnique":
+        """The technique with its work laid out so that ``pieces`` can split it into about ``count`` calls, the same
+        count per pixel (Burley: samples moved into frames of their own rotation), for a frame too long for one
+        call; itself (the default) where there is nothing to spread. Not the same pixels: the batch records the
+        technique that ran."""
+        return self
 
     @classmethod
     def option_fields(cls) -> tuple[dataclasses.Field, ...]:
@@ -156,13 +170,14 @@ def call_options(technique: AbstractTechnique, material: Any) -> dict[str, Any]:
 def tile_options(function: Callable, buffers: Buffers, origin: tuple[int, int],
                  frame_shape: tuple[int, int] | None) -> dict[str, Any]:
     """The keyword options that place ``buffers`` in the whole frame, for ``function``: none where the buffer is the
-    whole frame; ``origin``/``frame_shape`` where the function takes them; else an error (it cannot place a tile)."""
+    whole frame; ``origin``/``frame_shape`` where the function takes them; else a ``TilePlacementError`` (it cannot
+    place a tile)."""
     shape = tuple(buffers.depth.shape[-2:])
     origin, frame_shape = check_tile(shape, origin, frame_shape)  # the one check of a tile's place
     if origin == (0, 0) and frame_shape == shape:
         return {}
     accepted = inspect.signature(function).parameters
     if "origin" not in accepted or "frame_shape" not in accepted:
-        raise ValueError(f"{function.__name__} cannot place a tile in a frame yet (no origin/frame_shape options): "
+        raise TilePlacementError(f"{function.__name__} cannot place a tile in a frame yet (no origin/frame_shape options): "
                          "pass the whole frame")
     return {"origin": origin, "frame_shape": frame_shape}

@@ -6,6 +6,7 @@ import inspect
 import math
 from typing import ClassVar
 
+import jax
 import numpy as np
 from jaxtyping import Array, Float
 
@@ -19,6 +20,21 @@ from ._common import ALBEDO_MODES, BORDERS
 from ._dispatch import IMPLS
 
 _f = _burley.burley
+
+# The rotation of frame k under seed s hashes s * 0x9E3779B9 + k * 0x85EBCA6B (uint32; _burley_spec.spiral_rotation):
+# frame a + k under s is frame k under s + a * 0x85EBCA6B / 0x9E3779B9 (mod 2^32; the multiplier is odd, so it has
+# an inverse). A run of K frames therefore splits into calls of fewer frames, each with its shifted seed, that give
+# the same rotations (tests/test_batch.py checks the pieces against the whole call).
+_SEED_STEP = (0x85EBCA6B * pow(0x9E3779B9, -1, 1 << 32)) & 0xFFFFFFFF
+# samples a frame keeps at least when a long frame's samples are spread over frames (below that the spiral's
+# stratification, not the count, would decide the error)
+_SPREAD_MIN_SAMPLES = 64
+
+
+def seed_of_frame(seed: int, first_frame: int) -> int:
+    """The seed under which frame 0 turns the spiral as frame ``first_frame`` does under ``seed`` (and frame k as
+    frame ``first_frame + k``)."""
+    return (int(seed) + int(first_frame) * _SEED_STEP) & 0xFFFFFFFF
 
 
 def burley_sampling_warnings(buffers: Buffers, material: BurleyMaterial, camera: Camera, *, samples: int,
@@ -85,10 +101,43 @@ class Burley(AbstractTechnique):
         reach = math.ceil(unit * d_px) + (1 if self.interpolation == "bilinear" else 0)
         return int(min(reach, max(buffers.depth.shape[-2:])))
 
+    def pieces(self, count: int) -> tuple[tuple["Burley", float], ...] | None:
+        """The ``frames`` in about ``count`` groups of consecutive frames, each a call with fewer frames and the seed
+        that gives it those frames' rotations (``seed_of_frame``), weighted by its share of the frames: the same
+        pixels to rounding. ``None`` for one frame, and for the fixed spiral (its frame 0 is unturned whatever the
+        seed, so a later group cannot start there)."""
+        frames = int(self.frames)
+        if self.pattern != "rotated" or frames < 2 or count < 2 or not _is_int(self.seed):
+            return None
+        size = -(-frames // min(int(count), frames))  # groups of one size (the last one smaller): two programs at most
+        seed = int(np.asarray(self.seed))
+        return tuple((self.replace(frames=min(size, frames - a), seed=seed_of_frame(seed, a)),
+                      min(size, frames - a) / frames) for a in range(0, frames, size))
+
+    def spread(self, count: int) -> "Burley":
+        """Samples moved into frames (halved per doubling of the frames, each frame its own rotation: the same
+        samples per pixel, another sampling of the profile) until there are ``count`` frames, keeping at least 64
+        samples a frame; itself for the fixed spiral or where the frames already suffice."""
+        samples, frames = int(self.samples), int(self.frames)
+        if self.pattern != "rotated" or frames >= count:
+            return self
+        q = 1
+        while frames * q < count and samples // (2 * q) >= _SPREAD_MIN_SAMPLES:
+            q *= 2
+        return self if q == 1 else self.replace(samples=-(-samples // q), frames=frames * q)
+
     def check(self, buffers: Buffers, material: BurleyMaterial, camera: Camera) -> list[Warning]:
         self.check_material(material)
         return burley_sampling_warnings(buffers, material, camera, samples=int(self.samples),
                                         frames=int(self.frames), min_footprint_px=float(self.min_footprint_px))
+
+
+def _is_int(seed) -> bool:
+    """A concrete integer seed (not a tracer)."""
+    try:
+        return np.ndim(seed) == 0 and float(np.asarray(seed)) == int(np.asarray(seed))
+    except (TypeError, ValueError, jax.errors.ConcretizationTypeError):
+        return False
 
 
 def burley(buffers: Buffers, material: BurleyMaterial, camera: Camera, *,

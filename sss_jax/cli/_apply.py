@@ -223,6 +223,8 @@ def _run_batch(process_frames, inputs, args, options, material, light, report):
         focal_px=args.focal_px, mm_per_unit=args.mm_per_unit, channel_map=args.channel_map,
         depth_kind=args.depth_kind, use_albedo_pass=args.albedo is None, half=args.half, resume=args.resume,
         overwrite=args.overwrite, progress=len(inputs) > 1 or sys.stderr.isatty(), on_frame_done=report)
+    if not common["progress"]:  # no bars: a long frame's progress as lines (the batch says how far, how long left)
+        common["on_progress"] = lambda text: print(f"sss-jax apply: {text}", file=sys.stderr, flush=True)
     if args.tile_pixels is not None:
         common["tile_pixels"] = args.tile_pixels
     common = {k: v for k, v in common.items() if k in accepted}
