@@ -36,7 +36,7 @@ GOALS = {
 
 # Arithmetic per pixel of the pieces of a pass, as a shader executes them (an add, a multiply, a compare, a select or
 # a transcendental each count one; a fused multiply-add counts two). Counted from the formulation
-# (``_techniques/_separable_gpu.tap_term``, ``_techniques/_burley_gpu.sample_term``), not measured.
+# (``_techniques/_separable_spec.tap_term``, ``_techniques/_burley_gpu.sample_term``), not measured.
 _SEPARABLE_FLOPS_PER_TAP = 10  # offset (mul, clip), its corner(s) (floor, sub), the 3-channel weighted add (3 FMA)
 _SEPARABLE_FLOPS_PER_FETCH = 14  # follow the surface (sub, abs, mul, sub, max), validity (2), frac, 3 x (sub, FMA)
 _BURLEY_FLOPS_PER_SAMPLE = 30  # inverse CCDF (~12 with log, sqrt, exp), sin/cos and position (6), 1/pdf (5), corners
