@@ -292,13 +292,20 @@ def separable(
     frames"). Jimenez's shader does neither: its sampler clamps, so an off-image tap reads the edge texel (the
     ``jimenez`` technique).
 
-    ``impl`` (``_dispatch``): "banded" is the formulation above (what "auto" runs on every backend so far);
-    "gather" is the whole frame with per tap a gather at each pixel's own offset (Jimenez's shader, so no reach
-    levels and no level error; ``scale_levels`` unused), "pallas" that as a Pallas kernel per pass. The whole-frame
-    formulations count off-image taps as the centre and do not cut wide kernels at the frame yet (the rules before
-    issue #18), so they run only when named, with ``border="renormalise"``. "xla-cpu"/"xla-gpu" are the old names
-    of "banded"/"gather". Host work per eager call: the sampling check (``separable_edge_error``, NumPy, the
-    material's kernels built once per parameters and taps) and ``kernel_groups``.
+    ``impl`` (``_dispatch``): "banded" is the formulation above (what "auto" runs on a CPU); "gather" is the whole
+    frame with per tap a gather at each pixel's own offset (Jimenez's shader, so no reach levels and no level error;
+    ``scale_levels`` unused; "auto" off a CPU), "pallas" that as a Pallas kernel per pass. All three run one spec
+    (``_separable_spec``: tap offsets, fetches, the fetched pixel's weight, the per-tap term, the cut at the frame)
+    and implement every option; they agree exactly where every pixel has one reach (or the frame two: the banded
+    levels sit at the least and the largest), and the banded one approaches the gather as ``scale_levels`` grows.
+    "xla-cpu"/"xla-gpu" are the old names of "banded"/"gather".
+
+    ``origin`` (the buffer's top-left pixel in the whole frame) and ``frame_shape`` (the frame's ``(H, W)``) place a
+    tile: the border and the cut of wide kernels follow the frame, so a tile cropped with a halo of
+    ``Separable.reach_px`` gives the frame's pixels (the banded layout: where the tile holds the frame's least and
+    largest reach, since its levels are its buffer's). Host work per eager call of "banded": the sampling check
+    (``separable_edge_error``, NumPy, the material's kernels built once per parameters and taps) and
+    ``kernel_groups``; the whole-frame layouts read nothing back.
     """
     _check_border(border)
     _check_albedo_mode(albedo_mode)
