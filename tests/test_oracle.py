@@ -381,7 +381,8 @@ def test_separable_matches_the_numpy_loop(impl, kind, wide, opts):
 def test_a_separable_tile_with_its_halo_gives_the_untiled_frames_pixels(impl, border):
     # the frame 24x40, a depth step at column 20; the banded layout's levels are the reaches its buffer holds (the
     # least and the largest), so a tile gives the frame's pixels where it holds the frame's reaches: here both planes
-    # (unjittered, two reaches); the gather follows each pixel's own reach (jittered depths)
+    # (unjittered, two reaches), named explicitly ("auto" on a CPU refuses tiles: below); the gather follows each
+    # pixel's own reach (jittered depths)
     b, mat, _, _ = _separable_case("burley", h=24, w=40, seed=7, jitter=impl == "gather")
     technique = sj.technique("separable", taps=9, impl=impl, border=border)
     frame = np.asarray(technique(b, mat, SEP_CAM))
@@ -394,6 +395,9 @@ def test_a_separable_tile_with_its_halo_gives_the_untiled_frames_pixels(impl, bo
     tile = np.asarray(technique(crop, mat, SEP_CAM, origin=(a0, b0), frame_shape=(24, 40)))
     inner = (slice(r0 - a0, r1 - a0), slice(c0 - b0, c1 - b0))
     assert np.abs(tile[inner] - frame[r0:r1, c0:c1]).max() <= 1e-4
+    if impl == "banded":  # what a batch meets: "auto" gives the same pixels tiled or not, so it refuses the tile
+        with pytest.raises(ValueError, match="cannot place a tile"):
+            sj.technique("separable", taps=9, border=border)(crop, mat, SEP_CAM, origin=(a0, b0), frame_shape=(24, 40))
     if border == "leaves" and impl == "gather":
         # the frame's border, not the buffer's: alone, the tile's inner sides are a border that light leaves
         alone = np.asarray(technique(crop, mat, SEP_CAM))

@@ -302,8 +302,9 @@ def separable(
 
     ``origin`` (the buffer's top-left pixel in the whole frame) and ``frame_shape`` (the frame's ``(H, W)``) place a
     tile: the border and the cut of wide kernels follow the frame, so a tile cropped with a halo of
-    ``Separable.reach_px`` gives the frame's pixels (the banded layout: where the tile holds the frame's least and
-    largest reach, since its levels are its buffer's). Host work per eager call of "banded": the sampling check
+    ``Separable.reach_px`` gives the frame's pixels with "gather"/"pallas"; with "banded" only where the tile holds
+    the frame's least and largest reach (its levels are its buffer's), so "auto" on a CPU refuses a tile ("cannot
+    place a tile": a batch runs such frames whole) rather than give other pixels than the frame. Host work per eager call of "banded": the sampling check
     (``separable_edge_error``, NumPy, the material's kernels built once per parameters and taps) and
     ``kernel_groups``; the whole-frame layouts read nothing back.
     """
@@ -323,6 +324,12 @@ def separable(
     mode = "bilinear" if interpolation == "linear" else "nearest"
     which = resolve_impl(impl, "separable", dict(border=border, interpolation=interpolation))
     origin, frame_shape = check_tile(tuple(buffers.depth.shape[-2:]), origin, frame_shape)
+    if impl == "auto" and which == "banded" and (origin != (0, 0) or frame_shape != tuple(buffers.depth.shape[-2:])):
+        # the banded levels are the buffer's least and largest reach: a tile's may differ from its frame's, and so
+        # its pixels; "auto" gives the same pixels tiled or not (a batch then runs the frame whole)
+        raise ValueError("separable cannot place a tile with impl='auto' on a CPU: the banded formulation's reach "
+                         "levels are its buffer's, so a tile would differ from its frame by the levels' error; pass "
+                         "the whole frame, or impl='gather' for the frame and its tiles")
     if which != "banded":  # no host read of the parameters (kernel_groups) off the CPU
         return separable_gpu_impl(buffers, material, camera, int(taps), albedo_mode, bool(follow_surface), mode,
                                   float(min_footprint_px), None, which, border, origin, frame_shape)
