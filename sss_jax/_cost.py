@@ -21,7 +21,7 @@ import numpy as np
 
 __all__ = ["cost_per_pixel", "frame_cost"]
 
-# Arithmetic per pixel of the pieces of a pass, counted from the formulation (``_techniques/_separable_gpu.tap_term``,
+# Arithmetic per pixel of the pieces of a pass, counted from the formulation (``_techniques/_separable_spec.tap_term``,
 # ``_techniques/_burley_spec``), not measured.
 _SEPARABLE_FLOPS_PER_TAP = 10  # offset (mul, clip), its corner(s) (floor, sub), the 3-channel weighted add (3 FMA)
 _SEPARABLE_FLOPS_PER_FETCH = 14  # follow the surface (sub, abs, mul, sub, max), validity (2), frac, 3 x (sub, FMA)

@@ -545,3 +545,30 @@ def test_a_reference_tile_needs_the_frames_window(as_users_run_it):
         sj.reference(crop, mat, CAM, origin=(0, 0), frame_shape=(12, 12))
     with pytest.raises(ValueError, match="does not lie inside frame_shape"):
         sj.reference(crop, mat, CAM, radius_px=2, origin=(8, 0), frame_shape=(12, 12))
+
+@pytest.mark.parametrize("impl", ["banded", "gather"])
+@pytest.mark.parametrize("border", ["renormalise", "leaves"])
+def test_a_separable_tile_with_its_halo_gives_the_untiled_frames_pixels(impl, border):
+    # the frame 24x40, a depth step at column 20; the banded layout's levels are the reaches its buffer holds (the
+    # least and the largest), so a tile gives the frame's pixels where it holds the frame's reaches: here both planes
+    # (unjittered, two reaches), named explicitly ("auto" on a CPU refuses tiles: below); the gather follows each
+    # pixel's own reach (jittered depths)
+    b, mat, _, _ = _separable_case("burley", h=24, w=40, seed=7, jitter=impl == "gather")
+    technique = sj.technique("separable", taps=9, impl=impl, border=border)
+    frame = np.asarray(technique(b, mat, SEP_CAM))
+    halo = technique.reach_px(b, mat, SEP_CAM)
+    assert 5 <= halo <= 10
+    # a tile on the frame's top edge, its other sides inside the frame: origin (0, c0 - halo)
+    r0, r1, c0, c1 = 0, 5, 16, 24
+    a0, a1, b0, b1 = max(r0 - halo, 0), r1 + halo, c0 - halo, c1 + halo
+    crop = jax_tree_crop(b, a0, a1, b0, b1)
+    tile = np.asarray(technique(crop, mat, SEP_CAM, origin=(a0, b0), frame_shape=(24, 40)))
+    inner = (slice(r0 - a0, r1 - a0), slice(c0 - b0, c1 - b0))
+    assert np.abs(tile[inner] - frame[r0:r1, c0:c1]).max() <= 1e-4
+    if impl == "banded":  # what a batch meets: "auto" gives the same pixels tiled or not, so it refuses the tile
+        with pytest.raises(ValueError, match="cannot place a tile"):
+            sj.technique("separable", taps=9, border=border)(crop, mat, SEP_CAM, origin=(a0, b0), frame_shape=(24, 40))
+    if border == "leaves" and impl == "gather":
+        # the frame's border, not the buffer's: alone, the tile's inner sides are a border that light leaves
+        alone = np.asarray(technique(crop, mat, SEP_CAM))
+        assert np.abs(alone - tile).max() > 1e-3

@@ -292,13 +292,21 @@ def separable(
     frames"). Jimenez's shader does neither: its sampler clamps, so an off-image tap reads the edge texel (the
     ``jimenez`` technique).
 
-    ``impl`` (``_dispatch``): "banded" is the formulation above (what "auto" runs on every backend so far);
-    "gather" is the whole frame with per tap a gather at each pixel's own offset (Jimenez's shader, so no reach
-    levels and no level error; ``scale_levels`` unused), "pallas" that as a Pallas kernel per pass. The whole-frame
-    formulations count off-image taps as the centre and do not cut wide kernels at the frame yet (the rules before
-    issue #18), so they run only when named, with ``border="renormalise"``. "xla-cpu"/"xla-gpu" are the old names
-    of "banded"/"gather". Host work per eager call: the sampling check (``separable_edge_error``, NumPy, the
-    material's kernels built once per parameters and taps) and ``kernel_groups``.
+    ``impl`` (``_dispatch``): "banded" is the formulation above (what "auto" runs on a CPU); "gather" is the whole
+    frame with per tap a gather at each pixel's own offset (Jimenez's shader, so no reach levels and no level error;
+    ``scale_levels`` unused; "auto" off a CPU), "pallas" that as a Pallas kernel per pass. All three run one spec
+    (``_separable_spec``: tap offsets, fetches, the fetched pixel's weight, the per-tap term, the cut at the frame)
+    and implement every option; they agree exactly where every pixel has one reach (or the frame two: the banded
+    levels sit at the least and the largest), and the banded one approaches the gather as ``scale_levels`` grows.
+    "xla-cpu"/"xla-gpu" are the old names of "banded"/"gather".
+
+    ``origin`` (the buffer's top-left pixel in the whole frame) and ``frame_shape`` (the frame's ``(H, W)``) place a
+    tile: the border and the cut of wide kernels follow the frame, so a tile cropped with a halo of
+    ``Separable.reach_px`` gives the frame's pixels with "gather"/"pallas"; with "banded" only where the tile holds
+    the frame's least and largest reach (its levels are its buffer's), so "auto" on a CPU refuses a tile ("cannot
+    place a tile": a batch runs such frames whole) rather than give other pixels than the frame. Host work per eager call of "banded": the sampling check
+    (``separable_edge_error``, NumPy, the material's kernels built once per parameters and taps) and
+    ``kernel_groups``; the whole-frame layouts read nothing back.
     """
     _check_border(border)
     _check_albedo_mode(albedo_mode)
@@ -316,6 +324,12 @@ def separable(
     mode = "bilinear" if interpolation == "linear" else "nearest"
     which = resolve_impl(impl, "separable", dict(border=border, interpolation=interpolation))
     origin, frame_shape = check_tile(tuple(buffers.depth.shape[-2:]), origin, frame_shape)
+    if impl == "auto" and which == "banded" and (origin != (0, 0) or frame_shape != tuple(buffers.depth.shape[-2:])):
+        # the banded levels are the buffer's least and largest reach: a tile's may differ from its frame's, and so
+        # its pixels; "auto" gives the same pixels tiled or not (a batch then runs the frame whole)
+        raise ValueError("separable cannot place a tile with impl='auto' on a CPU: the banded formulation's reach "
+                         "levels are its buffer's, so a tile would differ from its frame by the levels' error; pass "
+                         "the whole frame, or impl='gather' for the frame and its tiles")
     if which != "banded":  # no host read of the parameters (kernel_groups) off the CPU
         return separable_gpu_impl(buffers, material, camera, int(taps), albedo_mode, bool(follow_surface), mode,
                                   float(min_footprint_px), None, which, border, origin, frame_shape)

@@ -1,15 +1,18 @@
 """The separable pass as a GPU runs it: whole frame, one fused loop over the taps, a gather at each pixel's own offset.
 
 Jimenez's shader reads, for every pixel and tap, the irradiance at ``offset_mm * px_per_mm(pixel)`` along the pass:
-the reach follows each pixel's depth and material exactly (no quantised levels, so their error is gone). A pixel a
-tap reads counts as far as it is valid and at the centre's depth (``follow_surface``: full at equal depth, none at
-the kernel's reach); the rest of the tap, and taps landing off the frame, count as the centre colour. Validity
-travels in the depth plane itself (``z > 0``; ``_prepare`` zeroes the depth of pixels that take no part), so a tap
-fetches four planes (R, G, B, z), not five.
+the reach follows each pixel's depth and material exactly (no quantised levels, so their error is gone). The
+arithmetic is the spec's (``_separable_spec``): a pixel a tap reads counts as far as it is valid and at the centre's
+depth (``follow_surface``), the rest of the tap counts as the centre, and the part off the frame is dark
+(``border="leaves"``) or the centre ("renormalise"); a kernel wider than the frame is cut there per pixel (decided on
+the device by a ``lax.cond``: the cut's arithmetic runs only where some pixel needs it). Validity travels in the
+depth plane itself (``z > 0``; ``_prepare`` zeroes the depth of pixels that take no part), so a tap fetches four
+planes (R, G, B, z), not five.
 
-``gather_pass`` is written with its inputs explicit (per-pixel reach in px, follow-the-surface scale, material row,
-the unit tap pattern and the weight table), so the XLA formulation here and the Pallas kernel (``_pallas``) compute
-one function and can be checked against each other and against a pixel-by-pixel loop.
+``pass_result`` is written for any layout of pixels (its inputs explicit: per-pixel reach in px, follow-the-surface
+scale, material row, position along the pass, a fetch function and the small tables of ``pass_tables``), so the XLA
+gather here and the Pallas kernel (``_pallas``) compute one function and are checked against each other and against
+an independent NumPy loop (``tests/test_oracle.py``).
 """
 
 from __future__ import annotations
