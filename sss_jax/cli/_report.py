@@ -19,7 +19,7 @@ EPILOG = """examples:
   sss-jax report irradiance_backlit.exr --out rep --truth burley_backlit.exr --truth-channels Combined \\
       --albedo 0.85,0.75,0.55 --d-mm 31.83,19.89,11.94 --techniques separable,burley --taps 9,25 --samples 8,32
   sss-jax report 'shots/*.exr' --out rep --preset skin1,marble --light-dir 0.3,-0.4,0.9
-  sss-jax report frame.exr --out rep --truth cycles.exr --albedo 0.85,0.75,0.55 --d-mm 31.8,19.9,11.9 \
+  sss-jax report frame.exr --out rep --truth cycles.exr --albedo 0.85,0.75,0.55 --d-mm 31.8,19.9,11.9 \\
       --techniques burley,hdrp:quality=low,hdrp:quality=high,eevee-next,jimenez --samples 32 --frames 16
 
 The engines' own passes (hdrp, eevee-next, jimenez) run as each engine executes its pass; the summary gives each
