@@ -4,7 +4,6 @@ and what each costs."""
 from __future__ import annotations
 
 import argparse
-import inspect
 import pathlib
 import shutil
 import sys
