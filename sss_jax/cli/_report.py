@@ -52,9 +52,10 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "report",
         help="error report on your own frames: each technique against the reference and an offline render",
-        description="Run STA, separable and Burley at several counts on EXR frames, compare them with the dense "
-        "reference (cached) and, with --truth, with an offline render of the same view, and write a "
-        "self-contained HTML report and its JSON.",
+        description="Run STA, separable and Burley at several counts, and the engines' own passes (hdrp, "
+        "eevee-next, jimenez) as the engines execute them, on EXR frames, compare them with the dense reference "
+        "(cached) and, with --truth, with an offline render of the same view, and write a self-contained HTML report "
+        "and its JSON, with each run's time here and its cost per pixel as its shader executes it.",
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
