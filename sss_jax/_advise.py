@@ -56,7 +56,7 @@ class Candidate:
     delta_e: float  # mean CIEDE2000 against the reference over SSS pixels
     ms_low: float | None = None  # the timings' 25th percentile (None: one timing, no spread known)
     ms_high: float | None = None  # their 75th percentile
-    options: dict = dataclasses.field(default_factory=dict)  # the technique's options that differ from its defaults
+    options: dict = dataclasses.field(default_factory=dict, hash=False)  # its options that differ from the defaults
 
     @property
     def label(self) -> str:

@@ -136,14 +136,16 @@ def test_bench_runs_the_chosen_configurations_with_their_cost():
 
     res = run_bench(repeats=1, grid=dict(resolutions=[(24, 16)], ratio_resolution=(24, 16), error_size=(16, 24),
                                          pattern_size=16), techniques=["hdrp"],
-                    technique_options={"hdrp": {"quality": "low", "frames": 2}, "reference": {"border": "leaves"}})
+                    # the reference's own options reach the error columns' reference (a small window: cheap)
+                    technique_options={"hdrp": {"quality": "low", "frames": 2},
+                                       "reference": {"border": "leaves", "radius_px": 6}})
     (row,) = res["rows"]
     assert row["label"] == "hdrp quality=low frames=2" and row["count"] is None
     assert row["options"] == {"quality": "low", "frames": 2}
     assert row["cost_per_pixel"]["samples"] <= 20 and row["cost_per_pixel"]["frames"] == 2  # the low budget
     assert 0 < row["errors"]["demo"] < 1 and row["ms_per_frame"] > 0
     assert res["ratios"] == {} and "hdrp quality=low frames=2 ms" in res["other_ratios"]
-    assert res["technique_options"]["reference"] == {"border": "leaves"}
+    assert res["technique_options"]["reference"] == {"border": "leaves", "radius_px": "6"}
 
 
 # ---- advise -----------------------------------------------------------------------------------------------------

@@ -126,12 +126,14 @@ def run(args) -> int:
     print(f"\nmachine: backend {m['backend']}, device {m['device']}, formulation {m['impl']}, jax {m['jax']}")
     print("cost per pixel as a shader runs it (texel fetches, flops: counted from the formulation, the same on any "
           "machine) beside the wall times of this one")
-    print(f"{'technique':10s} {'n':>4s} {'size':>10s} {'ms/frame':>10s} {'fetches':>8s} {'flops':>7s} "
+    names = [" ".join([r["technique"]] + [f"{k}={v}" for k, v in (r.get("options") or {}).items()])
+             for r in result["rows"]]
+    width = max([10] + [len(n) for n in names])
+    print(f"{'technique':{width}s} {'n':>4s} {'size':>10s} {'ms/frame':>10s} {'fetches':>8s} {'flops':>7s} "
           f"{'compile s':>9s} {'rel L2 demo':>11s} {'edge':>7s} {'line':>7s} {'point':>7s}  pareto")
-    for r in result["rows"]:
+    for r, name in zip(result["rows"], names):
         e, c = r["errors"], r["cost_per_pixel"]
-        name = " ".join([r["technique"]] + [f"{k}={v}" for k, v in (r.get("options") or {}).items()])
-        print(f"{name:10s} {r['count'] or '':>4} {r['width']}x{r['height']:<5} {r['ms_per_frame']:10.2f} "
+        print(f"{name:{width}s} {r['count'] or '':>4} {r['width']}x{r['height']:<5} {r['ms_per_frame']:10.2f} "
               f"{c['fetches']:8g} {c['flops']:7g} {r['compile_seconds']:9.2f} {e['demo']:11.4f} "
               f"{e['shadow_edge']:7.4f} {e['thin_line']:7.4f} {e['point_light']:7.4f}  {'*' if r['pareto'] else ''}")
     w, h = result["ratio_resolution"]

@@ -4,7 +4,6 @@ and what each costs."""
 from __future__ import annotations
 
 import argparse
-import inspect
 import pathlib
 import shutil
 import sys
@@ -19,7 +18,7 @@ EPILOG = """examples:
   sss-jax report irradiance_backlit.exr --out rep --truth burley_backlit.exr --truth-channels Combined \\
       --albedo 0.85,0.75,0.55 --d-mm 31.83,19.89,11.94 --techniques separable,burley --taps 9,25 --samples 8,32
   sss-jax report 'shots/*.exr' --out rep --preset skin1,marble --light-dir 0.3,-0.4,0.9
-  sss-jax report frame.exr --out rep --truth cycles.exr --albedo 0.85,0.75,0.55 --d-mm 31.8,19.9,11.9 \
+  sss-jax report frame.exr --out rep --truth cycles.exr --albedo 0.85,0.75,0.55 --d-mm 31.8,19.9,11.9 \\
       --techniques burley,hdrp:quality=low,hdrp:quality=high,eevee-next,jimenez --samples 32 --frames 16
 
 The engines' own passes (hdrp, eevee-next, jimenez) run as each engine executes its pass; the summary gives each
@@ -53,9 +52,10 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "report",
         help="error report on your own frames: each technique against the reference and an offline render",
-        description="Run STA, separable and Burley at several counts on EXR frames, compare them with the dense "
-        "reference (cached) and, with --truth, with an offline render of the same view, and write a "
-        "self-contained HTML report and its JSON.",
+        description="Run STA, separable and Burley at several counts, and the engines' own passes (hdrp, "
+        "eevee-next, jimenez) as the engines execute them, on EXR frames, compare them with the dense reference "
+        "(cached) and, with --truth, with an offline render of the same view, and write a self-contained HTML report "
+        "and its JSON, with each run's time here and its cost per pixel as its shader executes it.",
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
