@@ -14,6 +14,8 @@ rule and the tile's place in its frame are the spec's, the same in every layout.
 
 from __future__ import annotations
 
+import os
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -35,31 +37,51 @@ from ._common import _finish, _prepare, _work_dtype
 
 def frame_result(pix: dict, fetch, cos_phi: Array, sin_phi: Array, *, samples: int, truncate: bool, border: str,
                  weight_channels: int, buffer_shape: tuple[int, int], origin: tuple[int, int],
-                 frame_shape: tuple[int, int], mm_per_unit: Array, interpolation: str) -> list[Array]:
+                 frame_shape: tuple[int, int], mm_per_unit: Array, interpolation: str, parts: int = 1) -> list[Array]:
     """One frame's scattered channels (3 planes over the layout's pixels), the spiral turned by ``cos_phi``,
     ``sin_phi``: ``samples`` samples, each channel normalised by its weights (plus, with truncated sampling and
     ``border="leaves"``, the energy beyond the frame's diagonal, which leaves).
 
     The loop computes each sample's place one iteration ahead and carries it: XLA's CPU backend materialises a
     loop-carried value once, where a value computed and used in one iteration is recomputed inside every fusion that
-    reads it (the place feeds the gathers, the kernels and the sums of every corner and channel). Same arithmetic."""
-    place = lambda i: sample_place(i, samples, cos_phi, sin_phi, pix, buffer_shape=buffer_shape, origin=origin,
-                                   frame_shape=frame_shape, interpolation=interpolation, truncate=truncate,
-                                   border=border)
-    zeros = jnp.zeros_like(pix["z"])
+    reads it (the place feeds the gathers, the kernels and the sums of every corner and channel). ``parts`` splits
+    the pixels into that many independent chains of the loop's body, which XLA's CPU runtime runs on its threads at
+    once (one chain of a few large fusions keeps one core busy). Same arithmetic either way."""
+    planes = dict(pix, cos_phi=cos_phi, sin_phi=sin_phi)
+    n = pix["z"].shape[0]
+    cuts = [n * k // parts for k in range(parts + 1)]
+    pieces = [jax.tree.map(lambda a, lo=lo, hi=hi: a[lo:hi], planes) for lo, hi in zip(cuts, cuts[1:]) if hi > lo]
+
+    def place(piece, i):
+        return sample_place(i, samples, piece["cos_phi"], piece["sin_phi"], piece, buffer_shape=buffer_shape,
+                            origin=origin, frame_shape=frame_shape, interpolation=interpolation, truncate=truncate,
+                            border=border)
 
     def body(i, acc):
-        num_acc, den_acc, here = acc
-        ahead = place(jnp.minimum(i + 1, samples - 1))
-        num, den = sample_weights(here, pix, fetch, buffer_shape=buffer_shape, mm_per_unit=mm_per_unit,
-                                  interpolation=interpolation, weight_channels=weight_channels, border=border)
-        return (tuple(a + b for a, b in zip(num_acc, num)), tuple(a + b for a, b in zip(den_acc, den)), ahead)
+        out = []
+        for piece, (num_acc, den_acc, here) in zip(pieces, acc):
+            ahead = place(piece, jnp.minimum(i + 1, samples - 1))
+            num, den = sample_weights(here, piece, fetch, buffer_shape=buffer_shape, mm_per_unit=mm_per_unit,
+                                      interpolation=interpolation, weight_channels=weight_channels, border=border)
+            out.append((num_acc + num, den_acc + den, ahead))
+        return tuple(out)
 
-    num, den, _ = jax.lax.fori_loop(0, samples, body, ((zeros,) * 3, (zeros,) * weight_channels, place(0)))
-    den = list(den)
+    zeros = lambda count, piece: jnp.zeros((count, *piece["z"].shape), piece["z"].dtype)
+    acc = jax.lax.fori_loop(0, samples, body, tuple((zeros(3, piece), zeros(weight_channels, piece), place(piece, 0))
+                                                    for piece in pieces))
+    num = list(jnp.concatenate([a[0] for a in acc], axis=1))
+    den = list(jnp.concatenate([a[1] for a in acc], axis=1))
     if truncate and border == "leaves":
         den = [den[c] + samples * pix["leave"][c] for c in range(weight_channels)]
-    return normalise(list(num), den, pix["e"])
+    return normalise(num, den, pix["e"])
+
+
+def cpu_parts(pixels: int) -> int:
+    """How many independent chains ``frame_result`` splits ``pixels`` into: one per core on a CPU backend (at least
+    16384 pixels each: below that the fusions' fixed cost wins), else 1 (a GPU parallelises each fusion itself)."""
+    if jax.default_backend() != "cpu":
+        return 1
+    return max(1, min(os.cpu_count() or 1, pixels // 16384))
 
 
 def frames_mean(one_frame, frames: int, zeros: Array) -> list[Array]:
@@ -106,8 +128,9 @@ def _burley_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, sam
         pix = jax.tree.map(take, pix)
     seed = jnp.asarray(seed).astype(jnp.uint32)
     kw = dict(samples=samples, frames=frames, seed=seed, pattern=pattern, border=border,
-              weight_channels=weight_channels, buffer_shape=(h, w), origin=tuple(origin), frame_shape=frame_shape,
-              mm_per_unit=camera.mm_per_unit.astype(dtype), interpolation=interpolation)
+              parts=cpu_parts(pix["z"].shape[0]), weight_channels=weight_channels, buffer_shape=(h, w),
+              origin=tuple(origin), frame_shape=frame_shape, mm_per_unit=camera.mm_per_unit.astype(dtype),
+              interpolation=interpolation)
     if truncate is None:
         wide = needs_truncation_on_device(pix, active if capacity is None else idx < h * w)
         out = jax.lax.cond(wide, lambda: sample_loop(pix, fetch, truncate=True, **kw),

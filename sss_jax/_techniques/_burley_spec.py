@@ -38,22 +38,21 @@ BURLEY_R95 = float(np.asarray(burley_inverse_ccdf(np.float64(0.05), np.float64(1
 TRUNCATION_ENERGY = 1e-4
 
 
-def burley_weight(r: Array, inv_r: Array, d: Array, inv_d: Array, ok_d: Array, scale: Array) -> Array:
+def burley_weight(r: Array, d: Array, inv_d: Array, ok_d: Array, scale: Array) -> Array:
     """``scale (exp(-x) + exp(-x/3)) / x`` at ``x = r / d``: the Burley profile at ``r`` up to the factor
     ``8 pi d^2`` that cancels in the per-channel normalisation, times ``scale``, written as
-    ``scale d (e3 + e3^3) / r`` with ``e3 = exp(-r / (3 d))``: one exponential and no division per channel (``inv_r``
-    = 1/r is the caller's, shared by the channels; 0 where r = 0, and ``d = 0`` gives 0: no NaN, finite gradients).
-    ``ok_d`` (d > 0) masks the square, which keeps XLA's simplifier from turning ``e3 * e3`` into a second
-    exponential."""
+    ``scale d (e3 + e3^3) / r`` with ``e3 = exp(-r / (3 d))``: one exponential per channel. ``d = 0`` (``ok_d``
+    false) gives 0, and so does r = 0 (``scale`` is 0 there: it carries 1/pdf, which is 0 at r = 0): no NaN, finite
+    gradients.
+
+    Written for XLA's CPU fusion: ``ok_d`` masks the square, which keeps the simplifier from turning ``e3 * e3`` into
+    a second exponential, and the divisor (with r > 0, so the mask has the weight's full shape), which keeps it from
+    turning the division into a product with a reciprocal: the division is the weight's last operation, so the whole
+    weight is one materialised value (XLA does not duplicate an expensive root) that the sums of the numerator and
+    the denominator read, instead of each recomputing its arguments."""
     e3 = jnp.exp(-(r * inv_d) / 3)
     e3_squared = jnp.where(ok_d, e3, 0.0) * e3
-    return scale * d * e3 * (1 + e3_squared) * inv_r
-
-
-def _safe_reciprocal(x: Array) -> Array:
-    """1/x, 0 where x is not > 0 (double where: finite gradients)."""
-    pos = x > 0
-    return jnp.where(pos, 1.0 / jnp.where(pos, x, 1.0), 0.0)
+    return scale * d * e3 * (1 + e3_squared) / jnp.where(ok_d & (r > 0), r, 1.0)
 
 
 def _hash_u32(x: Array) -> Array:
@@ -127,9 +126,9 @@ def pixel_planes(buffers, material, camera, prep, *, min_footprint_px: float, we
 
     ``row``/``col``: frame coordinates (floats); ``frow``/``fcol``: the same as integers (the rotation hash);
     ``e`` (3 planes), ``z`` (0 where the pixel takes no part), ``dmax`` (widest d, mm), ``ppm`` (px per mm),
-    ``inside`` (the d_max profile's energy within the frame's diagonal), ``d``/``inv_d``/``ok_d`` and ``leave`` (the energy
-    of each weight channel's profile beyond the diagonal, per sample in the weights' units, for ``border="leaves"``
-    with truncated sampling) per weight channel."""
+    ``inside`` (the d_max profile's energy within the frame's diagonal), ``d``/``inv_d``/``ok_d`` and ``leave`` (the
+    energy of each weight channel's profile beyond the diagonal, per sample in the weights' units, for
+    ``border="leaves"`` with truncated sampling) per weight channel."""
     d_table = checked(material.d_mm.astype(dtype), "d_mm")
     h, w = buffers.depth.shape
     mm_per_unit = camera.mm_per_unit.astype(dtype)
@@ -230,57 +229,59 @@ def sample_place(i: Array | int, samples: int, cos_phi: Array, sin_phi: Array, p
 
 
 def sample_weights(place: dict, pix: dict, fetch, *, buffer_shape: tuple[int, int], mm_per_unit: Array,
-                   interpolation: str, weight_channels: int, border: str) -> tuple[list[Array], list[Array]]:
-    """What a sample at ``place`` (``sample_place``) adds to each pixel's numerator (3 channels) and denominator
-    (``weight_channels``): the second half of ``sample_term``.
+                   interpolation: str, weight_channels: int, border: str) -> tuple[Array, Array]:
+    """What a sample at ``place`` (``sample_place``) adds to each pixel's numerator (``(3, N)``: R, G, B) and
+    denominator (``(weight_channels, N)``): the second half of ``sample_term``.
 
     Each pixel q a bilinear (or nearest) fetch reads is its own point on the surface: it adds
     ``frac_q R_c(sqrt(r^2 + dz^2)) / pdf(r)`` to the channel's denominator and that times ``e_q`` to its numerator
     (no interpolated depth across a step). Pixels without a surface, and pixels of the frame outside this buffer (the
     padding of ``fetch_planes``: depth 0), add nothing; with ``border="leaves"`` the part of the fetch outside the
     frame adds the weight of dark surface at the pixel's own depth (``R_c(r) / pdf(r)``) to the denominator only:
-    that light leaves the frame."""
+    that light leaves the frame.
+
+    The corners and the channels are leading axes of arrays (corners x channels x pixels), not lists of planes: XLA
+    then computes all of a sample's fetches, kernels and sums in a handful of fusions instead of one per corner and
+    channel (each a pass over the pixels)."""
     inv_pdf = place["inv_pdf"]
     r_mm = place["rho"] * pix["dmax"]
     idx = place["idx"]
     if interpolation == "nearest":
-        corners = [(idx, None)]
+        idx_q = idx[None]
+        frac = jnp.ones(idx_q.shape, r_mm.dtype)
     else:
         fx, fy = place["fx"], place["fy"]
         step = buffer_shape[1] + 2 * FETCH_PAD  # one row down in the padded planes
-        corners = [(idx, (1 - fy) * (1 - fx)), (idx + 1, (1 - fy) * fx), (idx + step, fy * (1 - fx)),
-                   (idx + step + 1, fy * fx)]
-    num, den = [0.0] * 3, [0.0] * weight_channels
-    for idx_q, corner_weight in corners:
-        *eq, zq = fetch(idx_q)
-        ok = zq > 0  # validity travels in the depth (0 where a pixel takes no part, and in the padding)
-        v_q = jnp.where(ok, 1.0 if corner_weight is None else corner_weight, 0.0)
-        dz_mm = jnp.where(ok, (zq - pix["z"]) * mm_per_unit, 0.0)
-        r3 = _safe_sqrt(r_mm * r_mm + dz_mm * dz_mm)
-        inv_r3 = _safe_reciprocal(r3)
-        base = v_q * inv_pdf
-        wgt = [burley_weight(r3, inv_r3, pix["d"][c], pix["inv_d"][c], pix["ok_d"][c], base)
-               for c in range(weight_channels)]
-        num = [num[c] + wgt[min(c, weight_channels - 1)] * eq[c] for c in range(3)]
-        den = [den[c] + wgt[c] for c in range(weight_channels)]
+        idx_q = jnp.stack([idx, idx + 1, idx + step, idx + step + 1])
+        frac = jnp.stack([(1 - fy) * (1 - fx), (1 - fy) * fx, fy * (1 - fx), fy * fx])
+    *e_q, z_q = fetch(idx_q)  # each (corners, N)
+    ok = z_q > 0  # validity travels in the depth (0 where a pixel takes no part, and in the padding)
+    v_q = jnp.where(ok, frac, 0.0)
+    dz_mm = jnp.where(ok, (z_q - pix["z"][None]) * mm_per_unit, 0.0)
+    r3 = _safe_sqrt((r_mm * r_mm)[None] + dz_mm * dz_mm)
+    base = v_q * (inv_pdf[None] if jnp.ndim(inv_pdf) else inv_pdf)
+    channels = lambda key: jnp.stack(pix[key])  # (weight_channels, N)
+    d, inv_d, ok_d = channels("d"), channels("inv_d"), channels("ok_d")
+    wgt = burley_weight(r3[:, None], d[None], inv_d[None], ok_d[None], base[:, None])  # (corners, channels, N)
+    corners = range(wgt.shape[0])
+    # a grey weight (channel 0) serves the three channels; each channel's gathers stay inside its sum
+    num = jnp.stack([sum(wgt[q, min(c, weight_channels - 1)] * e_q[c][q] for q in corners) for c in range(3)])
+    den = sum(wgt[q] for q in corners)
     if border == "leaves":
         out = 1 - place["in_frame"]
         if weight_channels == 1:  # grey: the weight at dz = 0 is R/pdf of the sampled profile itself, 1
-            den[0] = den[0] + out * pix["ok_d"][0]
+            den = den + (out * pix["ok_d"][0])[None]
         else:
-            out_w = out * inv_pdf
-            inv_r = _safe_reciprocal(r_mm)
-            den = [den[c] + burley_weight(r_mm, inv_r, pix["d"][c], pix["inv_d"][c], pix["ok_d"][c], out_w)
-                   for c in range(weight_channels)]
+            den = den + burley_weight(r_mm[None], d, inv_d, ok_d, (out * inv_pdf)[None])
     return num, den
 
 
 def sample_term(i: Array | int, samples: int, cos_phi: Array, sin_phi: Array, pix: dict, fetch, *,
                 buffer_shape: tuple[int, int], origin: tuple[int, int], frame_shape: tuple[int, int],
                 mm_per_unit: Array, interpolation: str, weight_channels: int, truncate: bool, border: str,
-                inverse_ccdf=unit_inverse_ccdf) -> tuple[list[Array], list[Array]]:
-    """What sample ``i`` of ``samples`` adds to each pixel's numerator (3 channels) and denominator
-    (``weight_channels``): the one definition of the pass (Christensen & Burley 2015, screen space), in two halves:
+                inverse_ccdf=unit_inverse_ccdf) -> tuple[Array, Array]:
+    """What sample ``i`` of ``samples`` adds to each pixel's numerator (``(3, N)``) and denominator
+    (``(weight_channels, N)``): the one definition of the pass (Christensen & Burley 2015, screen space), in two halves:
     where the sample lands (``sample_place``) and what it weighs there (``sample_weights``).
 
     ``pix``: the planes of ``pixel_planes`` for this layout's pixels; ``fetch(idx)``: R, G, B and depth at index
