@@ -28,14 +28,26 @@ sys.path.insert(0, str(ROOT))
 DATA = ROOT / "tests" / "data" / "mitsuba"
 
 
-def walk(albedo: float, tau: float, mu0: float, photons: int, mu_edges: np.ndarray, seed: int = 0) -> dict:
-    """Photons enter the back face (depth 0) travelling at ``mu0`` towards the front face (depth ``tau``, optical
-    units), isotropic scattering of albedo ``albedo``, no refraction or reflection at either face. Returns the
-    transmitted weight (scattered at least once) per bin of the exit cosine, its single-scattered part, and the
-    unscattered fraction."""
+def _fresnel(cos_i: np.ndarray, eta: float) -> np.ndarray:
+    """Unpolarised Fresnel reflectance inside a medium of relative index eta meeting its face at cos_i (Born & Wolf);
+    1 beyond the critical angle."""
+    sin_t2 = eta * eta * (1.0 - cos_i * cos_i)
+    cos_t = np.sqrt(np.clip(1.0 - sin_t2, 0.0, 1.0))
+    rs = (eta * cos_i - cos_t) / (eta * cos_i + cos_t)
+    rp = (eta * cos_t - cos_i) / (eta * cos_t + cos_i)
+    return np.where(sin_t2 >= 1.0, 1.0, 0.5 * (rs * rs + rp * rp))
+
+
+def walk(albedo: float, tau: float, mu0: float, photons: int, mu_edges: np.ndarray, seed: int = 0,
+         eta: float = 1.0) -> dict:
+    """Photons enter the back face (depth 0) travelling at ``mu0`` (outside; refracted in by Snell's law) towards the
+    front face (depth ``tau``, optical units), isotropic scattering of albedo ``albedo``; at a face of relative index
+    ``eta`` a photon is reflected with the Fresnel probability, else leaves refracted. Returns the transmitted weight
+    (scattered at least once) per bin of the exit cosine outside, its single-scattered part, and the unscattered
+    fraction (per photon that entered)."""
     rng = np.random.default_rng(seed)
     z = np.zeros(photons)
-    mu = np.full(photons, mu0)
+    mu = np.full(photons, math.sqrt(1.0 - (1.0 - mu0 * mu0) / (eta * eta)))
     w = np.ones(photons)
     scattered = np.zeros(photons, np.int64)
     hist = np.zeros(mu_edges.size - 1)
@@ -49,10 +61,18 @@ def walk(albedo: float, tau: float, mu0: float, photons: int, mu_edges: np.ndarr
         znew = z[idx] + mu[idx] * step
         out_front = znew >= tau
         out_back = znew <= 0
+        if eta != 1.0:  # the face reflects: the photon stays, mirrored at the face (its remaining path is redrawn)
+            hit = out_front | out_back
+            back = rng.random(idx.size) < _fresnel(np.abs(mu[idx]), eta)
+            stay = hit & back
+            znew = np.where(stay, np.where(out_front, tau, 0.0), znew)
+            mu[idx[stay]] = -mu[idx[stay]]
+            out_front, out_back = out_front & ~stay, out_back & ~stay
         # leaving the front face: tally by exit cosine
         f = idx[out_front]
         if f.size:
-            b = np.clip(np.searchsorted(mu_edges, mu[f], side="right") - 1, 0, hist.size - 1)
+            mu_out = np.sqrt(np.clip(1.0 - eta * eta * (1.0 - mu[f] ** 2), 0.0, 1.0))
+            b = np.clip(np.searchsorted(mu_edges, mu_out, side="right") - 1, 0, hist.size - 1)
             first = scattered[f] == 0
             unscattered += float(np.sum(w[f][first]))
             s = f[~first]
@@ -63,8 +83,11 @@ def walk(albedo: float, tau: float, mu0: float, photons: int, mu_edges: np.ndarr
             np.add.at(hist1, bs[one], w[s][one])
         alive[f] = False
         alive[idx[out_back]] = False
-        inside = idx[~(out_front | out_back)]
-        z[inside] = znew[~(out_front | out_back)]
+        moved = ~(out_front | out_back)
+        z[idx[moved]] = znew[moved]
+        # a photon mirrored at a face has not scattered: it flies on from the face (memoryless path length)
+        at_face = moved & ((znew == tau) | (znew == 0.0)) if eta != 1.0 else np.zeros_like(moved)
+        inside = idx[moved & ~at_face]
         w[inside] *= albedo
         scattered[inside] += 1
         mu[inside] = 2.0 * rng.random(inside.size) - 1.0  # isotropic
@@ -81,7 +104,11 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--photons", type=int, default=400_000)
     ap.add_argument("--json", type=pathlib.Path)
+    ap.add_argument("--preset-eta", action="store_true", help="instead: the skin1 preset's medium behind faces of eta "
+                    "1.3, the walk with Fresnel faces against slab_exit and the preset's T_d")
     args = ap.parse_args(argv)
+    if args.preset_eta:
+        return preset_check(args.photons)
 
     import jax.numpy as jnp
 
@@ -141,6 +168,32 @@ def main(argv=None) -> None:
         from sss_jax._io import write_json_atomic
 
         write_json_atomic(args.json, rows)
+
+
+def preset_check(photons: int) -> None:
+    """skin1 behind faces of eta 1.3 (the preset's medium), lit at 0.958 from behind, seen near the normal."""
+    import jax.numpy as jnp
+
+    import sss_jax as sj
+    from sss_jax._slab import slab_exit
+
+    medium = sj.load_preset("skin1").medium
+    s, a = np.array([0.74, 0.88, 1.01]), np.array([0.032, 0.17, 0.48])  # Jensen et al. 2001, Table 2
+    edges = np.array([0.0, 0.5, 0.9, 0.95, 1.0])
+    for t in (1.0, 2.0, 4.0):
+        for c in range(3):
+            sigma_t = s[c] + a[c]
+            alpha = float(s[c] / sigma_t)
+            r = walk(alpha, t * sigma_t, 0.958, photons, edges, seed=31 * c + int(t), eta=1.3)
+            T_d = float(r["hist"].sum())
+            width = edges[-1] - edges[-2]
+            mid = 0.5 * (edges[-1] ** 2 - edges[-2] ** 2) / width
+            p_mc = float(r["hist"][-1] / width / (2 * mid * T_d))
+            p_model = float(slab_exit(0.975, t * sigma_t, alpha, 0.958, 1.3))
+            T_model = float(medium.diffuse_transmittance(jnp.asarray(t))[c])
+            print(f"eta 1.3, t {t:.0f} mm {'RGB'[c]}: T_d walk {T_d:.4f} (per photon entering) preset "
+                  f"{T_model:.4f} (per photon arriving); P near the normal: walk {p_mc:.3f} slab_exit {p_model:.3f} "
+                  f"({p_model / p_mc:.3f})", flush=True)
 
 
 if __name__ == "__main__":

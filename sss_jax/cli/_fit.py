@@ -143,9 +143,9 @@ def _register_match(p) -> None:
     m.add_argument("--score", choices=("held", "all"), default="held",
                    help="pixels the fit scores: held (default: those whose starting kernel the frame holds, so d is "
                         "not bent to make up for light beyond the frame) or all SSS pixels")
-    m.add_argument("--held-fraction", type=float, default=0.99,
+    m.add_argument("--held-fraction", type=float, default=0.95,
                    help="with --score held: the share of the kernel's energy inside the frame a scored pixel needs "
-                        "(default 0.99)")
+                        "(default 0.95)")
     m.add_argument("--focal-px", type=float, help="focal length in pixels")
     m.add_argument("--mm-per-unit", type=float, help="millimetres per scene unit of the depth buffer")
     m.add_argument("--depth-kind", choices=("planar", "distance"), default="planar")
