@@ -57,7 +57,6 @@ def _separable_level(fetch: Callable[[Array], tuple[Array, Array, Array, Array]]
     ``unit_offsets`` has a whole number of chunks (padding taps have weight 0). No division and no transcendental per
     tap, so nothing stops XLA from fusing a chunk whole."""
     scale = mm_per_unit * inv_reach_mm  # depth difference (scene units) at which a fetch stops counting
-    centre = list(e)
 
     def chunk(c, acc):
         for j in range(taps_per_chunk):
@@ -67,9 +66,9 @@ def _separable_level(fetch: Callable[[Array], tuple[Array, Array, Array, Array]]
             fetched = []
             for start, frac in spec.fetch_corners(off, interpolation):
                 ev, zv, vv, outside = fetch(start)
-                fetched.append((list(ev), zv, vv, outside, frac))
-            term = spec.tap_term(fetched, centre, z, scale, follow_surface=follow_surface)
-            acc = acc + tap_weight(i) * jnp.stack(term)
+                fetched.append((ev, zv, vv, outside, frac))
+            term = spec.tap_term(fetched, e, z, scale, follow_surface=follow_surface)  # planar (3, rows, W)
+            acc = acc + tap_weight(i) * term
         return acc
 
     chunks = unit_offsets.shape[0] // taps_per_chunk

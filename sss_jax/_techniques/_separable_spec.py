@@ -105,19 +105,25 @@ def fetch_keep(z_q, v_q, z, scale, *, follow_surface: bool):
     return jnp.maximum(v_q - jnp.abs(z_q - v_q * z) * scale, 0.0)
 
 
-def tap_term(fetched: Sequence[tuple[Sequence[Array], Array, Array, Array, Array | None]], e: Sequence[Array],
-             z: Array, scale: Array, *, follow_surface: bool) -> list[Array]:
+def tap_term(fetched: Sequence[tuple[Array | Sequence[Array], Array, Array, Array, Array | None]],
+             e: Array | Sequence[Array], z: Array, scale: Array, *, follow_surface: bool) -> Array | list[Array]:
     """What one tap adds per channel, before its weight: ``sum_q f_q (keep_q (e_q - e) - out_q e)``.
 
-    ``fetched``: per pixel q the tap reads, ``(e_q channels, z_q, v_q, out_q, f_q)`` (``f_q`` ``None`` for a whole
-    pixel; ``out_q`` 1 outside the frame where light leaves, else 0); ``e``: the centre's channels. Layout-free:
-    planes of a band, a whole frame or a block of pixels."""
-    term = [0.0] * len(e)
+    ``fetched``: per pixel q the tap reads, ``(e_q, z_q, v_q, out_q, f_q)`` (``f_q`` ``None`` for a whole pixel;
+    ``out_q`` 1 outside the frame where light leaves, else 0); ``e``: the centre's channels, either planar (an array
+    with the channels on a leading axis, as ``e_q``: the banded layout, whose fused loops want one expression) or a
+    sequence of planes (the whole-frame layouts and Pallas blocks). Layout-free otherwise: planes of a band, a whole
+    frame or a block of pixels."""
+    planar = not isinstance(e, (list, tuple))
+    term = 0.0 if planar else [0.0] * len(e)
     for e_q, z_q, v_q, out_q, frac in fetched:
         keep = fetch_keep(z_q, v_q, z, scale, follow_surface=follow_surface)
         if frac is not None:
             keep, out_q = frac * keep, frac * out_q
-        term = [t + keep * (a - c) - out_q * c for t, a, c in zip(term, e_q, e)]
+        if planar:
+            term = term + keep[None] * (e_q - e) - out_q[None] * e
+        else:
+            term = [t + keep * (a - c) - out_q * c for t, a, c in zip(term, e_q, e)]
     return term
 
 
