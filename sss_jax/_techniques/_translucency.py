@@ -175,9 +175,10 @@ def translucency(
       over view directions as this slab lets it out: limb-brightened when thin, peaked towards the normal when thick
       and absorbing (the emergent radiance of the scattering source for the slab's optical thickness, albedo and the
       light's angle; Fresnel and refraction at the medium's eta; 1 would be Lambertian), with V towards the camera.
-      With ``params`` a ``MediumMaterial`` (a preset that carries its medium: ``load_preset(...).medium``) T_d is that of the measured medium with its boundaries
-      (``MediumMaterial.diffuse_transmittance``); with a ``BurleyMaterial``, ``slab_diffuse_transmittance(thickness_mm,
-      A, d)``, the index-matched medium rebuilt from A and d (eta 1).
+      With ``params`` a ``MediumMaterial`` (a preset that carries its medium: ``load_preset(...).medium``) T_d is
+      that of the measured medium with its boundaries (``MediumMaterial.diffuse_transmittance``); with a
+      ``BurleyMaterial``, ``slab_diffuse_transmittance(thickness_mm, A, d)``, the index-matched medium rebuilt from A
+      and d (eta 1).
     """
     if model not in TRANSLUCENCY_MODELS:
         raise ValueError(f"model={model!r} is not one of {TRANSLUCENCY_MODELS}")
