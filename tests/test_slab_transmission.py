@@ -138,7 +138,7 @@ def test_translucency_slab_adds_the_diffusely_transmitted_light():
     P = np.asarray(_slab.slab_exit(_view_cosines((4, 5), 500.0)[..., None], tau, alpha, 0.8, 1.0))
     # T holds all of the medium's absorption: the albedo tints the front-lit irradiance only (issue #18)
     expected = albedo * 0.25 + np.array([2.0, 1.0, 0.5]) * T_diffuse * 0.8 * P
-    np.testing.assert_allclose(out, expected, rtol=1e-5)
+    np.testing.assert_allclose(out, expected, rtol=5e-3)  # P from the frame's table of slab_exit (within 1.5%, 0.1% here)
     # the slab's total passes more light than the profile's CCDF at this thickness (docs/engines.md)
     assert np.all(T > np.asarray(sj.thin_transmittance(2.0, d_mm)))
     # nothing has scattered in a slab of zero thickness; an opaque medium passes nothing
@@ -278,7 +278,7 @@ def test_preset_medium_drives_translucency():
     P = np.asarray(_slab.slab_exit(_view_cosines((4, 5), 500.0)[..., None], tau, alpha, 0.8, 1.3))
     albedo = np.asarray(preset.burley.albedo[0])
     expected = albedo * 0.25 + np.array([2.0, 1.0, 0.5]) * T_d * 0.8 * P
-    np.testing.assert_allclose(out, expected, rtol=1e-5)
+    np.testing.assert_allclose(out, expected, rtol=5e-3)  # P from the frame's table of slab_exit (within 1.5%)
     # thicker passes less in all, never negative; t = 0 is the two faces alone, (1 - R)/(1 + R), all unscattered
     t = jnp.linspace(0.0, 40.0, 401)
     Tt = np.asarray(preset.medium.transmittance(t))

@@ -15,7 +15,7 @@ from .._custom_types import ParamLike
 from .._materials import BurleyMaterial, DirectionalLight, STAParams
 from .._profiles import burley_cdf
 from .._scene import Buffers, Camera, camera_positions, normals_from_depth
-from .._slab import MediumMaterial, slab_diffuse_transmittance, slab_exit, slab_optical
+from .._slab import MediumMaterial, slab_diffuse_transmittance, slab_exit_lookup, slab_exit_table, slab_optical
 from ._common import _is_concrete, _prepare, _work_dtype
 
 
@@ -126,12 +126,16 @@ def _transmission_impl(buffers: Buffers, material: BurleyMaterial, camera: Camer
         pos = camera_positions(prep.depth, camera)
         view = -pos / jnp.linalg.norm(pos, axis=-1, keepdims=True)
         mu_view = jnp.clip(jnp.sum(normal * view, axis=-1), 0.0, 1.0)
+        # from a table per material row and channel (alpha and eta are the row's), interpolated per pixel
         if medium is None:
-            tau, alpha = slab_optical(t, medium_albedo, d)
-            eta = jnp.ones(prep.rows.shape, dtype)
+            tau, _ = slab_optical(t, medium_albedo, d)
+            alb = jnp.clip(material.albedo.astype(dtype), 0.0, 1.0).reshape(-1, 3)
+            table = slab_exit_table(slab_optical(jnp.ones_like(alb), alb, jnp.ones_like(alb))[1],
+                                    jnp.ones(alb.shape[:1], dtype))
         else:
-            tau, alpha, eta = medium.optical(t[..., 0], prep.rows)
-        transmitted = transmitted * slab_exit(mu_view[..., None], tau, alpha, back_cos[..., None], eta[..., None])
+            tau, _, _ = medium.optical(t[..., 0], prep.rows)
+            table = slab_exit_table(medium.albedo_ss.astype(dtype), medium.eta.astype(dtype))
+        transmitted = transmitted * slab_exit_lookup(table, prep.rows, tau, back_cos, mu_view)
     added = light.colour.astype(dtype).reshape(1, 1, 3) * transmitted * back_cos[..., None]
     out = prep.albedo_out * (prep.irradiance + (added if model == "thin" else 0.0)) + (added if model == "slab" else 0.0)
     out = jnp.where(prep.valid[..., None], out, buffers.irradiance.astype(dtype))
@@ -167,12 +171,14 @@ def translucency(
       irradiance``: T_d, the fraction of a normal back light that leaves the front face after scattering, already
       holds all absorption (no albedo factor). Only the diffusely transmitted light: the unscattered (collimated)
       beam keeps the light's direction and reaches the camera only where it looks into the light, which a
-      screen-space pass does not draw. ``P`` (``_slab.diffuse_exit``) spreads it over view directions as the face
-      lets it out (Fresnel and refraction at the medium's eta, diffusion-approximation radiance inside; 1 would be
-      Lambertian), with V towards the camera. With ``params`` a ``MediumMaterial`` (a preset that carries its medium:
-      ``load_preset(...).medium``) T_d is that of the measured medium with its boundaries
-      (``MediumMaterial.diffuse_transmittance``); with a ``BurleyMaterial``, ``slab_diffuse_transmittance(thickness_mm,
-      A, d)``, the index-matched medium rebuilt from A and d (eta 1).
+      screen-space pass does not draw. ``P`` (``_slab.slab_exit``, read from a table per material row) spreads it
+      over view directions as this slab lets it out: limb-brightened when thin, peaked towards the normal when thick
+      and absorbing (the emergent radiance of the scattering source for the slab's optical thickness, albedo and the
+      light's angle; Fresnel and refraction at the medium's eta; 1 would be Lambertian), with V towards the camera.
+      With ``params`` a ``MediumMaterial`` (a preset that carries its medium: ``load_preset(...).medium``) T_d is
+      that of the measured medium with its boundaries (``MediumMaterial.diffuse_transmittance``); with a
+      ``BurleyMaterial``, ``slab_diffuse_transmittance(thickness_mm, A, d)``, the index-matched medium rebuilt from A
+      and d (eta 1).
     """
     if model not in TRANSLUCENCY_MODELS:
         raise ValueError(f"model={model!r} is not one of {TRANSLUCENCY_MODELS}")
