@@ -24,5 +24,6 @@ class NoSSSPixelsWarning(UserWarning):
 
 
 class TilePlacementError(ValueError):
-    """A technique whose formulation takes no ``origin``/``frame_shape`` was handed a tile of a larger frame: it
-    cannot place it (a batch then runs that technique's frames whole)."""
+    """A technique was handed a tile of a larger frame that it cannot place: its formulation takes no
+    ``origin``/``frame_shape``, or would give other pixels in a tile than in its frame (separable's banded levels
+    on a CPU); a batch then runs that technique's frames whole."""

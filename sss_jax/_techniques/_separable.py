@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._errors import TilePlacementError
 from .._kernels import centre_first, unit_tap_offsets
 from .._materials import (
     AbstractMaterial,
@@ -326,7 +327,7 @@ def separable(
     if impl == "auto" and which == "banded" and (origin != (0, 0) or frame_shape != tuple(buffers.depth.shape[-2:])):
         # the banded levels are the buffer's least and largest reach: a tile's may differ from its frame's, and so
         # its pixels; "auto" gives the same pixels tiled or not (a batch then runs the frame whole)
-        raise ValueError("separable cannot place a tile with impl='auto' on a CPU: the banded formulation's reach "
+        raise TilePlacementError("separable cannot place a tile with impl='auto' on a CPU: the banded formulation's reach "
                          "levels are its buffer's, so a tile would differ from its frame by the levels' error; pass "
                          "the whole frame, or impl='gather' for the frame and its tiles")
     if which != "banded":  # no host read of the parameters (kernel_groups) off the CPU
