@@ -501,7 +501,8 @@ def test_burley_pallas_gradient_is_the_xla_formulations():
     assert np.abs(g_xla).max() > 1e-4
 
 
-@pytest.mark.parametrize("border", ["renormalise", "leaves"])
+# the default border; under border="leaves" the three formulations meet the same NumPy loop in tests/test_oracle.py
+@pytest.mark.parametrize("border", ["renormalise"])
 def test_separable_formulations_agree_where_the_reach_is_one_and_the_gather_follows_each_pixel_otherwise(
         border, no_host_reads):
     # 10x12 at 0.2 px/mm: the kernel's outer cells (reach 16 px) end past the frame, so the cut at the frame runs
