@@ -7,7 +7,8 @@ import pathlib
 import sys
 
 from . import rgb_triple
-from ._options import add_technique_flags, option_arguments, technique_options
+from ._options import (add_counts, add_technique_flags, comma_separated_counts, comma_separated_names,
+                       option_arguments, technique_options)
 
 # the techniques whose counts the advisor weighs by default (beside local shading)
 ADVISED = ("separable", "burley")
@@ -49,22 +50,10 @@ def _advisable() -> tuple[str, ...]:
 
 
 def _names(text: str) -> tuple[str, ...]:
-    names = tuple(n.strip() for n in text.split(",") if n.strip())
-    bad = [n for n in names if n not in _advisable()]
-    if bad or not names:
-        raise argparse.ArgumentTypeError(f"{', '.join(bad) or '(none)'}: the advisor weighs "
-                                         f"{', '.join(_advisable())}")
+    names, bad = comma_separated_names(text, _advisable())
+    if bad:
+        raise argparse.ArgumentTypeError(f"{', '.join(bad)}: the advisor weighs {', '.join(_advisable())}")
     return names
-
-
-def _ints(text: str) -> tuple[int, ...]:
-    try:
-        values = tuple(int(v) for v in text.split(",") if v.strip())
-    except ValueError:
-        values = ()
-    if not values or min(values) < 1:
-        raise argparse.ArgumentTypeError(f"expected comma-separated positive integers, got {text!r}")
-    return values
 
 
 def register(subparsers) -> None:
@@ -107,10 +96,10 @@ def register(subparsers) -> None:
     p.add_argument("--technique", type=_names, metavar="NAME[,NAME...]",
                    help="the techniques to weigh (default separable,burley; also " + ", ".join(
                        n for n in _advisable() if n not in ADVISED) + ")")
-    p.add_argument("--taps", type=_ints, metavar="N[,N...]",
+    p.add_argument("--taps", type=comma_separated_counts, metavar="N[,N...]",
                    help="taps to weigh, for every candidate with a taps option (default separable 5,9,17,25; "
                    "jimenez its own 17)")
-    p.add_argument("--samples", type=_ints, metavar="N[,N...]",
+    p.add_argument("--samples", type=comma_separated_counts, metavar="N[,N...]",
                    help="samples to weigh, for every candidate with a samples option (default 4,8,16,32,64)")
     # the candidates' own options (their counts are the flags above)
     add_technique_flags(p, exclude=("samples", "taps", "radius_px", "albedo", "thickness"))
@@ -170,20 +159,7 @@ def _frame(args, material):
 
 
 def _counts(args, options: dict, running) -> None:
-    """``--taps``/``--samples`` into the options of every candidate with that option; an error where none has it."""
-    import dataclasses
-
-    from .._techniques import TECHNIQUES
-
-    for name in ("taps", "samples"):
-        values = getattr(args, name)
-        if values is None:
-            continue
-        takers = [t for t in running if name in {f.name for f in dataclasses.fields(TECHNIQUES[t])}]
-        if not takers:
-            raise ValueError(f"--{name}: none of the candidates ({', '.join(running)}) has {name}")
-        for t in takers:
-            options.setdefault(t, {})[name] = values
+    add_counts(args, options, running, "the candidates")
 
 
 def run(args) -> int:

@@ -8,7 +8,8 @@ import io
 import pathlib
 import sys
 
-from ._options import add_technique_flags, option_arguments, technique_options
+from ._options import (add_counts, add_technique_flags, comma_separated_counts, comma_separated_names,
+                       option_arguments, technique_options)
 
 EPILOG = """examples:
   sss-jax bench --quick                       # reduced grid, under two minutes on a 2-core CPU
@@ -32,22 +33,11 @@ def _registered() -> tuple[str, ...]:
 
 
 def _names(text: str) -> tuple[str, ...]:
-    names = tuple(n.strip() for n in text.split(",") if n.strip())
-    unknown = [n for n in names if n not in _registered()]
-    if unknown or not names:
-        raise argparse.ArgumentTypeError(f"unknown technique(s) {', '.join(unknown) or '(none)'}; registered: "
+    names, unknown = comma_separated_names(text, _registered())
+    if unknown:
+        raise argparse.ArgumentTypeError(f"unknown technique(s) {', '.join(unknown)}; registered: "
                                          f"{', '.join(_registered())}")
     return names
-
-
-def _ints(text: str) -> tuple[int, ...]:
-    try:
-        values = tuple(int(v) for v in text.split(",") if v.strip())
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated positive integers, got {text!r}") from None
-    if not values or min(values) < 1:
-        raise argparse.ArgumentTypeError(f"expected comma-separated positive integers, got {text!r}")
-    return values
 
 
 # what the grid runs (the reference: the error columns)
@@ -70,9 +60,9 @@ def register(subparsers) -> None:
     p.add_argument("--repeats", type=int, help="timed runs per configuration, median (default 3; 2 with --quick)")
     p.add_argument("--technique", type=_names, metavar="NAME[,NAME...]",
                    help="bench these techniques instead of the grid (registered: " + ", ".join(_registered()) + ")")
-    p.add_argument("--taps", type=_ints, metavar="N[,N...]", help="taps to run, for every technique of the run with a "
+    p.add_argument("--taps", type=comma_separated_counts, metavar="N[,N...]", help="taps to run, for every technique of the run with a "
                    "taps option (default: the grid's 5..65, 9,25 with --quick; jimenez: its own 17)")
-    p.add_argument("--samples", type=_ints, metavar="N[,N...]", help="samples to run, for every technique of the run "
+    p.add_argument("--samples", type=comma_separated_counts, metavar="N[,N...]", help="samples to run, for every technique of the run "
                    "with a samples option (default: the grid's 4..128, 8,32 with --quick)")
     # the techniques' own options (the counts are the flags above)
     add_technique_flags(p, exclude=("samples", "taps", "radius_px", "albedo", "thickness"))
@@ -80,21 +70,7 @@ def register(subparsers) -> None:
 
 
 def _add_counts(args, options: dict, running) -> None:
-    """``--taps``/``--samples`` into the options of every running technique with that option; an error where none
-    has it (the flag would do nothing)."""
-    import dataclasses
-
-    from .._techniques import TECHNIQUES
-
-    for name in ("taps", "samples"):
-        values = getattr(args, name)
-        if values is None:
-            continue
-        takers = [t for t in running if name in {f.name for f in dataclasses.fields(TECHNIQUES[t])}]
-        if not takers:
-            raise ValueError(f"--{name}: none of the techniques run ({', '.join(running)}) has {name}")
-        for t in takers:
-            options[t][name] = values
+    add_counts(args, options, running, "the techniques run")
 
 
 def run(args) -> int:

@@ -64,6 +64,44 @@ class OptionSpec:
     choices: tuple | None = None
 
 
+
+def comma_separated_counts(text: str) -> tuple[int, ...]:
+    """``--taps 9,25`` and the like: comma-separated positive integers (argparse's ``type=``)."""
+    try:
+        values = tuple(int(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        values = ()
+    if not values or min(values) < 1:
+        raise argparse.ArgumentTypeError(f"expected comma-separated positive integers, got {text!r}")
+    return values
+
+
+def comma_separated_names(text: str, allowed: tuple[str, ...]) -> tuple[tuple[str, ...], list[str]]:
+    """``--technique a,b``: the names given and those of them not in ``allowed`` (the caller says why they are
+    refused); no name at all counts as one bad name."""
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    bad = [n for n in names if n not in allowed]
+    return names, bad if names else ["(none)"]
+
+
+def add_counts(args, options: dict, running, what: str) -> None:
+    """``--taps``/``--samples`` (lists of counts) into ``options[name]`` of every technique of ``running`` that has
+    that option; an error naming ``what`` (the candidates, the techniques run) where none has it: the flag would do
+    nothing."""
+    import dataclasses
+
+    from .._techniques import TECHNIQUES
+
+    for name in ("taps", "samples"):
+        values = getattr(args, name)
+        if values is None:
+            continue
+        takers = [t for t in running if name in {f.name for f in dataclasses.fields(TECHNIQUES[t])}]
+        if not takers:
+            raise ValueError(f"--{name}: none of {what} ({', '.join(running)}) has {name}")
+        for t in takers:
+            options.setdefault(t, {})[name] = values
+
 def technique_option_specs(names: Iterable[str] | None = None) -> dict[str, list[OptionSpec]]:
     """``{option name: [its spec in each technique that has it]}`` for the registered techniques (or ``names``).
 

@@ -11,7 +11,7 @@ import tempfile
 
 from . import rgb_triple
 from ._options import WarningPrinter, add_technique_flags, sta_thickness_warning, technique_entries
-from ._options import technique_options
+from ._options import comma_separated_counts, technique_options
 
 EPILOG = """examples:
   sss-jax report frame.exr --out rep --albedo 0.85,0.75,0.55 --d-mm 31.8,19.9,11.9
@@ -32,13 +32,6 @@ The dense reference is computed once per frame and kept in OUT/cache/ (a second 
 Writes OUT/report.html (one self-contained page), OUT/report.json and each compared image as
 OUT/images/<frame>/<technique>_<count>.exr (linear RGB, float32).
 """
-
-
-def _ints(text: str) -> tuple[int, ...]:
-    try:
-        return tuple(int(v) for v in text.split(",") if v.strip())
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
 
 
 # technique options the report sets through flags of its own (the counts it sweeps, the reference's window, STA's
@@ -69,9 +62,9 @@ def register(subparsers) -> None:
                    help=f"comma-separated, from {', '.join(REPORT_TECHNIQUES)} (default {DEFAULT_TECHNIQUES}; sta "
                    "only with --light-dir); the engines' own passes are hdrp, eevee-next and jimenez; an entry may "
                    "carry options of its own, e.g. hdrp:quality=low,hdrp:quality=high,eevee-next:frames=64")
-    p.add_argument("--taps", type=_ints, default=None, help="taps to run: separable at each (default 9,17,25); "
+    p.add_argument("--taps", type=comma_separated_counts, default=None, help="taps to run: separable at each (default 9,17,25); "
                    "given, jimenez at each too (it takes 11, 17, 25; else its own 17)")
-    p.add_argument("--samples", type=_ints, default=None, help="Burley samples to run (default 8,16,32,64)")
+    p.add_argument("--samples", type=comma_separated_counts, default=None, help="Burley samples to run (default 8,16,32,64)")
 
     add_technique_flags(p, techniques=REPORT_TECHNIQUES, exclude=OWN_FLAGS)
     m = p.add_argument_group("material (as sss-jax apply)")
