@@ -99,6 +99,20 @@ def sample_loop(pix: dict, fetch, *, frames: int, seed: Array, pattern: str, **k
                        frames, jnp.zeros_like(pix["z"]))
 
 
+def frame_pixels(buffers: Buffers, material: BurleyMaterial, camera: Camera, albedo_mode: str,
+                 min_footprint_px: float, weight_channels: int, origin: tuple[int, int],
+                 frame_shape: tuple[int, int] | None):
+    """What every formulation starts from: the work dtype, the prepared buffers (albedo split), the frame's shape
+    (this buffer's where none is given) and the per-pixel planes with the active mask (``pixel_planes``)."""
+    dtype = _work_dtype(buffers.irradiance.dtype)
+    prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
+    frame_shape = tuple(buffers.depth.shape) if frame_shape is None else tuple(frame_shape)
+    pix, active = pixel_planes(buffers, material, camera, prep, min_footprint_px=min_footprint_px,
+                               weight_channels=weight_channels, dtype=dtype, origin=tuple(origin),
+                               frame_shape=frame_shape)
+    return dtype, prep, frame_shape, pix, active
+
+
 def needs_truncation_on_device(pix: dict, active: Array) -> Array:
     """Whether any active pixel's widest profile has more than ``TRUNCATION_ENERGY`` beyond the frame's diagonal
     (``_burley_spec.needs_truncation``, decided on the device)."""
@@ -113,13 +127,9 @@ def _burley_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, sam
                  frame_shape: tuple[int, int] | None = None) -> Array:
     """The XLA formulations: ``capacity`` slots of compacted active pixels ("compacted"), or ``None`` for every
     pixel ("gather"); ``truncate`` decided on the host (a bool) or on the device (``None``)."""
-    dtype = _work_dtype(buffers.irradiance.dtype)
-    prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
     h, w = buffers.depth.shape
-    frame_shape = (h, w) if frame_shape is None else tuple(frame_shape)
-    pix, active = pixel_planes(buffers, material, camera, prep, min_footprint_px=min_footprint_px,
-                               weight_channels=weight_channels, dtype=dtype, origin=tuple(origin),
-                               frame_shape=frame_shape)
+    dtype, prep, frame_shape, pix, active = frame_pixels(buffers, material, camera, albedo_mode, min_footprint_px,
+                                                         weight_channels, origin, frame_shape)
     planes = fetch_planes(pix, (h, w))  # the whole buffer's, before compaction; the indices are in range
     fetch = lambda idx: [jnp.take(plane, idx, mode="clip") for plane in planes]
     if capacity is not None:  # cost follows the scene: only the active pixels (unused slots past the image)

@@ -25,9 +25,9 @@ from jaxtyping import Array
 
 from .._materials import BurleyMaterial
 from .._scene import Buffers, Camera
-from ._burley_gpu import frame_result, frames_mean, needs_truncation_on_device
-from ._burley_spec import fetch_planes, frame_rotation, pixel_planes
-from ._common import _finish, _prepare, _work_dtype
+from ._burley_gpu import frame_pixels, frame_result, frames_mean, needs_truncation_on_device
+from ._burley_spec import fetch_planes, frame_rotation
+from ._common import _finish
 from ._separable_gpu import gather_pass, pass_result, pass_tables
 from ._separable_spec import cell_edge
 
@@ -249,13 +249,9 @@ def burley_pallas_impl(buffers: Buffers, material: BurleyMaterial, camera: Camer
                        origin: tuple[int, int] = (0, 0), frame_shape: tuple[int, int] | None = None,
                        block: int = BLOCK) -> Array:
     """``burley``'s "pallas" formulation: the gather layout's frame as Pallas blocks, decided on the device."""
-    dtype = _work_dtype(buffers.irradiance.dtype)
-    prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
     h, w = buffers.depth.shape
-    frame_shape = (h, w) if frame_shape is None else tuple(frame_shape)
-    pix, active = pixel_planes(buffers, material, camera, prep, min_footprint_px=min_footprint_px,
-                               weight_channels=weight_channels, dtype=dtype, origin=tuple(origin),
-                               frame_shape=frame_shape)
+    dtype, prep, frame_shape, pix, active = frame_pixels(buffers, material, camera, albedo_mode, min_footprint_px,
+                                                         weight_channels, origin, frame_shape)
     seed = jnp.asarray(seed).astype(jnp.uint32)
     kw = dict(buffer_shape=(h, w), origin=tuple(origin), frame_shape=frame_shape, samples=samples,
               mm_per_unit=camera.mm_per_unit.astype(dtype), interpolation=interpolation,
