@@ -33,6 +33,7 @@ from sss_jax._techniques._pallas import separable_pass_pallas
 from sss_jax._techniques._separable import _separable_impl, _separable_pass
 from sss_jax._techniques._separable_gpu import gather_pass
 from sss_jax.cli import main
+from test_oracle import numpy_burley  # the one independent loop of Burley's pass
 
 CAM = sj.Camera(focal_px=100.0, mm_per_unit=10.0)  # at depth 50: 0.2 px per mm
 MAT = sj.BurleyMaterial(albedo=[0.9, 0.8, 0.7], d_mm=[6.0, 3.0, 1.5])
@@ -359,50 +360,6 @@ def test_pallas_separable_pass_gradient_is_the_xla_formulations():
     assert np.abs(np.asarray(grads[0][1])).max() > 1e-3  # the reach does reach the loss
 
 
-def _numpy_burley(e, z, valid, d, active, ppm, samples, mm_per_unit, linear):
-    """Screen-space Burley written directly, pixel by pixel in float64: each sample at the golden angle and the
-    stratified inverse CCDF radius of the widest channel's profile truncated to the image diagonal (Christensen &
-    Burley 2015's CDF ``1 - (exp(-r/d) + 3 exp(-r/3d))/4``, inverted in closed form), weighted per channel by the
-    profile at the 3D distance over the sample's pdf, a bilinear (or nearest) fetch weighting each pixel it reads
-    separately, normalised per channel. An independent check of the whole-frame formulation."""
-    h, w = z.shape
-    golden = np.pi * (3 - np.sqrt(5))
-    profile = lambda x: (np.exp(-x) + np.exp(-x / 3)) / x  # R(x d) up to 8 pi d^2 (cancels in the normalisation)
-    out = np.array(e, np.float64)
-    diag = np.hypot(h, w)
-    for y in range(h):
-        for x in range(w):
-            if not active[y, x]:
-                continue
-            dmax = d[y, x].max()
-            r_clip = diag / ppm[y, x] / dmax
-            inside = 1 - (np.exp(-r_clip) + 3 * np.exp(-r_clip / 3)) / 4
-            num, den = np.zeros(3), np.zeros(3)
-            for i in range(samples):
-                v = 1 - (i + 0.5) / samples * inside
-                rho = -3 * np.log(2 * np.sinh(np.arcsinh(2 * v) / 3))
-                off = rho * dmax * ppm[y, x]
-                py, px = y + off * np.sin(i * golden), x + off * np.cos(i * golden)
-                if linear:
-                    y0, x0 = np.floor(py), np.floor(px)
-                    fy, fx = py - y0, px - x0
-                    corners = [(y0, x0, (1 - fy) * (1 - fx)), (y0, x0 + 1, (1 - fy) * fx),
-                               (y0 + 1, x0, fy * (1 - fx)), (y0 + 1, x0 + 1, fy * fx)]
-                else:
-                    corners = [(np.round(py), np.round(px), 1.0)]
-                inv_pdf = rho / (np.exp(-rho) + np.exp(-rho / 3))
-                for yi, xi, cw in corners:
-                    yi, xi = int(yi), int(xi)
-                    if not (0 <= yi < h and 0 <= xi < w and valid[yi, xi]):
-                        continue
-                    r3 = np.hypot(rho * dmax, (z[yi, xi] - z[y, x]) * mm_per_unit)
-                    wgt = cw * inv_pdf * profile(r3 / d[y, x])
-                    num += wgt * e[yi, xi]
-                    den += wgt
-            out[y, x] = np.where(den > 0, num / np.where(den > 0, den, 1.0), e[y, x])
-    return out
-
-
 def _burley_case(h=9, w=11):
     rng = np.random.default_rng(8)
     e = rng.uniform(0.0, 2.0, (h, w, 3))
@@ -419,8 +376,8 @@ def _burley_case(h=9, w=11):
 @pytest.mark.parametrize("impl", ["compacted", "gather", "pallas"])
 @pytest.mark.parametrize("linear", [True, False])
 def test_burley_formulations_match_a_pixel_by_pixel_loop(impl, linear):
-    # the fixed spiral and the renormalised border: what _numpy_burley writes (tests/test_oracle.py checks the
-    # rotated pattern, the frames, the leaving border and tiles against its own loop)
+    # the fixed spiral and the renormalised border, against the one NumPy loop of Burley (tests/test_oracle.py,
+    # which also runs it with the rotated pattern, the frames, the leaving border and tiles)
     b, mat = _burley_case()
     h, w = b.depth.shape
     got = np.asarray(sj.burley(b, mat, CAM, samples=8, impl=impl, pattern="fixed", border="renormalise",
@@ -431,8 +388,8 @@ def test_burley_formulations_match_a_pixel_by_pixel_loop(impl, linear):
     ppm = np.where(valid, 100.0 / (np.asarray(b.depth) * 10.0), 0.0)
     act = valid & (d.max(-1) * ppm * _R99 >= 0.5)
     albedo = np.asarray(mat.albedo)[np.maximum(ids - 1, 0)]
-    expected = albedo * _numpy_burley(np.asarray(b.irradiance), np.asarray(b.depth), valid, d, act, ppm, 8, 10.0,
-                                      linear)
+    expected = albedo * numpy_burley(np.asarray(b.irradiance), np.asarray(b.depth), valid, d, ppm, 8, 10.0,
+                                     linear=linear, rotated=False, frames=1, seed=0, leaves=False, truncate=True)
     np.testing.assert_allclose(got[act], expected[act], rtol=1e-10, atol=1e-12)
     assert act.sum() > 40 and np.abs(expected - np.asarray(b.irradiance))[act].max() > 0.05  # it scattered
 

@@ -14,11 +14,11 @@ import pathlib
 import jax
 import jax.numpy as jnp
 import numpy as np
-import OpenImageIO as oiio
 import pytest
 
 import sss_jax as sj
 from sss_jax._match import edge_loss, held_mask, match_frame, match_render
+from test_match import _raw  # every channel of an EXR with raw OpenImageIO: the independent reader
 
 DATA = pathlib.Path(__file__).resolve().parent / "data" / "mitsuba"
 
@@ -28,15 +28,6 @@ def float32():
     """The fits in float32, as a user's run has them (the test config turns x64 on globally): half the cost."""
     with jax.enable_x64(False):
         yield
-
-
-def _raw(path) -> dict[str, np.ndarray]:
-    inp = oiio.ImageInput.open(str(path))
-    spec = inp.spec()
-    data = np.asarray(inp.read_image(oiio.FLOAT), np.float64).reshape(spec.height, spec.width, spec.nchannels)
-    names = list(spec.channelnames)
-    inp.close()
-    return {n: data[..., i] for i, n in enumerate(names)}
 
 
 def _mitsuba(name: str):
