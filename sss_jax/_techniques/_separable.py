@@ -12,7 +12,6 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._errors import TilePlacementError
-from .._kernels import centre_first, unit_tap_offsets
 from .._materials import (
     AbstractMaterial,
     BurleyMaterial,
@@ -31,7 +30,6 @@ from ._common import (
     _is_concrete,
     _prepare,
     _safe_log,
-    _sss_mask,
     _work_dtype,
 )
 from . import _separable_spec as spec
@@ -45,37 +43,63 @@ from ._whole_frame import separable_gpu_impl
 SCALE_LEVELS = 2
 
 
-def _separable_level(fetch: Callable[[Array], tuple[Array, Array, Array, Array]], e: Array, z: Array,
-                     reach_px: Array, inv_reach_mm: Array, tap_weight: Callable[[Array | int], Array],
-                     weight_sum: Array, unit_offsets: Array, taps_per_chunk: int, mm_per_unit: Array, limit: float,
-                     follow_surface: bool, interpolation: str) -> Array:
-    """One 1D pass at one constant reach ``reach_px`` (a scalar) over a band of rows: ``fetch(start)`` returns the
-    padded planes (irradiance times validity, depth times validity, validity, and 1 off the frame where light leaves
-    / 0 elsewhere) shifted by ``start`` pixels along the pass, so every tap is a constant shift. The per-tap term is
-    the spec's (``_separable_spec.tap_term``). The taps are unrolled ``taps_per_chunk`` at a time into one
-    expression, which XLA fuses into one loop over the band (each pixel reads a chunk's taps and adds them to its
-    result at once); a loop runs the chunks, so the compile time and the fusions' size stay bounded as the taps grow.
-    ``unit_offsets`` has a whole number of chunks (padding taps have weight 0). No division and no transcendental per
-    tap, so nothing stops XLA from fusing a chunk whole."""
+def _separable_level(fetch: Callable[[Array], tuple[Array, Array]], z: Array, reach_px: Array, inv_reach_mm: Array,
+                     tap_weight: Callable[[Array | int], Array], unit_offsets: Array, taps_per_chunk: int,
+                     mm_per_unit: Array, limit: float, follow_surface: bool, interpolation: str,
+                     skip_centre: bool = False) -> tuple[Array, Array]:
+    """One 1D pass at one constant reach ``reach_px`` (a scalar) over a block of pixels: the weighted sums ``(A, K)``
+    of ``_separable_spec.tap_sums`` (planar ``(3, rows, cols)``), for ``_separable_spec.pass_value``.
+    ``fetch(start)`` returns the padded planes (irradiance times validity, and depth, ``spec.FAR`` where a pixel takes
+    no part or off the buffer) shifted by ``start`` pixels along the pass, so every tap is a constant shift; at a
+    constant reach each corner's fraction is one number per tap, folded into the tap's weight. The taps are unrolled
+    ``taps_per_chunk`` at a time into one expression, which XLA fuses into one loop over the block (each pixel reads
+    a chunk's taps and adds them to its sums at once); a loop runs the chunks, so the compile time and the fusions'
+    size stay bounded as the taps grow. ``unit_offsets`` has a whole number of chunks (padding taps have weight 0).
+    No division and no transcendental per tap, so nothing stops XLA from fusing a chunk whole. ``skip_centre``: tap 0
+    is the centre (unit offset 0), which adds nothing (``_separable_spec``, above ``pass_value``): not fetched."""
     scale = mm_per_unit * inv_reach_mm  # depth difference (scene units) at which a fetch stops counting
 
     def chunk(c, acc):
+        kept_e, kept = acc
         for j in range(taps_per_chunk):
             i = c * taps_per_chunk + j
-            # offsets beyond the image land in the zero padding: nothing valid there
+            if skip_centre and isinstance(c, int) and c == 0 and j == 0:  # the centre: adds nothing
+                continue
+            # offsets beyond the image land in the padding: nothing valid there
             off = spec.tap_offset(unit_offsets[i], reach_px, limit)
-            fetched = []
+            w_i = tap_weight(i)
             for start, frac in spec.fetch_corners(off, interpolation):
-                ev, zv, vv, outside = fetch(start)
-                fetched.append((ev, zv, vv, outside, frac))
-            term = spec.tap_term(fetched, e, z, scale, follow_surface=follow_surface)  # planar (3, rows, W)
-            acc = acc + tap_weight(i) * term
-        return acc
+                ev, zv = fetch(start)
+                # the corner's fraction is one number at a constant reach: it weighs the tap, not each pixel
+                a, k, _ = spec.tap_sums([(ev, zv, None, None, None)], z, scale, follow_surface=follow_surface,
+                                        planar=True)
+                wf = w_i if frac is None else w_i * frac
+                kept_e, kept = kept_e + wf * a, kept + wf * k[None]
+        return kept_e, kept
 
+    zero = jnp.zeros((3,) + z.shape, z.dtype)
     chunks = unit_offsets.shape[0] // taps_per_chunk
+    if skip_centre and chunks > 1:  # the first chunk on its own (it holds the centre), the rest in a loop
+        return jax.lax.fori_loop(1, chunks, chunk, chunk(0, (zero, zero)))
     if chunks == 1:
-        return chunk(0, e * weight_sum)
-    return jax.lax.fori_loop(0, chunks, chunk, e * weight_sum)
+        return chunk(0, (zero, zero))
+    return jax.lax.fori_loop(0, chunks, chunk, (zero, zero))
+
+
+def _leaving(outside_pad: Array, pad: int, length: int, unit_offsets: Array, reach_px: Array, w_level: Array,
+             interpolation: str, limit: float) -> Array:
+    """``O`` of ``_separable_spec.tap_sums`` at one constant reach for every position along the pass, per material
+    row and channel ``(M, 3, length)``: the weighted share of the taps landing off the frame (``border="leaves"``).
+    It depends on the position along the pass only, so it is computed once per level on a line, not per pixel."""
+    off = spec.tap_offset(unit_offsets, reach_px, limit)  # (n,)
+    position = jnp.arange(length)[None, :]
+    total = 0.0
+    for start, frac in spec.fetch_corners(off, interpolation):
+        o = outside_pad[pad + start[:, None] + position]  # (n, length)
+        if frac is not None:
+            o = frac[:, None] * o
+        total = total + jnp.einsum("mcn,nx->mcx", w_level, o)
+    return total
 
 
 frame_truncation = spec.frame_truncation  # the spec's (the host check and the tests read it here too)
@@ -102,89 +126,143 @@ def _band_rows(height: int, width: int) -> int:
 
 _MIN_BANDS = 16
 _BAND_PIXELS = 1 << 15
+BLOCK_COLS = 128  # columns per block of a band: blocks without SSS pixels compute nothing
+
+
+def _block_needs(mask: Array, rows_per_band: int, cols: int) -> Array:
+    """``(blocks, P)``: whether any pixel of each block (bands of ``rows_per_band`` rows cut into ``cols`` columns, the
+    last band and column block ending at the frame's edge) is set in ``mask (P, H, W)``; blocks numbered band by band.
+    A block that overlaps the one before (the last, where the size is no multiple of the block) also answers for
+    the grid block it overlaps: a superset, which computes nothing wrong (a pair without pixels adds zero)."""
+    p, h, w = mask.shape
+    bands, col_blocks = -(-h // rows_per_band), -(-w // cols)
+    grid = jnp.pad(mask, [(0, 0), (0, bands * rows_per_band - h), (0, col_blocks * cols - w)])
+    grid = jnp.any(grid.reshape(p, bands, rows_per_band, col_blocks, cols), axis=(2, 4))  # (P, bands, col_blocks)
+    if h % rows_per_band and bands > 1:
+        grid = grid.at[:, -1].set(grid[:, -1] | grid[:, -2])
+    if w % cols and col_blocks > 1:
+        grid = grid.at[:, :, -1].set(grid[:, :, -1] | grid[:, :, -2])
+    return jnp.moveaxis(grid.reshape(p, bands * col_blocks), 0, 1)
 
 
 def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, level_reach_px: Array, skip: Array,
                     onehot: Array | None, w_table: Array, inv_reach_mm: Array, unit_offsets: Array,
                     mm_per_unit: Array, follow_surface: bool, interpolation: str,
                     rows_per_band: int | None = None, axis: int = 2, border: str = "leaves",
-                    origin_along: int = 0, frame_length: int | None = None) -> Array:
+                    origin_along: int = 0, frame_length: int | None = None, block_cols: int | None = None,
+                    skip_centre: bool = False) -> Array:
     """One 1D pass of planar ``e (3, H, W)`` along ``axis``: 2 horizontal, 1 vertical (no transposes: both read
     whole rows). The levels' shifted-slice passes are blended per pixel by ``level_weights (L, H, W)``; ``skip``
     pixels keep their own value.
 
-    The frame is cut into bands of rows (independent in either pass: a band reads its taps from the whole padded
-    frame) and each band computes only the levels its own pixels use (a band without SSS pixels computes none): the
-    cost follows the scene's coverage and depth range. A loop writes each band's rows in place into the output (the
-    last band ends at the last row, overlapping the one before where the height is no multiple of the band): no
-    padding rows and no reassembly copy. Tap weights: ``w_table (M, 3, n)`` per material, chosen per pixel by
-    ``onehot (M, H, W)`` (``None`` for one material). A tile of a larger frame passes its first pixel along the pass
-    in the frame (``origin_along``) and the frame's extent along it (``frame_length``): the border and the cut of
-    wide kernels follow the frame."""
+    The frame is cut into blocks (bands of rows, each cut into ``block_cols`` columns; independent in either pass: a
+    block reads its taps from the padded frame) and each block computes only the levels its own pixels use (a
+    block without SSS pixels computes none): the cost follows the scene's coverage and depth range. A loop writes
+    each block in place into the output (the last band and column block end at the frame's last row and column,
+    overlapping the one before where the size is no multiple of the block: same values): no padding and no
+    reassembly copy. Tap weights: ``w_table (M, 3, n)`` per material, chosen per pixel by ``onehot (M, H, W)``
+    (``None`` for one material). A tile of a larger frame passes its first pixel along the pass in the frame
+    (``origin_along``) and the frame's extent along it (``frame_length``): the border and the cut of wide kernels
+    follow the frame. ``skip_centre``: the first unit offset is the centre's (0), whose tap adds nothing."""
     if axis not in (1, 2):
         raise ValueError(f"axis must be 1 (vertical) or 2 (horizontal), got {axis!r}")
     _, h, w = e.shape
     rows_per_band = min(rows_per_band or _band_rows(h, w), h)
+    cols = min(block_cols or BLOCK_COLS, w)
     bands = -(-h // rows_per_band)  # the last band ends at the last row (it may overlap the one before: same values)
-    pad = (w if axis == 2 else h) + 2  # every clipped offset lands inside the padding
+    col_blocks = -(-w // cols)
+    along = w if axis == 2 else h
+    # a block's window along the pass is clamped to just outside the frame where it lies wholly outside (it reads
+    # the padding: nothing takes part there), so the padding is one block wide, whatever the reach
+    block_len = cols if axis == 2 else rows_per_band
+    pad = block_len
     v = valid.astype(e.dtype)
     pad_width = [(0, 0), (pad, pad)] if axis == 2 else [(pad, pad), (0, 0)]
-    pad_fetched = lambda a: jnp.pad(a, [(0, 0)] * (a.ndim - 2) + pad_width)
-    ev_pad, z_pad, v_pad = pad_fetched(e * v[None]), pad_fetched(z * v), pad_fetched(v)
-    along = w if axis == 2 else h
+    # validity travels in the depth (``spec.FAR`` where a pixel takes no part, and in the padding)
+    ev_pad = jnp.pad(e * v[None], [(0, 0)] + pad_width)
+    z_pad = jnp.pad(jnp.where(valid, z, spec.FAR), pad_width, constant_values=spec.FAR)
     frame_length = along if frame_length is None else int(frame_length)
-    # 1D: 1 off the frame (dark there, border="leaves"), or 0 everywhere (off-frame taps count as the centre)
-    position = np.arange(-pad, along + pad) + int(origin_along)  # in the frame
-    outside_pad = jnp.asarray(((position < 0) | (position >= frame_length)) & (border == "leaves"), e.dtype)
+    leaves = border == "leaves"
     planes = {"e": e, "z": z, "lw": level_weights, "inv": inv_reach_mm, "skip": skip}
     if onehot is not None:
         planes["onehot"] = onehot
+    count = w_table.shape[0]
+    level_reach_px = jnp.broadcast_to(level_reach_px, (count, level_weights.shape[0]))  # (M, L): each row's levels
+    levels = level_reach_px.shape[1]
+
     # kernels reaching past the frame are cut at its extent (the rest leaves), their taps spread over it
-    level_scale, w_levels = spec.frame_truncation(unit_offsets, w_table, level_reach_px, float(frame_length))
-    if border != "leaves":  # the cut kernel renormalised: its part beyond the frame counts as the part inside
-        w_levels = spec.renormalised(w_levels, jnp.sum(w_table, axis=-1, keepdims=True)[None])
+    def cut(reach_m, w_m):  # one material row's levels
+        scale_m, w_m = spec.frame_truncation(unit_offsets, w_m[None], reach_m, float(frame_length))
+        return scale_m, w_m[:, 0]
+
+    level_scale, w_levels = jax.vmap(cut)(level_reach_px, w_table)  # (M, L), (M, L, 3, n)
+    if not leaves:  # the cut kernel renormalised: its part beyond the frame counts as the part inside
+        w_levels = spec.renormalised(w_levels, jnp.sum(w_table, axis=-1, keepdims=True)[:, None])
     chunks, per_chunk = tap_chunks(unit_offsets.shape[0])
     extra_taps = chunks * per_chunk - unit_offsets.shape[0]  # padding taps: weight 0 at offset 0 (the centre: adds 0)
     unit_offsets = jnp.pad(unit_offsets, (0, extra_taps))
     w_levels = jnp.pad(w_levels, [(0, 0), (0, 0), (0, 0), (0, extra_taps)])
-    weight_sums = jnp.sum(w_levels, axis=-1)  # (L, M, 3)
+    weight_sums = jnp.sum(w_levels, axis=-1)  # (M, L, 3)
+    limit = along + 1.0  # an offset clipped here lands off the buffer from every pixel
+    reach_levels = level_reach_px * level_scale
+    if leaves:  # O of the spec per material row, level, channel and position along the pass: (M, L, 3, along)
+        line_pad = along + 2  # every clipped offset lands inside it
+        position = np.arange(-line_pad, along + line_pad) + int(origin_along)  # in the frame
+        outside_pad = jnp.asarray((position < 0) | (position >= frame_length), e.dtype)
+        line_share = lambda r, wl: _leaving(outside_pad, line_pad, along, unit_offsets, r, wl[None], interpolation,
+                                            limit)[0]
+        leaving = jax.vmap(jax.vmap(line_share))(reach_levels, w_levels)
 
-    def band(k, out):
-        row0 = jnp.minimum(k * rows_per_band, h - rows_per_band).astype(jnp.int32)
-        b = {name: jax.lax.dynamic_slice_in_dim(a, row0, rows_per_band, axis=a.ndim - 2) for name, a in planes.items()}
+    # which (material row, level) pairs each block needs, decided for all blocks at once: the loop then skips a
+    # block, and a pair within it, on one number (no per-block reductions, slices or writes where nothing runs)
+    used = (level_weights > 0)[None] if onehot is None else (level_weights > 0)[None] & (onehot > 0)[:, None]
+    needs = _block_needs(used.reshape((count * levels, h, w)), rows_per_band, cols)  # (blocks, M L)
+    block_needed = jnp.any(needs, axis=1)
 
-        def fetch(start):
-            o = jnp.zeros((), jnp.int32)  # index arguments of one type (int64 under x64 otherwise)
-            row, col = (row0, pad + start) if axis == 2 else (pad + row0 + start, o)
-            outside = (jax.lax.dynamic_slice(outside_pad, (col,), (w,))[None, :] if axis == 2
-                       else jax.lax.dynamic_slice(outside_pad, (row,), (rows_per_band,))[:, None])
-            return (jax.lax.dynamic_slice(ev_pad, (o, row, col), (3, rows_per_band, w)),
-                    jax.lax.dynamic_slice(z_pad, (row, col), (rows_per_band, w)),
-                    jax.lax.dynamic_slice(v_pad, (row, col), (rows_per_band, w)),
-                    outside)
+    def block(k, out):
+        row0 = jnp.minimum((k // col_blocks) * rows_per_band, h - rows_per_band).astype(jnp.int32)
+        col0 = jnp.minimum((k % col_blocks) * cols, w - cols).astype(jnp.int32)
+        o = jnp.zeros((), jnp.int32)  # index arguments of one type (int64 under x64 otherwise)
 
-        def level(j, acc):
-            lw = b["lw"][j]
-            w_j, ws_j = w_levels[j], weight_sums[j]
-            if onehot is None:
-                tap_weight = lambda i: w_j[0, :, i][:, None, None]
-                weight_sum = ws_j[0][:, None, None]
-            else:
-                per_pixel = lambda table: sum(b["onehot"][m][None] * table[m][:, None, None]
-                                              for m in range(w_j.shape[0]))
-                tap_weight = lambda i: per_pixel(w_j[:, :, i])
-                weight_sum = per_pixel(ws_j)
-            run = lambda: _separable_level(fetch, b["e"], b["z"], level_reach_px[j] * level_scale[j], b["inv"],
-                                           tap_weight, weight_sum, unit_offsets, per_chunk, mm_per_unit, pad - 1.0,
-                                           follow_surface, interpolation)
-            return acc + lw[None] * jax.lax.cond(jnp.any(lw > 0), run, lambda: jnp.zeros_like(b["e"]))
+        def work():
+            b = {name: jax.lax.dynamic_slice(a, (o,) * (a.ndim - 2) + (row0, col0),
+                                             a.shape[:-2] + (rows_per_band, cols)) for name, a in planes.items()}
 
-        # a loop, not unrolled: the compile time does not grow with the number of levels
-        result = jax.lax.fori_loop(0, level_reach_px.shape[0], level, jnp.zeros_like(b["e"]))
-        result = jnp.where(b["skip"][None], b["e"], result)
-        return jax.lax.dynamic_update_slice_in_dim(out, result, row0, axis=1)  # in place: the loop owns ``out``
+            def fetch(start):
+                at = jnp.clip((col0 if axis == 2 else row0) + start, -block_len, along) + pad  # in the padded planes
+                row, col = (row0, at) if axis == 2 else (at, col0)
+                return (jax.lax.dynamic_slice(ev_pad, (o, row, col), (3, rows_per_band, cols)),
+                        jax.lax.dynamic_slice(z_pad, (row, col), (rows_per_band, cols)))
 
-    return jax.lax.fori_loop(0, bands, band, e)
+            def level(p, acc):  # one (material row, level) pair: its reach and tap weights are one number each
+                m, j = p // levels, p % levels
+
+                def run():
+                    blend = b["lw"][j] if onehot is None else b["lw"][j] * b["onehot"][m]
+                    w_p = w_levels[m, j]
+                    tap_weight = lambda i: w_p[:, i][:, None, None]
+                    kept_e, kept = _separable_level(fetch, b["z"], reach_levels[m, j], b["inv"], tap_weight,
+                                                    unit_offsets, per_chunk, mm_per_unit, limit, follow_surface,
+                                                    interpolation, skip_centre)
+                    left = None
+                    if leaves:  # the line's share leaving: (3, 1, cols) or (3, rows, 1)
+                        start = col0 if axis == 2 else row0
+                        size = cols if axis == 2 else rows_per_band
+                        line = jax.lax.dynamic_slice_in_dim(leaving[m, j], start, size, axis=1)
+                        left = line[:, None, :] if axis == 2 else line[:, :, None]
+                    return acc + blend[None] * spec.pass_value(b["e"], weight_sums[m, j][:, None, None], kept_e, kept,
+                                                               left)
+
+                return jax.lax.cond(needs[k, p], run, lambda: acc)
+
+            # a loop, not unrolled: the compile time does not grow with the number of materials and levels
+            result = jax.lax.fori_loop(0, count * levels, level, jnp.zeros_like(b["e"]))
+            result = jnp.where(b["skip"][None], b["e"], result)
+            return jax.lax.dynamic_update_slice(out, result, (o, row0, col0))  # in place
+
+        return jax.lax.cond(block_needed[k], work, lambda: out)
+
+    return jax.lax.fori_loop(0, bands * col_blocks, block, e)
 
 
 @eqx.filter_jit
@@ -215,28 +293,30 @@ def _separable_impl(buffers: Buffers, material, camera: Camera, taps: int, albed
     # pixels whose footprint is below min_footprint_px keep their local shading: no pass runs for them
     active = prep.valid & (reach_px >= min_footprint_px) & (reach_px > 0)
     skip = ~active
-    # levels: geometric between the smallest and the largest reach among active pixels
+    # levels: per material row, geometric between the smallest and the largest reach among its active pixels
     log_r = _safe_log(reach_px)
     big = jnp.asarray(jnp.finfo(dtype).max, dtype)
-    lo = jnp.min(jnp.where(active, log_r, big))
-    hi = jnp.max(jnp.where(active, log_r, -big))
-    any_active = jnp.any(active)
+    of_row = active[None] & ((rows[None] == jnp.arange(count)[:, None, None]) if count > 1 else True)  # (M, H, W)
+    lo = jnp.min(jnp.where(of_row, log_r[None], big), axis=(1, 2))
+    hi = jnp.max(jnp.where(of_row, log_r[None], -big), axis=(1, 2))
+    any_active = jnp.any(of_row, axis=(1, 2))
     lo, hi = jnp.where(any_active, lo, 0.0), jnp.where(any_active, hi, 0.0)
     span = hi - lo
-    ok_span = span > 0
     nlev = scale_levels
-    t = jnp.where(ok_span, (log_r - lo) / jnp.where(ok_span, span, 1.0), 0.0) * (nlev - 1)
+    lo_px, span_px = (lo[0], span[0]) if count == 1 else (lo[rows], span[rows])
+    ok_span = span_px > 0
+    t = jnp.where(ok_span, (log_r - lo_px) / jnp.where(ok_span, span_px, 1.0), 0.0) * (nlev - 1)
     t = jnp.clip(t, 0.0, nlev - 1)
     levels = jnp.arange(nlev, dtype=dtype)
     level_weights = jnp.maximum(0.0, 1 - jnp.abs(t[None] - levels[:, None, None]))
     level_weights = jnp.where(active[None], level_weights, 0.0)
-    level_reach_px = jnp.exp(lo + span * levels / max(nlev - 1, 1))
-    level_reach_px = jnp.where(any_active, level_reach_px, 0.0)
+    level_reach_px = jnp.exp(lo[:, None] + span[:, None] * levels[None] / max(nlev - 1, 1))  # (M, L)
+    level_reach_px = jnp.where(any_active[:, None], level_reach_px, 0.0)
     unit_offsets = jnp.asarray(spec.pass_unit_offsets(taps), dtype)
     w_table = jnp.moveaxis(weights, -1, 1)  # (M, 3, n)
     onehot_planes = None if count == 1 else jnp.stack(onehot)  # (M, H, W)
     common = dict(unit_offsets=unit_offsets, mm_per_unit=mm_per_unit, follow_surface=follow_surface,
-                  interpolation=interpolation, border=border)
+                  interpolation=interpolation, border=border, skip_centre=True)  # the pass order is centre first
     frame_shape = tuple(buffers.depth.shape) if frame_shape is None else tuple(frame_shape)
     e = jnp.moveaxis(prep.irradiance, -1, 0)  # planar (3, H, W): the fused loops run along rows
     for axis in (2, 1):  # horizontal, then vertical
@@ -351,28 +431,30 @@ def separable_edge_error(buffers: Buffers, material, camera: Camera, taps: int,
     the kernel's, as a fraction of the edge's contrast. A tap stands for the kernel's mass over its cell; with linear
     fetches a cell up to a pixel wide is resolved, a wider one moves its whole mass at once as the edge crosses it, by
     up to ``w_i (1 - 1 / cell_i) / 2`` (half way across, on average); the largest over the taps of either pass (after
-    ``frame_truncation``), is the bound."""
-    valid = np.asarray(_sss_mask(buffers))
+    ``frame_truncation``), is the bound. NumPy throughout; the bound is kept per kernels, frame shape and nearest
+    depth (an eager call of the same material on the next frame reads its depth and ids, nothing more)."""
+    depth = np.asarray(buffers.depth, np.float64)
+    valid = np.isfinite(depth) & (depth > 0)
+    if buffers.material_id is not None:
+        valid &= np.asarray(buffers.material_id) > 0
     if not valid.any():
         return 0.0, 0.0, 0.0
-    offsets, weights = _host_kernels(material, taps)
-    depth = np.asarray(buffers.depth, np.float64)[valid]
-    ppm = float(camera.focal_px) / (float(np.min(depth)) * float(camera.mm_per_unit))
+    ppm = float(camera.focal_px) / (float(np.min(depth, where=valid, initial=np.inf)) * float(camera.mm_per_unit))
+    key, (offsets, weights) = _host_kernels(material, taps, with_key=True)
+    shape = tuple(buffers.depth.shape[-2:])
+    memo_key = None if key is None else (key, shape, ppm, float(min_footprint_px))
+    if memo_key is not None and memo_key in _EDGE_ERRORS:
+        return _EDGE_ERRORS[memo_key]
     reach_mm = np.max(np.abs(offsets), axis=-1)  # (M,)
     worst = (0.0, 0.0, 0.0)
-    unit = unit_tap_offsets(taps)[centre_first(taps)]
-    sorted_unit = np.sort(unit_tap_offsets(taps))
-    if taps > 1:
-        mids = 0.5 * (sorted_unit[1:] + sorted_unit[:-1])
-        bounds = np.concatenate([[2 * sorted_unit[0] - mids[0]], mids, [2 * sorted_unit[-1] - mids[-1]]])
-    else:
-        bounds = np.array([-0.5, 0.5])
-    order = np.argsort(np.asarray(centre_first(taps)))
+    unit = spec.pass_unit_offsets(taps)
+    bounds = spec.cell_bounds(taps)
+    order = np.argsort(spec.tap_order(taps))
     for m in range(offsets.shape[0]):
         reach_px = float(reach_mm[m]) * ppm
         if reach_px < min_footprint_px or reach_px <= 0:
             continue
-        for extent in set(buffers.depth.shape[-2:]):
+        for extent in set(shape):
             scale, w_levels = frame_truncation(unit, np.moveaxis(weights[m:m + 1], -1, 1), np.asarray([reach_px]),
                                                float(extent))
             w_sorted = w_levels[0, 0][:, order]  # (3, n) ascending offsets
@@ -380,29 +462,35 @@ def separable_edge_error(buffers: Buffers, material, camera: Camera, taps: int,
             error = float(np.max(w_sorted * np.maximum(0.0, 1 - 1 / np.maximum(cells, 1e-12)) / 2))
             if error > worst[0]:
                 worst = (error, reach_px, float(np.max(cells)))
+    if memo_key is not None:
+        if len(_EDGE_ERRORS) > 256:  # many frames of varying depth: keep it bounded
+            _EDGE_ERRORS.clear()
+        _EDGE_ERRORS[memo_key] = worst
     return worst
 
 
+_EDGE_ERRORS: dict = {}
 _HOST_KERNELS: dict = {}
 
 
-def _host_kernels(material, taps: int) -> tuple[np.ndarray, np.ndarray]:
+def _host_kernels(material, taps: int, *, with_key: bool = False):
     """Host side: the material's separable kernels ``(offsets_mm (M, n), weights (M, n, 3))`` in float64, built once
     per material parameters and tap count (the sampling check runs on every eager call: building the kernels
-    eagerly each time is ~100 small dispatches)."""
+    eagerly each time is ~100 small dispatches). ``with_key``: ``(key, kernels)``, the key naming the parameters
+    (``None`` where they are traced or the material has none)."""
     params = material.kernel_parameters()
     key = None
     if params is not None and _is_concrete(params):
         key = (type(material).__name__, taps, tuple((np.shape(p), np.asarray(p).tobytes()) for p in params))
-        if key in _HOST_KERNELS:
-            return _HOST_KERNELS[key]
-    kernels = material.separable_kernels(taps, jax.dtypes.canonicalize_dtype(jnp.float64))
-    out = np.asarray(kernels.offsets_mm, np.float64), np.asarray(kernels.weights, np.float64)
-    if key is not None:
+    if key is None or key not in _HOST_KERNELS:
+        kernels = material.separable_kernels(taps, jax.dtypes.canonicalize_dtype(jnp.float64))
+        out = np.asarray(kernels.offsets_mm, np.float64), np.asarray(kernels.weights, np.float64)
+        if key is None:
+            return (None, out) if with_key else out
         if len(_HOST_KERNELS) > 256:  # a long fit over many parameters: keep the cache bounded
             _HOST_KERNELS.clear()
         _HOST_KERNELS[key] = out
-    return out
+    return (key, _HOST_KERNELS[key]) if with_key else _HOST_KERNELS[key]
 
 
 def kernel_groups(material) -> tuple[int, ...] | None:

@@ -105,6 +105,7 @@ def pass_result(centre: Sequence[Array], z: Array, reach_px: Array, scale: Array
         return [jnp.where(fits, weight(c, i), mass[c] * gain[c]) for c in range(3)]
 
     def step(s, acc):
+        kept_e, kept, left = acc
         for j in range(taps_per_step):
             i = s * taps_per_step + j
             off = spec.tap_offset(tables["unit"][i], reach_px, limit)
@@ -113,18 +114,24 @@ def pass_result(centre: Sequence[Array], z: Array, reach_px: Array, scale: Array
                 q = along + shift
                 in_buffer = (q >= 0) & (q < length)
                 q_frame = q + origin_along
-                in_frame = (q_frame >= 0) & (q_frame < frame_length)
                 *e_q, z_q = fetch(jnp.clip(q, 0, length - 1))
                 v_q = (in_buffer & (z_q > 0)).astype(z.dtype)  # a pixel that takes no part counts as the centre
-                out_q = (~in_frame).astype(z.dtype) if leaves else jnp.zeros_like(z)
+                out_q = (~((q_frame >= 0) & (q_frame < frame_length))).astype(z.dtype) if leaves else None
                 fetched.append((e_q, z_q, v_q, out_q, frac))
-            term = spec.tap_term(fetched, centre, z, scale, follow_surface=follow_surface)
-            acc = tuple(a + wt * t for a, wt, t in zip(acc, tap_weights(i), term))
-        return acc
+            a, k, o = spec.tap_sums(fetched, z, scale, follow_surface=follow_surface, planar=False)
+            wts = tap_weights(i)
+            kept_e = tuple(x + wt * y for x, wt, y in zip(kept_e, wts, a))
+            kept = tuple(x + wt * k for x, wt in zip(kept, wts))
+            if leaves:
+                left = tuple(x + wt * o for x, wt in zip(left, wts))
+        return kept_e, kept, left
 
-    out = tuple(centre[c] * weight_sum[c] for c in range(3))
+    zero = tuple(jnp.zeros_like(z) for _ in range(3))
+    init = (zero, zero, zero if leaves else ())
     steps = n_pad // taps_per_step
-    return list(step(0, out) if steps == 1 else jax.lax.fori_loop(0, steps, step, out))
+    kept_e, kept, left = step(0, init) if steps == 1 else jax.lax.fori_loop(0, steps, step, init)
+    return [spec.pass_value(centre[c], weight_sum[c], kept_e[c], kept[c], left[c] if leaves else None)
+            for c in range(3)]
 
 
 def gather_pass(e: Float[Array, "3 H W"], z: Float[Array, "H W"], reach_px: Float[Array, "H W"],

@@ -95,36 +95,68 @@ def fetch_corners(off, interpolation: str) -> list[tuple[Array, Array | None]]:
     return [(start, 1 - f), (start + 1, f)]
 
 
+# A depth at which a fetched pixel counts for nothing: a layout may store the pixels that take no part (and the
+# padding beyond the buffer) at this depth instead of fetching a validity plane (``fetch_keep`` with ``v_q=None``).
+# Any centre depth and follow-the-surface scale above 1e-30 put such a pixel beyond the kernel's reach (a product
+# that overflows to inf gives 0 all the same).
+FAR = 1e30
+
+
 def fetch_keep(z_q, v_q, z, scale, *, follow_surface: bool):
     """How much a fetched pixel counts (0 to 1): ``v_q`` (1 where it takes part and lies in the buffer, else 0) and,
     with ``follow_surface``, less as its depth ``z_q`` differs from the centre's ``z``, none at ``1 / scale``
     (``scale = mm_per_unit / reach_mm``). No division: with v in {0, 1}, ``v (1 - clip(|z_q - z| scale))`` is
-    ``max(v - |z_q - v z| scale, 0)`` (where v is 0 the second term is never negative: ``z_q`` may be anything)."""
+    ``max(v - |z_q - v z| scale, 0)`` (where v is 0 the second term is never negative: ``z_q`` may be anything).
+    ``v_q=None``: the validity travels in the depth (``FAR`` where the pixel takes no part), so
+    ``max(1 - |z_q - z| scale, 0)`` is the same number without a validity plane."""
+    if v_q is None:
+        if not follow_surface:
+            return (z_q < FAR).astype(z.dtype)
+        return jnp.maximum(1.0 - jnp.abs(z_q - z) * scale, 0.0)
     if not follow_surface:
         return v_q
     return jnp.maximum(v_q - jnp.abs(z_q - v_q * z) * scale, 0.0)
 
 
-def tap_term(fetched: Sequence[tuple[Array | Sequence[Array], Array, Array, Array, Array | None]],
-             e: Array | Sequence[Array], z: Array, scale: Array, *, follow_surface: bool) -> Array | list[Array]:
-    """What one tap adds per channel, before its weight: ``sum_q f_q (keep_q (e_q - e) - out_q e)``.
+def tap_sums(fetched: Sequence[tuple[Array | Sequence[Array], Array, Array | None, Array | None, Array | None]],
+             z: Array, scale: Array, *, follow_surface: bool, planar: bool
+             ) -> tuple[Array | list[Array], Array, Array | None]:
+    """What one tap gathers, before its weight: ``(sum_q f_q keep_q e_q`` per channel, ``sum_q f_q keep_q``,
+    ``sum_q f_q out_q)`` (the last ``None`` where no ``out_q`` is given: no light leaves).
 
-    ``fetched``: per pixel q the tap reads, ``(e_q, z_q, v_q, out_q, f_q)`` (``f_q`` ``None`` for a whole pixel;
-    ``out_q`` 1 outside the frame where light leaves, else 0); ``e``: the centre's channels, either planar (an array
-    with the channels on a leading axis, as ``e_q``: the banded layout, whose fused loops want one expression) or a
-    sequence of planes (the whole-frame layouts and Pallas blocks). Layout-free otherwise: planes of a band, a whole
-    frame or a block of pixels."""
-    planar = not isinstance(e, (list, tuple))
-    term = 0.0 if planar else [0.0] * len(e)
+    ``fetched``: per pixel q the tap reads, ``(e_q, z_q, v_q, out_q, f_q)`` (``v_q`` ``None``: validity in the depth,
+    see ``fetch_keep``; ``out_q`` 1 outside the frame where light leaves, else 0, or ``None``; ``f_q`` ``None`` for
+    a whole pixel). ``e_q`` planar (channels on a leading axis: the banded layout, whose fused loops want one
+    expression) where ``planar``, else a sequence of planes (the whole-frame layouts and Pallas blocks).
+
+    The pass is then ``pass_value``: the per-tap term ``sum_q f_q (keep_q (e_q - e) - out_q e)`` of the module
+    docstring, weighted and summed over the taps, is ``A - e (K + O)`` with A, K, O these sums weighted and summed;
+    the centre enters once per pass instead of once per fetch."""
+    kept_e = kept = left = None
     for e_q, z_q, v_q, out_q, frac in fetched:
         keep = fetch_keep(z_q, v_q, z, scale, follow_surface=follow_surface)
         if frac is not None:
-            keep, out_q = frac * keep, frac * out_q
-        if planar:
-            term = term + keep[None] * (e_q - e) - out_q[None] * e
-        else:
-            term = [t + keep * (a - c) - out_q * c for t, a, c in zip(term, e_q, e)]
-    return term
+            keep = frac * keep
+            out_q = None if out_q is None else frac * out_q
+        ke = keep[None] * e_q if planar else [keep * a for a in e_q]
+        kept_e = ke if kept_e is None else (kept_e + ke if planar else [a + b for a, b in zip(kept_e, ke)])
+        kept = keep if kept is None else kept + keep
+        if out_q is not None:
+            left = out_q if left is None else left + out_q
+    return kept_e, kept, left
+
+
+# The centre tap (unit offset 0, the pass's first) reads the pixel itself, which takes part at its own depth: keep 1,
+# so it adds ``w_0 e`` to A and ``w_0`` to K, and ``pass_value`` gets ``e w_0 - e w_0``: nothing. A layout may skip
+# its fetch (the banded one does); the weight total keeps ``w_0``.
+
+
+def pass_value(e, weight_sum, kept_e, kept, left=None):
+    """A pass's value at a pixel from its centre ``e``, the tap weights' total and the weighted sums of ``tap_sums``
+    (``A``, ``K``, ``O``): ``e (weight_sum - K - O) + A``, which is ``e sum_i w_i + sum_i w_i sum_q f_q (keep_q (e_q
+    - e) - out_q e)``. Any layout (planar arrays or one channel's planes)."""
+    lost = kept if left is None else kept + left
+    return e * (weight_sum - lost) + kept_e
 
 
 def frame_truncation(unit_offsets: Array | np.ndarray, w_table: Array | np.ndarray,
