@@ -269,16 +269,16 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
 def _separable_impl(buffers: Buffers, material, camera: Camera, taps: int, albedo_mode: str, follow_surface: bool,
                     interpolation: str, scale_levels: int, min_footprint_px: float,
                     kernel_groups: tuple[int, ...] | None = None, border: str = "leaves",
-                    origin: tuple[int, int] = (0, 0), frame_shape: tuple[int, int] | None = None) -> Array:
+                    origin: tuple[int, int] = (0, 0), frame_shape: tuple[int, int] | None = None,
+                    kernels: tuple[Array, Array] | None = None) -> Array:
     dtype = _work_dtype(buffers.irradiance.dtype)
     prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
-    rows, kernel_material = prep.rows, material
+    rows = prep.rows
     if kernel_groups is not None:  # materials with one kernel share it: one kernel, one weight term per group
-        first = np.asarray([kernel_groups.index(g) for g in range(max(kernel_groups) + 1)])
-        kernel_material = jax.tree.map(lambda a: a[first], material)  # each distinct kernel built once
         rows = jnp.asarray(kernel_groups, jnp.int32)[rows]
-    kernels = kernel_material.separable_kernels(taps, dtype)  # each material answers for its own kernel
-    offsets, weights = kernels.offsets_mm.astype(dtype), kernels.weights.astype(dtype)  # (K, n) mm, (K, n, 3)
+    if kernels is None:  # traced parameters: built here, so gradients reach them
+        kernels = _pass_kernels(material, taps, dtype, kernel_groups)
+    offsets, weights = kernels[0].astype(dtype), kernels[1].astype(dtype)  # (K, n) mm, (K, n, 3)
     mm_per_unit = camera.mm_per_unit.astype(dtype)
     ppm = px_per_mm(prep.depth, focal_px=camera.focal_px.astype(dtype), mm_per_unit=mm_per_unit)
     ppm = jnp.where(prep.valid, ppm, 0.0)
@@ -324,6 +324,40 @@ def _separable_impl(buffers: Buffers, material, camera: Camera, taps: int, albed
                             inv_reach_mm, axis=axis, origin_along=origin[axis - 1],
                             frame_length=frame_shape[axis - 1], **common)
     return _finish(buffers, prep, jnp.moveaxis(e, 0, -1))
+
+
+def _pass_kernels(material, taps: int, dtype, kernel_groups: tuple[int, ...] | None) -> tuple[Array, Array]:
+    """The pass's kernels ``(offsets_mm (K, n), weights (K, n, 3))``, one per distinct kernel (``kernel_groups``):
+    each material answers for its own."""
+    if kernel_groups is not None:  # each distinct kernel built once
+        first = np.asarray([kernel_groups.index(g) for g in range(max(kernel_groups) + 1)])
+        material = jax.tree.map(lambda a: a[first], material)
+    k = material.separable_kernels(taps, dtype)
+    return k.offsets_mm, k.weights
+
+
+_built_kernels = eqx.filter_jit(_pass_kernels)
+_KERNELS: dict = {}
+
+
+def _kernels_for(material, taps: int, dtype, kernel_groups) -> tuple[Array, Array] | None:
+    """An eager call's kernels, built once per material parameters, taps, dtype and groups (the pre-integration of
+    a profile is ~3 ms of a 640x360 pass on a CPU, the same for every frame of a batch); ``None`` for parameters that
+    are traced or a material without a parameter key (the pass then builds them itself)."""
+    params = material.kernel_parameters()
+    if params is None or not _is_concrete(params):
+        return None
+    key = (type(material).__name__, taps, np.dtype(dtype).name, kernel_groups,
+           tuple((np.shape(p), np.asarray(p).tobytes()) for p in params))
+    if key in _KERNELS:
+        return _KERNELS[key]
+    built = _built_kernels(material, taps, dtype, kernel_groups)
+    if not _is_concrete(built):  # called while something traces (a jit around it): staged, not kept
+        return built
+    if len(_KERNELS) > 64:  # a long fit over many parameters: keep it bounded
+        _KERNELS.clear()
+    _KERNELS[key] = built
+    return built
 
 
 def separable(
@@ -419,9 +453,10 @@ def separable(
             warnings.warn(f"separable: {taps} taps at a reach of {implied[1]:.0f} px leave tap cells up to "
                           f"{implied[2]:.1f} px wide: a hard edge may be off by up to {implied[0]:.3f} of its "
                           f"contrast (more taps lower it)", SamplingWarning, stacklevel=2)
+    groups = kernel_groups(material)
     return _separable_impl(buffers, material, camera, int(taps), albedo_mode, bool(follow_surface), mode,
-                           int(scale_levels), float(min_footprint_px), kernel_groups(material), border, origin,
-                           frame_shape)
+                           int(scale_levels), float(min_footprint_px), groups, border, origin, frame_shape,
+                           _kernels_for(material, int(taps), _work_dtype(buffers.irradiance.dtype), groups))
 
 
 def separable_edge_error(buffers: Buffers, material, camera: Camera, taps: int,
