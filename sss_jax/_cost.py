@@ -21,10 +21,13 @@ import numpy as np
 
 __all__ = ["cost_per_pixel", "frame_cost"]
 
-# Arithmetic per pixel of the pieces of a pass, counted from the formulation (``_techniques/_separable_spec.tap_term``,
-# ``_techniques/_burley_spec``), not measured.
-_SEPARABLE_FLOPS_PER_TAP = 10  # offset (mul, clip), its corner(s) (floor, sub), the 3-channel weighted add (3 FMA)
-_SEPARABLE_FLOPS_PER_FETCH = 14  # follow the surface (sub, abs, mul, sub, max), validity (2), frac, 3 x (sub, FMA)
+# Arithmetic per pixel of the pieces of a pass, counted from the formulation (``_techniques/_separable_spec.tap_sums``
+# and ``pass_value``, ``_techniques/_burley_spec``), not measured.
+# separable per tap: offset (mul, clip), its corner(s) (floor, sub), the weighted sums A and K (3 x 2 FMA)
+_SEPARABLE_FLOPS_PER_TAP = 4 + 3 * 2 * 2
+# per fetched pixel: follow the surface (sub, abs, mul, sub, max), validity (1), frac (1), 3 x (mul, add) into the
+# tap's kept light, one add into its kept weight
+_SEPARABLE_FLOPS_PER_FETCH = 5 + 1 + 1 + 3 * 2 + 1
 _BURLEY_FLOPS_PER_SAMPLE = 30  # inverse CCDF (~12 with log, sqrt, exp), sin/cos and position (6), 1/pdf (5), corners
 _BURLEY_FLOPS_PER_FETCH = 33  # validity (3), dz (2), r (3 with sqrt), 3 x kernel (exp, 2 mul, FMA, div), num/den (9)
 _STA_COST = {"fetches": 4, "flops": 40}  # irradiance, normal, thickness, albedo; the transmittance and the light

@@ -176,7 +176,7 @@ def test_separable_bands_compute_only_their_own_levels_and_agree_with_one_band(a
     w_table = jnp.asarray(rng.uniform(0.1, 1.0, (2, 3, n)))
     args = dict(e=e, z=z, valid=jnp.asarray(valid), level_weights=level_weights,
                 level_reach_px=jnp.asarray([2.0, 5.0]), skip=jnp.asarray(~valid), onehot=jnp.asarray(onehot),
-                w_table=w_table, inv_reach_mm=jnp.full((h, w), 0.2), unit_offsets=jnp.asarray(np.linspace(-1, 1, n)),
+                w_table=w_table, inv_reach_mm=jnp.full((2,), 0.2), unit_offsets=jnp.asarray(np.linspace(-1, 1, n)),
                 mm_per_unit=jnp.asarray(10.0), follow_surface=True, interpolation="bilinear", axis=axis)
     banded = np.asarray(_separable_pass(**args, rows_per_band=8))
     whole = np.asarray(_separable_pass(**args, rows_per_band=h))
@@ -242,7 +242,7 @@ def test_separable_pass_matches_a_pixel_by_pixel_loop(axis, linear, taps_per_fus
     got = _separable_pass(e=jnp.asarray(e), z=jnp.asarray(z), valid=jnp.asarray(valid),
                           level_weights=jnp.asarray(valid[None] * 1.0), level_reach_px=jnp.asarray([reach_px]),
                           skip=jnp.asarray(~valid), onehot=jnp.asarray(onehot), w_table=jnp.asarray(w_table),
-                          inv_reach_mm=jnp.asarray(1.0 / reach_mm), unit_offsets=jnp.asarray(unit),
+                          inv_reach_mm=jnp.asarray([1.0 / 20.0, 1.0 / 35.0]), unit_offsets=jnp.asarray(unit),
                           mm_per_unit=jnp.asarray(mm_per_unit), follow_surface=True,
                           interpolation="bilinear" if linear else "nearest", rows_per_band=4, axis=axis)
     np.testing.assert_allclose(np.asarray(got), expected, rtol=1e-12, atol=1e-12)

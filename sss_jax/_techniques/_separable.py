@@ -43,22 +43,21 @@ from ._whole_frame import separable_gpu_impl
 SCALE_LEVELS = 2
 
 
-def _separable_level(fetch: Callable[[Array], tuple[Array, Array]], z: Array, reach_px: Array, inv_reach_mm: Array,
+def _separable_level(fetch: Callable[[Array], tuple[Array, Array]], z: Array, reach_px: Array, scale: Array | None,
                      tap_weight: Callable[[Array | int], Array], unit_offsets: Array, taps_per_chunk: int,
-                     mm_per_unit: Array, limit: float, follow_surface: bool, interpolation: str,
+                     limit: float, follow_surface: bool, interpolation: str,
                      skip_centre: bool = False) -> tuple[Array, Array]:
     """One 1D pass at one constant reach ``reach_px`` (a scalar) over a block of pixels: the weighted sums ``(A, K)``
     of ``_separable_spec.tap_sums`` (planar ``(3, rows, cols)``), for ``_separable_spec.pass_value``.
     ``fetch(start)`` returns the padded planes (irradiance times validity, and depth, ``spec.FAR`` where a pixel takes
-    no part or off the buffer) shifted by ``start`` pixels along the pass, so every tap is a constant shift; at a
+    no part or off the buffer) shifted by ``start`` pixels along the pass, so every tap is a constant shift
+    (``scale``: the follow-the-surface scale, or ``None`` where the depths ``z`` and the fetched come scaled); at a
     constant reach each corner's fraction is one number per tap, folded into the tap's weight. The taps are unrolled
     ``taps_per_chunk`` at a time into one expression, which XLA fuses into one loop over the block (each pixel reads
     a chunk's taps and adds them to its sums at once); a loop runs the chunks, so the compile time and the fusions'
     size stay bounded as the taps grow. ``unit_offsets`` has a whole number of chunks (padding taps have weight 0).
     No division and no transcendental per tap, so nothing stops XLA from fusing a chunk whole. ``skip_centre``: tap 0
     is the centre (unit offset 0), which adds nothing (``_separable_spec``, above ``pass_value``): not fetched."""
-    scale = mm_per_unit * inv_reach_mm  # depth difference (scene units) at which a fetch stops counting
-
     def chunk(c, acc):
         kept_e, kept = acc
         for j in range(taps_per_chunk):
@@ -146,7 +145,7 @@ def _block_needs(mask: Array, rows_per_band: int, cols: int) -> Array:
 
 
 def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, level_reach_px: Array, skip: Array,
-                    onehot: Array | None, w_table: Array, inv_reach_mm: Array, unit_offsets: Array,
+                    onehot: Array | None, w_table: Array, inv_reach_mm: Array | float, unit_offsets: Array,
                     mm_per_unit: Array, follow_surface: bool, interpolation: str,
                     rows_per_band: int | None = None, axis: int = 2, border: str = "leaves",
                     origin_along: int = 0, frame_length: int | None = None, block_cols: int | None = None,
@@ -161,7 +160,8 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
     each block in place into the output (the last band and column block end at the frame's last row and column,
     overlapping the one before where the size is no multiple of the block: same values): no padding and no
     reassembly copy. Tap weights: ``w_table (M, 3, n)`` per material, chosen per pixel by ``onehot (M, H, W)``
-    (``None`` for one material). A tile of a larger frame passes its first pixel along the pass in the frame
+    (``None`` for one material); ``inv_reach_mm (M,)``: one over each material row's kernel reach in mm (with
+    ``mm_per_unit``, the depth difference at which a fetched pixel stops counting). A tile of a larger frame passes its first pixel along the pass in the frame
     (``origin_along``) and the frame's extent along it (``frame_length``): the border and the cut of wide kernels
     follow the frame. ``skip_centre``: the first unit offset is the centre's (0), whose tap adds nothing."""
     if axis not in (1, 2):
@@ -181,12 +181,17 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
     # validity travels in the depth (``spec.FAR`` where a pixel takes no part, and in the padding)
     ev_pad = jnp.pad(e * v[None], [(0, 0)] + pad_width)
     z_pad = jnp.pad(jnp.where(valid, z, spec.FAR), pad_width, constant_values=spec.FAR)
+    count = w_table.shape[0]
+    # the follow-the-surface scale is a material's (mm per unit over its kernel's reach): with it, each material's
+    # depth planes are scaled once, and a fetched pixel's weight is max(1 - |z_q - z|, 0) on them
+    scale = mm_per_unit * jnp.broadcast_to(inv_reach_mm, (count,))
+    if follow_surface:
+        z_pad = z_pad[None] * scale[:, None, None]  # (M, ...): FAR stays beyond any reach (inf is as good)
     frame_length = along if frame_length is None else int(frame_length)
     leaves = border == "leaves"
-    planes = {"e": e, "z": z, "lw": level_weights, "inv": inv_reach_mm, "skip": skip}
+    planes = {"e": e, "z": z, "lw": level_weights, "skip": skip}
     if onehot is not None:
         planes["onehot"] = onehot
-    count = w_table.shape[0]
     level_reach_px = jnp.broadcast_to(level_reach_px, (count, level_weights.shape[0]))  # (M, L): each row's levels
     levels = level_reach_px.shape[1]
 
@@ -228,11 +233,12 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
             b = {name: jax.lax.dynamic_slice(a, (o,) * (a.ndim - 2) + (row0, col0),
                                              a.shape[:-2] + (rows_per_band, cols)) for name, a in planes.items()}
 
-            def fetch(start):
+            def fetch(start, m):
                 at = jnp.clip((col0 if axis == 2 else row0) + start, -block_len, along) + pad  # in the padded planes
                 row, col = (row0, at) if axis == 2 else (at, col0)
-                return (jax.lax.dynamic_slice(ev_pad, (o, row, col), (3, rows_per_band, cols)),
-                        jax.lax.dynamic_slice(z_pad, (row, col), (rows_per_band, cols)))
+                zq = (jax.lax.dynamic_slice(z_pad, (m, row, col), (1, rows_per_band, cols))[0] if follow_surface
+                      else jax.lax.dynamic_slice(z_pad, (row, col), (rows_per_band, cols)))
+                return jax.lax.dynamic_slice(ev_pad, (o, row, col), (3, rows_per_band, cols)), zq
 
             def level(p, acc):  # one (material row, level) pair: its reach and tap weights are one number each
                 m, j = p // levels, p % levels
@@ -241,9 +247,10 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
                     blend = b["lw"][j] if onehot is None else b["lw"][j] * b["onehot"][m]
                     w_p = w_levels[m, j]
                     tap_weight = lambda i: w_p[:, i][:, None, None]
-                    kept_e, kept = _separable_level(fetch, b["z"], reach_levels[m, j], b["inv"], tap_weight,
-                                                    unit_offsets, per_chunk, mm_per_unit, limit, follow_surface,
-                                                    interpolation, skip_centre)
+                    zc = b["z"] * scale[m] if follow_surface else b["z"]
+                    kept_e, kept = _separable_level(lambda start: fetch(start, m.astype(jnp.int32)), zc,
+                                                    reach_levels[m, j], None, tap_weight, unit_offsets, per_chunk,
+                                                    limit, follow_surface, interpolation, skip_centre)
                     left = None
                     if leaves:  # the line's share leaving: (3, 1, cols) or (3, rows, 1)
                         start = col0 if axis == 2 else row0
@@ -288,8 +295,8 @@ def _separable_impl(buffers: Buffers, material, camera: Camera, taps: int, albed
     per_pixel = lambda table: table[0] if count == 1 else sum(onehot[m] * table[m] for m in range(count))
     reach_mm = jnp.broadcast_to(per_pixel(table_reach_mm), ppm.shape)  # (H, W)
     reach_px = reach_mm * ppm
-    ok_reach = reach_mm > 0
-    inv_reach_mm = jnp.where(ok_reach, 1.0 / jnp.where(ok_reach, reach_mm, 1.0), 0.0)
+    ok_reach = table_reach_mm > 0
+    inv_reach_mm = jnp.where(ok_reach, 1.0 / jnp.where(ok_reach, table_reach_mm, 1.0), 0.0)  # (M,)
     # pixels whose footprint is below min_footprint_px keep their local shading: no pass runs for them
     active = prep.valid & (reach_px >= min_footprint_px) & (reach_px > 0)
     skip = ~active
@@ -387,9 +394,11 @@ def separable(
     ``interpolation``: "linear" (continuous in the offsets, for fitting) or "nearest".
 
     Cost: each pass is ``taps`` constant shifts of the padded image per reach level (fused loops, no per-pixel
-    gathers). The reach in px varies with depth and material; it is quantised into ``scale_levels`` geometric levels
-    between the frame's smallest and largest reach, and each pixel blends the two levels bracketing its own reach
-    (exact where every pixel has the same reach; levels no pixel uses are skipped). Pixels whose footprint (the radius
+    gathers), over blocks of the frame (bands of rows cut into 128 columns): a block computes only the (material,
+    level) pairs its own pixels use, so the cost follows the scene's coverage. The reach in px varies with depth and
+    material; each material's reach is quantised into ``scale_levels`` geometric levels between its own smallest and
+    largest reach in the frame, and each pixel blends the two levels of its material bracketing its own reach (exact
+    where a material has one reach, or two; levels no pixel uses are skipped). Pixels whose footprint (the radius
     holding 99% of the widest channel's energy, in px) is below ``min_footprint_px`` keep their local shading
     (``albedo * irradiance``, the paper's Fig. 1); 0 disables that. Several materials in one frame cost one pass;
     materials that share a kernel (differing only in albedo) share its table row and per-pixel weight term.
@@ -410,17 +419,19 @@ def separable(
     frame with per tap a gather at each pixel's own offset (Jimenez's shader, so no reach levels and no level error;
     ``scale_levels`` unused; "auto" off a CPU), "pallas" that as a Pallas kernel per pass. All three run one spec
     (``_separable_spec``: tap offsets, fetches, the fetched pixel's weight, the per-tap term, the cut at the frame)
-    and implement every option; they agree exactly where every pixel has one reach (or the frame two: the banded
-    levels sit at the least and the largest), and the banded one approaches the gather as ``scale_levels`` grows.
+    and implement every option; they agree exactly where each material has one reach in the frame (or two: the
+    banded levels sit at its least and largest), and the banded one approaches the gather as ``scale_levels`` grows
+    (demo scene, 640x360, three materials: rel. L2 between them 0.0005).
     "xla-cpu"/"xla-gpu" are the old names of "banded"/"gather".
 
     ``origin`` (the buffer's top-left pixel in the whole frame) and ``frame_shape`` (the frame's ``(H, W)``) place a
     tile: the border and the cut of wide kernels follow the frame, so a tile cropped with a halo of
     ``Separable.reach_px`` gives the frame's pixels with "gather"/"pallas"; with "banded" only where the tile holds
-    the frame's least and largest reach (its levels are its buffer's), so "auto" on a CPU refuses a tile ("cannot
-    place a tile": a batch runs such frames whole) rather than give other pixels than the frame. Host work per eager call of "banded": the sampling check
-    (``separable_edge_error``, NumPy, the material's kernels built once per parameters and taps) and
-    ``kernel_groups``; the whole-frame layouts read nothing back.
+    each material's least and largest reach in the frame (its levels are its buffer's), so "auto" on a CPU refuses a
+    tile ("cannot place a tile": a batch runs such frames whole) rather than give other pixels than the frame. Host
+    work per eager call of "banded": the sampling check (``separable_edge_error``: NumPy over the depth and ids, the
+    bound kept per kernels, shape and nearest depth) and ``kernel_groups``; the kernels are built once per material
+    parameters and taps (traced parameters build them inside the pass); the whole-frame layouts read nothing back.
     """
     _check_border(border)
     _check_albedo_mode(albedo_mode)

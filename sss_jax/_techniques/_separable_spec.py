@@ -108,11 +108,13 @@ def fetch_keep(z_q, v_q, z, scale, *, follow_surface: bool):
     (``scale = mm_per_unit / reach_mm``). No division: with v in {0, 1}, ``v (1 - clip(|z_q - z| scale))`` is
     ``max(v - |z_q - v z| scale, 0)`` (where v is 0 the second term is never negative: ``z_q`` may be anything).
     ``v_q=None``: the validity travels in the depth (``FAR`` where the pixel takes no part), so
-    ``max(1 - |z_q - z| scale, 0)`` is the same number without a validity plane."""
+    ``max(1 - |z_q - z| scale, 0)`` is the same number without a validity plane; ``scale=None`` with it: both
+    depths come multiplied by the scale already (one number per material: a layout that runs one material at a
+    time scales its depth planes once)."""
     if v_q is None:
         if not follow_surface:
             return (z_q < FAR).astype(z.dtype)
-        return jnp.maximum(1.0 - jnp.abs(z_q - z) * scale, 0.0)
+        return jnp.maximum(1.0 - jnp.abs(z_q - z) * (1.0 if scale is None else scale), 0.0)
     if not follow_surface:
         return v_q
     return jnp.maximum(v_q - jnp.abs(z_q - v_q * z) * scale, 0.0)
