@@ -30,6 +30,8 @@ __all__ = ["run_bench", "GOALS", "cost_per_pixel", "default_counts", "test_patte
 
 GOALS = {
     "separable_vs_sepFilter2D": ("<=", 2.0),
+    # issue #28: the depth-aware 25-tap pass against a plain one XLA makes on this machine (it does ~6x the work)
+    "separable_vs_xla_plain_separable": ("<=", 10.0),
     "burley_vs_filter2D": ("<=", 4.0),
     "coverage10_vs_full": ("<=", 0.25),
     "compile_seconds": ("<", 5.0),
@@ -391,6 +393,7 @@ def run_bench(*, quick: bool = False, repeats: int = 3, progress: Callable[[str]
     compile_max = max([r["compile_seconds"] for r in rows] + [c_sep, c_bur])
     ratios = {
         "separable_vs_sepFilter2D": t_sep / peer("cv2.sepFilter2D_25"),
+        "separable_vs_xla_plain_separable": t_sep / t_xla_plain,
         "burley_vs_filter2D": t_bur / peer("cv2.filter2D_25x25"),
         "coverage10_vs_full": t_10 / t_full,
         "compile_seconds": compile_max,
@@ -423,7 +426,6 @@ def run_bench(*, quick: bool = False, repeats: int = 3, progress: Callable[[str]
         "ratios": ratio_table,
         "other_ratios": {"xla_plain_separable_vs_sepFilter2D": (round(t_xla_plain / peers["cv2.sepFilter2D_25"], 3)
                                                                 if peers else None),
-                         "separable_vs_xla_plain_separable": round(t_sep / t_xla_plain, 3),
                          "separable_coverage10_vs_full": round(t_sep_10 / t_sep_full, 3),
                          "burley_three_materials_vs_one": round(t_three / t_one, 3),
                          "burley_grey_vs_rgb": round(t_grey / t_rgb, 3),
