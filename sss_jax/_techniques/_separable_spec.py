@@ -121,7 +121,7 @@ def fetch_keep(z_q, v_q, z, scale, *, follow_surface: bool):
 
 
 def tap_sums(fetched: Sequence[tuple[Array | Sequence[Array], Array, Array | None, Array | None, Array | None]],
-             z: Array, scale: Array, *, follow_surface: bool, planar: bool
+             z: Array, scale: Array | None, *, follow_surface: bool, planar: bool
              ) -> tuple[Array | list[Array], Array, Array | None]:
     """What one tap gathers, before its weight: ``(sum_q f_q keep_q e_q`` per channel, ``sum_q f_q keep_q``,
     ``sum_q f_q out_q)`` (the last ``None`` where no ``out_q`` is given: no light leaves).
