@@ -179,14 +179,15 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
     v = valid.astype(e.dtype)
     pad_width = [(0, 0), (pad, pad)] if axis == 2 else [(pad, pad), (0, 0)]
     # validity travels in the depth (``spec.FAR`` where a pixel takes no part, and in the padding)
-    ev_pad = jnp.pad(e * v[None], [(0, 0)] + pad_width)
-    z_pad = jnp.pad(jnp.where(valid, z, spec.FAR), pad_width, constant_values=spec.FAR)
     count = w_table.shape[0]
     # the follow-the-surface scale is a material's (mm per unit over its kernel's reach): with it, each material's
     # depth planes are scaled once, and a fetched pixel's weight is max(1 - |z_q - z|, 0) on them
     scale = mm_per_unit * jnp.broadcast_to(inv_reach_mm, (count,))
+    z_in = jnp.where(valid, z, spec.FAR)
     if follow_surface:
-        z_pad = z_pad[None] * scale[:, None, None]  # (M, ...): FAR stays beyond any reach (inf is as good)
+        z_in = z_in[None] * scale[:, None, None]  # (M, H, W): FAR stays beyond any reach (inf is as good)
+    ev_pad = jnp.pad(e * v[None], [(0, 0)] + pad_width)
+    z_pad = jnp.pad(z_in, [(0, 0)] * (z_in.ndim - 2) + pad_width, constant_values=spec.FAR)
     frame_length = along if frame_length is None else int(frame_length)
     leaves = border == "leaves"
     planes = {"e": e, "z": z, "lw": level_weights, "skip": skip}
