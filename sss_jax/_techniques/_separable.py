@@ -352,11 +352,10 @@ def _kernels_for(material, taps: int, dtype, kernel_groups) -> tuple[Array, Arra
     """An eager call's kernels, built once per material parameters, taps, dtype and groups (the pre-integration of
     a profile is ~3 ms of a 640x360 pass on a CPU, the same for every frame of a batch); ``None`` for parameters that
     are traced or a material without a parameter key (the pass then builds them itself)."""
-    params = material.kernel_parameters()
-    if params is None or not _is_concrete(params):
+    base = _parameter_key(material)
+    if base is None:
         return None
-    key = (type(material).__name__, taps, np.dtype(dtype).name, kernel_groups,
-           tuple((np.shape(p), np.asarray(p).tobytes()) for p in params))
+    key = (base, taps, np.dtype(dtype).name, kernel_groups)
     if key in _KERNELS:
         return _KERNELS[key]
     built = _built_kernels(material, taps, dtype, kernel_groups)
@@ -520,15 +519,23 @@ _EDGE_ERRORS: dict = {}
 _HOST_KERNELS: dict = {}
 
 
+def _parameter_key(material):
+    """Host side: a key naming a material's kernel parameters (type, shapes, bytes), or ``None`` where they are
+    traced or the material has none: what the per-parameter caches of an eager call (host kernels, the pass's
+    kernels, the sampling bound, the kernel groups) are keyed on."""
+    params = material.kernel_parameters()
+    if params is None or not _is_concrete(params):
+        return None
+    return (type(material).__name__, tuple((np.shape(p), np.asarray(p).tobytes()) for p in params))
+
+
 def _host_kernels(material, taps: int, *, with_key: bool = False):
     """Host side: the material's separable kernels ``(offsets_mm (M, n), weights (M, n, 3))`` in float64, built once
     per material parameters and tap count (the sampling check runs on every eager call: building the kernels
     eagerly each time is ~100 small dispatches). ``with_key``: ``(key, kernels)``, the key naming the parameters
     (``None`` where they are traced or the material has none)."""
-    params = material.kernel_parameters()
-    key = None
-    if params is not None and _is_concrete(params):
-        key = (type(material).__name__, taps, tuple((np.shape(p), np.asarray(p).tobytes()) for p in params))
+    base = _parameter_key(material)
+    key = None if base is None else (base, taps)
     if key is None or key not in _HOST_KERNELS:
         kernels = material.separable_kernels(taps, jax.dtypes.canonicalize_dtype(jnp.float64))
         out = np.asarray(kernels.offsets_mm, np.float64), np.asarray(kernels.weights, np.float64)
@@ -548,8 +555,18 @@ def kernel_groups(material) -> tuple[int, ...] | None:
     params = material.kernel_parameters()
     if params is None or not _is_concrete(params) or np.ndim(params[0]) < 2 or np.shape(params[0])[0] < 2:
         return None
+    memo = _parameter_key(material)
+    if memo in _GROUPS:
+        return _GROUPS[memo]
     key = np.concatenate([np.asarray(p).reshape(np.shape(params[0])[0], -1) for p in params], axis=1)
     groups: dict[bytes, int] = {}
     out = tuple(groups.setdefault(row.tobytes(), len(groups)) for row in key)
-    return out if len(groups) < len(out) else None
+    out = out if len(groups) < len(out) else None
+    if len(_GROUPS) > 256:
+        _GROUPS.clear()
+    _GROUPS[memo] = out
+    return out
+
+
+_GROUPS: dict = {}
 
