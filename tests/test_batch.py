@@ -531,6 +531,12 @@ def test_a_long_frame_runs_in_pieces_with_progress_and_gives_the_whole_frame(fra
         process_frames(str(frames / "f1.exr"), "burley", MAT, out_dir=tmp_path / "x", samples=8, progress=False)
 
 
+# the frames of the huge count's job: enough that the signal, sent after the first progress line, always lands mid-job
+# (64 left ~1.4 s of work after that line, which a loaded machine finished before the signal came); the signal ends
+# the child, so a longer job costs the test nothing
+TAA_FRAMES = 1024
+
+
 def test_apply_with_a_huge_count_says_the_clamp_and_estimate_shows_progress_and_stops_on_sigint(frames, tmp_path):
     # what a user did on the Blender frame (--samples 10000000: minutes on one frame, silent, deaf to Ctrl-C), on a
     # small frame made long by a small work bound per call (SSS_JAX_CALL_SECONDS)
@@ -546,7 +552,8 @@ def test_apply_with_a_huge_count_says_the_clamp_and_estimate_shows_progress_and_
                PYTHONPATH=str(pathlib.Path(__file__).resolve().parents[1]))
     child = subprocess.Popen([sys.executable, "-m", "sss_jax", "apply", str(src), "--out-dir", str(out),
                               "--technique", "burley", "--albedo", "0.8,0.6,0.5", "--d-mm", "3,1.4,0.8",
-                              "--samples", "10000000", "--frames", "64"], env=env, stderr=subprocess.PIPE, text=True)
+                              "--samples", "10000000", "--frames", str(TAA_FRAMES)], env=env, stderr=subprocess.PIPE,
+                             text=True)
     lines, progressed = [], threading.Event()
 
     def read():
@@ -570,7 +577,7 @@ def test_apply_with_a_huge_count_says_the_clamp_and_estimate_shows_progress_and_
                       r"(.+) per frame on this machine .*, in (\d+) calls", text)
     assert clamp, text[-3000:]
     bound, samples, taa, calls = (int(clamp[i]) for i in (1, 2, 3, 5))
-    assert samples * taa == bound * 64 and samples >= 64  # the same samples per pixel, spread over frames
+    assert samples * taa == bound * TAA_FRAMES and samples >= 64  # the same samples per pixel, spread over frames
     done = [int(m[1]) for m in re.finditer(rf"f0\.exr \(48x40\): (\d+) of {calls} calls", text)]
     assert done and max(done) < calls  # it stopped before finishing ...
     assert after < 60, after  # ... within about a call of the signal (loosely: the frame had seconds left)
@@ -599,6 +606,11 @@ except Interrupted as exc:
 """
 
 
+# frames of the signalled batch: the signal goes after the second is done and must find frames still pending (12
+# of ~0.5 s each all finished before it on a loaded machine); the signal ends the child, so more frames cost nothing
+SIGNAL_FRAMES = 60
+
+
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
 def test_manifest_after_a_signal_lists_exactly_the_complete_frames(frames, tmp_path, signum):
     import os
@@ -607,7 +619,7 @@ def test_manifest_after_a_signal_lists_exactly_the_complete_frames(frames, tmp_p
     import time
 
     src = tmp_path / "src"
-    for i in range(12):
+    for i in range(SIGNAL_FRAMES):
         copy_frame(frames, f"f{i % 5}.exr", src / f"g{i:02d}.exr")
     out = tmp_path / "out"
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=1",
@@ -630,7 +642,7 @@ def test_manifest_after_a_signal_lists_exactly_the_complete_frames(frames, tmp_p
     assert book["state"] == "interrupted"
     done = {pathlib.Path(f["output"]).name for f in book["frames"] if f["status"] == "done"}
     on_disk = {p.name for p in out.iterdir() if p.name != MANIFEST_NAME}
-    assert 2 <= len(done) < 12 and done == on_disk  # no temporary files either
+    assert 2 <= len(done) < SIGNAL_FRAMES and done == on_disk  # no temporary files either
     assert all(_io.exr_is_complete(out / n) for n in on_disk)
     assert {f["status"] for f in book["frames"]} == {"done", "pending"}
 

@@ -195,7 +195,9 @@ def test_huber_residual_squares_to_twice_the_huber_loss():
 @pytest.mark.usefixtures("float32")
 def test_separable_and_sta_fits_recover_their_own_render():
     """Self-consistency: a truth made by the technique itself with known parameters is matched from a start 2x off
-    (the error must drop to a small fraction of the start's)."""
+    (the error must drop to a small fraction of the start's). Five Levenberg-Marquardt steps suffice with margin (on
+    2026-12-02 the error fell to 0.028 of the start's for separable, 0.022 for STA, against the bound 0.2); each step
+    costs seconds on the separable fit."""
     scene = sj.demo_scene(32, 40)
     b, cam = scene.buffers, scene.camera
     b = sj.Buffers(irradiance=b.irradiance, depth=b.depth, normal=b.normal, material_id=b.material_id)
@@ -206,7 +208,7 @@ def test_separable_and_sta_fits_recover_their_own_render():
     start = sj.TwoGaussianMaterial(np.full((rows, 3), 0.8), np.full((rows, 3), 0.4), np.full((rows, 3), 3.0),
                                    np.full((rows, 3), 12.0))
     res = sj.match_render(sj.match_frame(b, cam, truth), start, technique="separable", taps=9, loss="l2",
-                          max_steps=10)
+                          max_steps=5)
     before, after = (res.errors["fitted"][w]["pooled"]["all"] for w in ("before", "after"))
     assert after < 0.2 * before, (before, after)
 
@@ -215,7 +217,7 @@ def test_separable_and_sta_fits_recover_their_own_render():
     truth = np.asarray(sj.translucency(b, true_sta, cam, light, albedo=jnp.full((rows, 3), 0.8), thickness=0.5))
     start = sj.STAParams(distortion=0.6, power=6.0, scale=(0.5, 0.3, 0.15), ambient=0.1, thickness_mm=10.0)
     res = sj.match_render(sj.match_frame(b, cam, truth), (start, (0.8, 0.8, 0.8)), technique="sta", light=light,
-                          thickness=0.5, loss="l2", max_steps=10)
+                          thickness=0.5, loss="l2", max_steps=5)
     before, after = (res.errors["fitted"][w]["pooled"]["all"] for w in ("before", "after"))
     assert after < 0.2 * before, (before, after)
     assert res.engines is None
