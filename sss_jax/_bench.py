@@ -368,7 +368,7 @@ def run_bench(*, quick: bool = False, repeats: int = 3, progress: Callable[[str]
     one = BurleyMaterial(mat.albedo[0], mat.d_mm[0])
     _, t_full = _compile_and_time(lambda: burley(b100, one, cam, samples=32), repeats)
     _, t_10 = _compile_and_time(lambda: burley(b10, one, cam, samples=32), repeats)
-    # the separable pass (shifted slices over bands of rows; bands without SSS compute nothing): shown, not a goal
+    # the separable pass (shifted slices over blocks of rows and columns; blocks without SSS compute nothing): shown, not a goal
     _, t_sep_full = _compile_and_time(lambda: separable(b100, one, cam, taps=25), repeats)
     _, t_sep_10 = _compile_and_time(lambda: separable(b10, one, cam, taps=25), repeats)
     # several materials in one frame cost one pass: three materials against one on the same full coverage
