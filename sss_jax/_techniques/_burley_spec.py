@@ -228,10 +228,28 @@ def sample_place(i: Array | int, samples: int, cos_phi: Array, sin_phi: Array, p
     return place
 
 
-def sample_weights(place: dict, pix: dict, fetch, *, buffer_shape: tuple[int, int], mm_per_unit: Array,
-                   interpolation: str, weight_channels: int, border: str) -> tuple[Array, Array]:
-    """What a sample at ``place`` (``sample_place``) adds to each pixel's numerator (``(3, N)``: R, G, B) and
-    denominator (``(weight_channels, N)``): the second half of ``sample_term``.
+def sample_fetch(place: dict, fetch, *, buffer_shape: tuple[int, int], interpolation: str,
+                 depth_only: bool = False) -> dict:
+    """``place`` (``sample_place``) with what its fetch reads: ``e_q`` (R, G, B) and ``z_q`` (depth), each
+    ``(corners, N)``, at the nearest pixel or the bilinear footprint's four corners (``fetch(idx)`` reads the planes of
+    ``fetch_planes`` at the indices ``idx``); ``depth_only``: ``z_q`` alone. What ``place`` holds already stays.
+
+    Apart from ``sample_weights`` so that a loop can fetch a sample's depth an iteration ahead (``frame_result``)."""
+    idx = place["idx"]
+    if interpolation == "nearest":
+        idx_q = idx[None]
+    else:
+        step = buffer_shape[1] + 2 * FETCH_PAD  # one row down in the padded planes
+        idx_q = jnp.stack([idx, idx + 1, idx + step, idx + step + 1])
+    *e_q, z_q = fetch(idx_q)
+    read = {"z_q": z_q} if depth_only else {"e_q": e_q, "z_q": z_q}
+    return {**read, **place}
+
+
+def sample_weights(place: dict, pix: dict, *, mm_per_unit: Array, interpolation: str, weight_channels: int,
+                   border: str) -> tuple[Array, Array]:
+    """What a sample at ``place`` (``sample_place``, its pixels read by ``sample_fetch``) adds to each pixel's
+    numerator (``(3, N)``: R, G, B) and denominator (``(weight_channels, N)``): the second half of ``sample_term``.
 
     Each pixel q a bilinear (or nearest) fetch reads is its own point on the surface: it adds
     ``frac_q R_c(sqrt(r^2 + dz^2)) / pdf(r)`` to the channel's denominator and that times ``e_q`` to its numerator
@@ -245,16 +263,12 @@ def sample_weights(place: dict, pix: dict, fetch, *, buffer_shape: tuple[int, in
     channel (each a pass over the pixels)."""
     inv_pdf = place["inv_pdf"]
     r_mm = place["rho"] * pix["dmax"]
-    idx = place["idx"]
+    e_q, z_q = place["e_q"], place["z_q"]  # each (corners, N)
     if interpolation == "nearest":
-        idx_q = idx[None]
-        frac = jnp.ones(idx_q.shape, r_mm.dtype)
+        frac = jnp.ones(z_q.shape, r_mm.dtype)
     else:
         fx, fy = place["fx"], place["fy"]
-        step = buffer_shape[1] + 2 * FETCH_PAD  # one row down in the padded planes
-        idx_q = jnp.stack([idx, idx + 1, idx + step, idx + step + 1])
         frac = jnp.stack([(1 - fy) * (1 - fx), (1 - fy) * fx, fy * (1 - fx), fy * fx])
-    *e_q, z_q = fetch(idx_q)  # each (corners, N)
     ok = z_q > 0  # validity travels in the depth (0 where a pixel takes no part, and in the padding)
     v_q = jnp.where(ok, frac, 0.0)
     dz_mm = jnp.where(ok, (z_q - pix["z"][None]) * mm_per_unit, 0.0)
@@ -282,7 +296,8 @@ def sample_term(i: Array | int, samples: int, cos_phi: Array, sin_phi: Array, pi
                 inverse_ccdf=unit_inverse_ccdf) -> tuple[Array, Array]:
     """What sample ``i`` of ``samples`` adds to each pixel's numerator (``(3, N)``) and denominator
     (``(weight_channels, N)``): the one definition of the pass (Christensen & Burley 2015, screen space), in two halves:
-    where the sample lands (``sample_place``) and what it weighs there (``sample_weights``).
+    where the sample lands (``sample_place``, its pixels read by ``sample_fetch``) and what it weighs there
+    (``sample_weights``).
 
     ``pix``: the planes of ``pixel_planes`` for this layout's pixels; ``fetch(idx)``: R, G, B and depth at index
     ``idx`` of ``fetch_planes`` (the buffer padded by pixels of no surface). Layout-free (a frame, a compacted set or
@@ -290,8 +305,9 @@ def sample_term(i: Array | int, samples: int, cos_phi: Array, sin_phi: Array, pi
     place = sample_place(i, samples, cos_phi, sin_phi, pix, buffer_shape=buffer_shape, origin=origin,
                          frame_shape=frame_shape, interpolation=interpolation, truncate=truncate, border=border,
                          inverse_ccdf=inverse_ccdf)
-    return sample_weights(place, pix, fetch, buffer_shape=buffer_shape, mm_per_unit=mm_per_unit,
-                          interpolation=interpolation, weight_channels=weight_channels, border=border)
+    place = sample_fetch(place, fetch, buffer_shape=buffer_shape, interpolation=interpolation)
+    return sample_weights(place, pix, mm_per_unit=mm_per_unit, interpolation=interpolation,
+                          weight_channels=weight_channels, border=border)
 
 
 def normalise(num: list[Array], den: list[Array], e: list[Array]) -> list[Array]:
