@@ -31,10 +31,13 @@ _BURLEY_R99 = BURLEY_R99
 
 
 def compaction_capacity(active_count: int, pixels: int, *, minimum: int = 256) -> int | None:
-    """Slots of the compacted buffer for ``active_count`` active pixels out of ``pixels``: the next power of two (so
-    a sequence of frames compiles once per bucket, not once per count), or ``None`` (dense) where that would hold at
-    least half the frame anyway."""
-    capacity = max(minimum, 1 << max(0, int(active_count) - 1).bit_length())
+    """Slots of the compacted buffer for ``active_count`` active pixels out of ``pixels``: the next quarter-octave
+    bucket (5, 6, 7 or 8 times 2^k: a sequence of frames compiles once per bucket, not once per count, and at most a
+    fifth of the slots are padding, which the sample loop computes like the rest; power-of-two buckets padded up to
+    half, 15% on the demo frame), or ``None`` (dense) where that would hold at least half the frame anyway."""
+    count = max(int(minimum), int(active_count))
+    quarter = max(1, 1 << max(0, (count - 1).bit_length() - 3))  # a quarter of the octave below the count
+    capacity = -(-count // quarter) * quarter
     return None if capacity * 2 > pixels else capacity
 
 
@@ -99,8 +102,8 @@ def burley(
     Cost follows the scene: pixels without SSS, and pixels whose footprint (the radius holding 99% of the widest
     channel's energy, in px) is below ``min_footprint_px`` (they keep their local shading, the paper's Fig. 1; 0
     disables that), take no samples. With concrete (not traced) inputs the active pixels are counted on the host and
-    compacted into a buffer of the next power-of-two size (one compilation per size bucket), computed, and scattered
-    back; ``compact=None`` (default) does so where the bucket holds under half the frame, ``True`` always, ``False``
+    compacted into a buffer of the next quarter-octave size (``compaction_capacity``: one compilation per size
+    bucket), computed, and scattered back; ``compact=None`` (default) does so where the bucket holds under half the frame, ``True`` always, ``False``
     never. Under ``jit``/``vmap`` every pixel is computed (one compilation per shape). Compacted and dense results
     agree to rounding. Channels that share one d (a grey material, or every material grey) share one kernel
     evaluation per sample instead of three; the result is the same.
@@ -170,7 +173,7 @@ def burley(
         if compact is not False:
             capacity = compaction_capacity(count, h * w)
             if compact and capacity is None:
-                capacity = 1 << max(0, count - 1).bit_length()
+                capacity = compaction_capacity(count, math.inf)  # the same buckets past half the frame
         if count:
             worst = burley_channel_samples(material.d_mm, int(samples) * int(frames))
             if worst is not None and worst[0] < 4:
