@@ -120,6 +120,20 @@ def needs_truncation(widest_d_px: float, frame_shape: tuple[int, int]) -> bool:
     return (math.exp(-x) + 3 * math.exp(-x / 3)) / 4 > TRUNCATION_ENERGY
 
 
+def active_footprint(d_table: Array, prep, camera, *, min_footprint_px, dtype) -> tuple[Array, Array, Array, Array]:
+    """Each pixel's d per channel (mm, 0 where it takes no part), its widest d, its px per mm and whether it is
+    active (it takes samples): what ``pixel_planes`` computes on and the host's count (``_burley._burley_active``)
+    counts, in the same dtype, so that a compacted buffer holds every pixel the pass computes."""
+    d_pix = jnp.where(prep.valid[..., None], d_table[prep.rows], 0.0)  # (H, W, 3)
+    d_max = jnp.max(d_pix, axis=-1)
+    ppm = px_per_mm(prep.depth, focal_px=camera.focal_px.astype(dtype),
+                    mm_per_unit=camera.mm_per_unit.astype(dtype))
+    ppm = jnp.where(prep.valid, ppm, 0.0)
+    # pixels whose footprint is below min_footprint_px keep their local shading (no samples are taken for them)
+    active = prep.valid & (d_max * ppm * BURLEY_R99 >= min_footprint_px)
+    return d_pix, d_max, ppm, active
+
+
 def pixel_planes(buffers, material, camera, prep, *, min_footprint_px: float, weight_channels: int, dtype,
                  origin: tuple[int, int], frame_shape: tuple[int, int]) -> tuple[dict, Array]:
     """The flat per-pixel planes (N = H W of the buffer) ``sample_term`` reads, and the active mask (H, W).
@@ -131,13 +145,8 @@ def pixel_planes(buffers, material, camera, prep, *, min_footprint_px: float, we
     ``border="leaves"`` with truncated sampling) per weight channel."""
     d_table = checked(material.d_mm.astype(dtype), "d_mm")
     h, w = buffers.depth.shape
-    mm_per_unit = camera.mm_per_unit.astype(dtype)
-    d_pix = jnp.where(prep.valid[..., None], d_table[prep.rows], 0.0)  # (H, W, 3)
-    d_max = jnp.max(d_pix, axis=-1)
-    ppm = px_per_mm(prep.depth, focal_px=camera.focal_px.astype(dtype), mm_per_unit=mm_per_unit)
-    ppm = jnp.where(prep.valid, ppm, 0.0)
-    # pixels whose footprint is below min_footprint_px keep their local shading (no samples are taken for them)
-    active = prep.valid & (d_max * ppm * BURLEY_R99 >= min_footprint_px)
+    d_pix, d_max, ppm, active = active_footprint(d_table, prep, camera, min_footprint_px=min_footprint_px,
+                                                 dtype=dtype)
     # samples beyond the frame's diagonal can never land in it: the profile is sampled truncated there
     r_clip = jnp.where(ppm > 0, math.hypot(*frame_shape) / jnp.where(ppm > 0, ppm, 1.0), jnp.inf)
     r_clip = jnp.minimum(r_clip, 1e30)
