@@ -110,8 +110,8 @@ def burley(
     channel's energy, in px) is below ``min_footprint_px`` (they keep their local shading, the paper's Fig. 1; 0
     disables that), take no samples. With concrete (not traced) inputs the active pixels are counted on the host and
     compacted into a buffer of the next quarter-octave size (``compaction_capacity``: one compilation per size
-    bucket), computed, and scattered back; ``compact=None`` (default) does so where the bucket holds under half the frame, ``True`` always, ``False``
-    never. Under ``jit``/``vmap`` every pixel is computed (one compilation per shape). Compacted and dense results
+    bucket), computed, and scattered back; ``compact=None`` (default) does so where the bucket holds under half the
+    frame, ``True`` always, ``False`` never. Under ``jit``/``vmap`` every pixel is computed (one compilation per shape). Compacted and dense results
     agree to rounding. Channels that share one d (a grey material, or every material grey) share one kernel
     evaluation per sample instead of three; the result is the same.
 

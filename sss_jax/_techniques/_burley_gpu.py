@@ -1,8 +1,9 @@
 """``burley``'s XLA formulations: the spec's sample loop (``_burley_spec.sample_term``) over two layouts of pixels.
 
 - ``"compacted"``: the active pixels, counted on the host and compacted into a buffer of the next quarter-octave
-  size (``_burley.compaction_capacity``: one compilation per size bucket), computed and scattered back; the host also decides whether the samples need
-  the truncated inverse CDF and whether the material's channels share one kernel. Fastest on a CPU, where the
+  size (``_burley.compaction_capacity``: one compilation per size bucket), computed and scattered back; the host
+  also decides whether the samples need the truncated inverse CDF and whether the material's channels share one
+  kernel. Fastest on a CPU, where the
   pixels skipped pay more than the host round trip.
 - ``"gather"``: every pixel of the frame in one fused loop over the samples, masked at the end, decided on the
   device (no host read: the truncation is a ``lax.cond`` on the frame's widest profile). What a GPU runs; under
