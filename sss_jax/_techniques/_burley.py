@@ -111,9 +111,9 @@ def burley(
     disables that), take no samples. With concrete (not traced) inputs the active pixels are counted on the host and
     compacted into a buffer of the next quarter-octave size (``compaction_capacity``: one compilation per size
     bucket), computed, and scattered back; ``compact=None`` (default) does so where the bucket holds under half the
-    frame, ``True`` always, ``False`` never. Under ``jit``/``vmap`` every pixel is computed (one compilation per shape). Compacted and dense results
-    agree to rounding. Channels that share one d (a grey material, or every material grey) share one kernel
-    evaluation per sample instead of three; the result is the same.
+    frame, ``True`` always, ``False`` never. Under ``jit``/``vmap`` every pixel is computed (one compilation per
+    shape). Compacted and dense results agree to rounding. Channels that share one d (a grey material, or every
+    material grey) share one kernel evaluation per sample instead of three; the result is the same.
 
     The frame border (``border``): by default (``"renormalise"``) the samples landing outside the image are dropped
     and the kernel renormalised over the ones inside, as if the surface beyond looked like the inside -- what every
