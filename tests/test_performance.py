@@ -48,12 +48,18 @@ def _scene(coverage_rows: int, h=24, w=32, dtype=jnp.float64):
     return sj.Buffers(irradiance=jnp.asarray(e, dtype), depth=jnp.asarray(depth, dtype), material_id=jnp.asarray(ids))
 
 
-def test_compaction_capacity_buckets_by_powers_of_two():
+def test_compaction_capacity_buckets_by_quarter_octaves():
     assert compaction_capacity(1, 1 << 20) == 256  # a floor, so tiny counts share one compilation
-    assert compaction_capacity(300, 1 << 20) == 512
+    assert compaction_capacity(300, 1 << 20) == 320  # 5 x 64: the octave (256, 512] in steps of 64
     assert compaction_capacity(512, 1 << 20) == 512
-    assert compaction_capacity(513, 1 << 20) == 1024
-    assert compaction_capacity(600, 2000) is None  # the bucket would hold over half the frame: dense
+    assert compaction_capacity(513, 1 << 20) == 640  # the next octave's steps are 128
+    assert compaction_capacity(55643, 1 << 20) == 57344  # the demo frame's active pixels: 7 x 8192, 3% padding
+    # every count gets a bucket holding it, padding under a fifth of the slots, and at most 4 buckets per octave
+    counts = range(257, 1 << 14)
+    caps = [compaction_capacity(n, 1 << 20) for n in counts]
+    assert all(n <= c < 1.25 * n for n, c in zip(counts, caps))
+    assert len(set(caps)) == 4 * 6  # the octaves (2^8, 2^9] ... (2^13, 2^14]
+    assert compaction_capacity(600, 2000) == 640 and compaction_capacity(900, 2000) is None  # over half: dense
 
 
 def test_compacted_equals_dense():

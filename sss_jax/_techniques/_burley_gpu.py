@@ -1,8 +1,9 @@
 """``burley``'s XLA formulations: the spec's sample loop (``_burley_spec.sample_term``) over two layouts of pixels.
 
-- ``"compacted"``: the active pixels, counted on the host and compacted into a buffer of the next power-of-two size
-  (one compilation per size bucket), computed and scattered back; the host also decides whether the samples need
-  the truncated inverse CDF and whether the material's channels share one kernel. Fastest on a CPU, where the
+- ``"compacted"``: the active pixels, counted on the host and compacted into a buffer of the next quarter-octave
+  size (``_burley.compaction_capacity``: one compilation per size bucket), computed and scattered back; the host
+  also decides whether the samples need the truncated inverse CDF and whether the material's channels share one
+  kernel. Fastest on a CPU, where the
   pixels skipped pay more than the host round trip.
 - ``"gather"``: every pixel of the frame in one fused loop over the samples, masked at the end, decided on the
   device (no host read: the truncation is a ``lax.cond`` on the frame's widest profile). What a GPU runs; under
@@ -29,6 +30,7 @@ from ._burley_spec import (
     frame_rotation,
     normalise,
     pixel_planes,
+    sample_fetch,
     sample_place,
     sample_weights,
 )
@@ -52,17 +54,27 @@ def frame_result(pix: dict, fetch, cos_phi: Array, sin_phi: Array, *, samples: i
     cuts = [n * k // parts for k in range(parts + 1)]
     pieces = [jax.tree.map(lambda a, lo=lo, hi=hi: a[lo:hi], planes) for lo, hi in zip(cuts, cuts[1:]) if hi > lo]
 
+    # A grey weight reads the gathered depth alone, and XLA's CPU backend then fuses the gather into the weight's
+    # kernel, which keeps the kernel from being vectorised (~7x slower per element, so the grey path ran slower than
+    # RGB's three weights): fetched an iteration ahead and carried, the depth is a materialised plane. RGB's weights
+    # get a materialised depth from XLA already (their sqrt feeds three channels), and carrying it costs ~5% there.
+    depth_ahead = weight_channels == 1
+
     def place(piece, i):
-        return sample_place(i, samples, piece["cos_phi"], piece["sin_phi"], piece, buffer_shape=buffer_shape,
+        here = sample_place(i, samples, piece["cos_phi"], piece["sin_phi"], piece, buffer_shape=buffer_shape,
                             origin=origin, frame_shape=frame_shape, interpolation=interpolation, truncate=truncate,
                             border=border)
+        if depth_ahead:
+            here = sample_fetch(here, fetch, buffer_shape=buffer_shape, interpolation=interpolation, depth_only=True)
+        return here
 
     def body(i, acc):
         out = []
         for piece, (num_acc, den_acc, here) in zip(pieces, acc):
             ahead = place(piece, jnp.minimum(i + 1, samples - 1))
-            num, den = sample_weights(here, piece, fetch, buffer_shape=buffer_shape, mm_per_unit=mm_per_unit,
-                                      interpolation=interpolation, weight_channels=weight_channels, border=border)
+            here = sample_fetch(here, fetch, buffer_shape=buffer_shape, interpolation=interpolation)
+            num, den = sample_weights(here, piece, mm_per_unit=mm_per_unit, interpolation=interpolation,
+                                      weight_channels=weight_channels, border=border)
             out.append((num_acc + num, den_acc + den, ahead))
         return tuple(out)
 
