@@ -7,8 +7,8 @@ layout only:
 - ``burley``: ``"compacted"`` (the active pixels counted and compacted on the host, truncation and shared channels
   decided there: fastest on a CPU), ``"gather"`` (every pixel of the frame, masked, decided on the device: no host
   round trip), ``"pallas"`` (the gather as a Pallas kernel, blocks without an active pixel skipping the loop).
-- ``separable``: ``"banded"`` (constant shifts over bands of rows at ``scale_levels`` quantised reach levels, each band
-  computing only the levels its pixels use: fastest on a CPU), ``"gather"`` (a gather per tap at each pixel's own
+- ``separable``: ``"banded"`` (constant shifts over blocks of rows and columns at ``scale_levels`` quantised reach
+  levels per material, each block computing only the (material, level) pairs its pixels use: fastest on a CPU), ``"gather"`` (a gather per tap at each pixel's own
   offset, Jimenez's shader: no levels), ``"pallas"`` (the gather as a Pallas kernel per pass).
 
 ``"auto"`` picks the fastest formulation on the backend: the CPU ones on a CPU, ``"gather"`` elsewhere (the Pallas

@@ -249,7 +249,7 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
                     w_p = w_levels[m, j]
                     tap_weight = lambda i: w_p[:, i][:, None, None]
                     zc = b["z"] * scale[m] if follow_surface else b["z"]
-                    kept_e, kept = _separable_level(lambda start: fetch(start, m.astype(jnp.int32)), zc,
+                    kept_e, kept = _separable_level(lambda start: fetch(start, jnp.asarray(m, jnp.int32)), zc,
                                                     reach_levels[m, j], None, tap_weight, unit_offsets, per_chunk,
                                                     limit, follow_surface, interpolation, skip_centre)
                     left = None
