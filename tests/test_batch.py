@@ -537,6 +537,15 @@ def test_a_long_frame_runs_in_pieces_with_progress_and_gives_the_whole_frame(fra
 TAA_FRAMES = 1024
 
 
+def _interruptible() -> None:
+    """In the child, before it runs: SIGINT as a terminal's Ctrl-C delivers it. A process inherits an ignored SIGINT
+    (a shell's background job, ``cmd &`` without job control, ignores it) and Python then installs no
+    KeyboardInterrupt handler, so a suite started in the background had these tests' children deaf to the signal,
+    whatever the library does (they failed so in a suite run started with ``nohup ... &``; CI runs in the
+    foreground)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_apply_with_a_huge_count_says_the_clamp_and_estimate_shows_progress_and_stops_on_sigint(frames, tmp_path):
     # what a user did on the Blender frame (--samples 10000000: minutes on one frame, silent, deaf to Ctrl-C), on a
     # small frame made long by a small work bound per call (SSS_JAX_CALL_SECONDS)
@@ -553,7 +562,7 @@ def test_apply_with_a_huge_count_says_the_clamp_and_estimate_shows_progress_and_
     child = subprocess.Popen([sys.executable, "-m", "sss_jax", "apply", str(src), "--out-dir", str(out),
                               "--technique", "burley", "--albedo", "0.8,0.6,0.5", "--d-mm", "3,1.4,0.8",
                               "--samples", "10000000", "--frames", str(TAA_FRAMES)], env=env, stderr=subprocess.PIPE,
-                             text=True)
+                             text=True, preexec_fn=_interruptible)
     lines, progressed = [], threading.Event()
 
     def read():
@@ -625,7 +634,7 @@ def test_manifest_after_a_signal_lists_exactly_the_complete_frames(frames, tmp_p
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=1",
                PYTHONPATH=str(pathlib.Path(__file__).resolve().parents[1]))
     child = subprocess.Popen([sys.executable, "-c", CHILD, str(src / "*.exr"), str(out)], env=env,
-                             stderr=subprocess.PIPE)
+                             stderr=subprocess.PIPE, preexec_fn=_interruptible)
     book_path = out / MANIFEST_NAME
     deadline = time.monotonic() + 300
     while time.monotonic() < deadline and child.poll() is None:

@@ -272,8 +272,14 @@ def test_materials_sharing_a_kernel_share_its_weight_term():
     options = dict(taps=9, albedo_mode="post", follow_surface=True, interpolation="bilinear",
                    scale_levels=separable_module.SCALE_LEVELS, min_footprint_px=0.5)
     shared = np.asarray(sj.separable(b, mats, CAM, taps=9, border="leaves"))  # the impl's default rule
-    np.testing.assert_allclose(shared, np.asarray(_separable_impl(b, mats, CAM, **options, kernel_groups=None)),
-                               rtol=1e-12, atol=1e-14)
+    # the reach levels are each kernel row's (its least and largest reach in the frame): a shared row's levels span
+    # both materials' pixels, separate rows each their own, so the two differ by the levels' error, not more (the
+    # same frame through the gather, which has no levels, bounds how far either may be)
+    apart = np.asarray(_separable_impl(b, mats, CAM, **options, kernel_groups=None))
+    exact = np.asarray(sj.separable(b, mats, CAM, taps=9, border="leaves", impl="gather"))
+    level_error = max(np.abs(shared - exact).max(), np.abs(apart - exact).max())
+    assert level_error < 1e-3
+    np.testing.assert_allclose(shared, apart, rtol=0, atol=2 * level_error + 1e-14)
     albedo = np.asarray(mats.albedo)[ids - 1]
     assert np.abs(shared - albedo * np.asarray(b.irradiance)).max() > 1e-3  # it scattered (not local shading)
     # one per-pixel selection (an equality test against the material row) per kernel: two, not three

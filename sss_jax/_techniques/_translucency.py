@@ -6,7 +6,6 @@ from __future__ import annotations
 from typing import Callable
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -146,9 +145,6 @@ def _transmission_impl(buffers: Buffers, material: BurleyMaterial, camera: Camer
 TRANSLUCENCY_MODELS = ("sta", "thin", "slab")
 
 
-_WHITE: dict = {}
-
-
 def translucency(
     buffers: Buffers,
     params: STAParams | BurleyMaterial | MediumMaterial,
@@ -203,12 +199,9 @@ def translucency(
         return _transmission_impl(buffers, params, camera, light, thickness, model, medium)
     if not isinstance(params, STAParams):
         raise TypeError(f"translucency needs STAParams, got {type(params).__name__}")
-    # no eager dispatch per call (it is an argument of the jitted pass either way): the white table kept per dtype
+    # NumPy (no eager dispatch per call, and nothing a trace around the call could stage): the jitted pass takes it
     if albedo is None:
-        table = _WHITE.get(np.dtype(buffers.irradiance.dtype))
-        if table is None:
-            table = _WHITE.setdefault(np.dtype(buffers.irradiance.dtype),
-                                      jax.device_put(np.ones((1, 3), buffers.irradiance.dtype)))
+        table = np.ones((1, 3), buffers.irradiance.dtype)
     elif _is_concrete(albedo):
         table = np.reshape(np.asarray(albedo), (-1, 3))
     else:
