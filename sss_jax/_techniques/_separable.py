@@ -43,15 +43,15 @@ from ._whole_frame import separable_gpu_impl
 SCALE_LEVELS = 2
 
 
-def _separable_level(fetch: Callable[[Array], tuple[Array, Array]], z: Array, reach_px: Array, scale: Array | None,
+def _separable_level(fetch: Callable[[Array], tuple[Array, Array]], z: Array, reach_px: Array,
                      tap_weight: Callable[[Array | int], Array], unit_offsets: Array, taps_per_chunk: int,
                      limit: float, follow_surface: bool, interpolation: str,
                      skip_centre: bool = False) -> tuple[Array, Array]:
     """One 1D pass at one constant reach ``reach_px`` (a scalar) over a block of pixels: the weighted sums ``(A, K)``
     of ``_separable_spec.tap_sums`` (planar ``(3, rows, cols)``), for ``_separable_spec.pass_value``.
     ``fetch(start)`` returns the padded planes (irradiance times validity, and depth, ``spec.FAR`` where a pixel takes
-    no part or off the buffer) shifted by ``start`` pixels along the pass, so every tap is a constant shift
-    (``scale``: the follow-the-surface scale, or ``None`` where the depths ``z`` and the fetched come scaled); at a
+    no part or off the buffer) shifted by ``start`` pixels along the pass, so every tap is a constant shift (with
+    ``follow_surface`` the depths ``z`` and the fetched come multiplied by the material's scale); at a
     constant reach each corner's fraction is one number per tap, folded into the tap's weight. The taps are unrolled
     ``taps_per_chunk`` at a time into one expression, which XLA fuses into one loop over the block (each pixel reads
     a chunk's taps and adds them to its sums at once); a loop runs the chunks, so the compile time and the fusions'
@@ -70,7 +70,7 @@ def _separable_level(fetch: Callable[[Array], tuple[Array, Array]], z: Array, re
             for start, frac in spec.fetch_corners(off, interpolation):
                 ev, zv = fetch(start)
                 # the corner's fraction is one number at a constant reach: it weighs the tap, not each pixel
-                a, k, _ = spec.tap_sums([(ev, zv, None, None, None)], z, scale, follow_surface=follow_surface,
+                a, k, _ = spec.tap_sums([(ev, zv, None, None, None)], z, None, follow_surface=follow_surface,
                                         planar=True)
                 wf = w_i if frac is None else w_i * frac
                 kept_e, kept = kept_e + wf * a, kept + wf * k[None]
@@ -78,18 +78,16 @@ def _separable_level(fetch: Callable[[Array], tuple[Array, Array]], z: Array, re
 
     zero = jnp.zeros((3,) + z.shape, z.dtype)
     chunks = unit_offsets.shape[0] // taps_per_chunk
-    if skip_centre and chunks > 1:  # the first chunk on its own (it holds the centre), the rest in a loop
-        return jax.lax.fori_loop(1, chunks, chunk, chunk(0, (zero, zero)))
-    if chunks == 1:
-        return chunk(0, (zero, zero))
-    return jax.lax.fori_loop(0, chunks, chunk, (zero, zero))
+    first = chunk(0, (zero, zero))  # on its own: it holds the centre
+    return first if chunks == 1 else jax.lax.fori_loop(1, chunks, chunk, first)
 
 
 def _leaving(outside_pad: Array, pad: int, length: int, unit_offsets: Array, reach_px: Array, w_level: Array,
              interpolation: str, limit: float) -> Array:
-    """``O`` of ``_separable_spec.tap_sums`` at one constant reach for every position along the pass, per material
-    row and channel ``(M, 3, length)``: the weighted share of the taps landing off the frame (``border="leaves"``).
-    It depends on the position along the pass only, so it is computed once per level on a line, not per pixel."""
+    """``O`` of ``_separable_spec.tap_sums`` at one constant reach, tap weights ``w_level (3, n)``, for every
+    position along the pass, per channel ``(3, length)``: the weighted share of the taps landing off the frame
+    (``border="leaves"``). It depends on the position along the pass only, so it is computed once per level on a
+    line, not per pixel."""
     off = spec.tap_offset(unit_offsets, reach_px, limit)  # (n,)
     position = jnp.arange(length)[None, :]
     total = 0.0
@@ -97,7 +95,7 @@ def _leaving(outside_pad: Array, pad: int, length: int, unit_offsets: Array, rea
         o = outside_pad[pad + start[:, None] + position]  # (n, length)
         if frac is not None:
             o = frac[:, None] * o
-        total = total + jnp.einsum("mcn,nx->mcx", w_level, o)
+        total = total + w_level @ o
     return total
 
 
@@ -151,17 +149,18 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
                     origin_along: int = 0, frame_length: int | None = None, block_cols: int | None = None,
                     skip_centre: bool = False) -> Array:
     """One 1D pass of planar ``e (3, H, W)`` along ``axis``: 2 horizontal, 1 vertical (no transposes: both read
-    whole rows). The levels' shifted-slice passes are blended per pixel by ``level_weights (L, H, W)``; ``skip``
-    pixels keep their own value.
+    whole rows). Each material row's levels (``level_reach_px (M, L)``, or ``(L,)`` shared) are shifted-slice passes
+    blended per pixel by ``level_weights (L, H, W)`` and ``onehot (M, H, W)`` (the pixel's row; ``None`` for one
+    material); a (row, level) pair runs with its own tap weights, one number per tap and channel (``w_table (M, 3,
+    n)``); ``skip`` pixels keep their own value. ``inv_reach_mm (M,)``: one over each row's kernel reach in mm (with
+    ``mm_per_unit``, the depth difference at which a fetched pixel stops counting).
 
     The frame is cut into blocks (bands of rows, each cut into ``block_cols`` columns; independent in either pass: a
-    block reads its taps from the padded frame) and each block computes only the levels its own pixels use (a
-    block without SSS pixels computes none): the cost follows the scene's coverage and depth range. A loop writes
-    each block in place into the output (the last band and column block end at the frame's last row and column,
-    overlapping the one before where the size is no multiple of the block: same values): no padding and no
-    reassembly copy. Tap weights: ``w_table (M, 3, n)`` per material, chosen per pixel by ``onehot (M, H, W)``
-    (``None`` for one material); ``inv_reach_mm (M,)``: one over each material row's kernel reach in mm (with
-    ``mm_per_unit``, the depth difference at which a fetched pixel stops counting). A tile of a larger frame passes its first pixel along the pass in the frame
+    block reads its taps from the planes padded by one block along the pass) and each block computes only the pairs
+    its own pixels use (a block without SSS pixels computes none): the cost follows the scene's coverage and depth
+    range. A loop writes each block in place into the output (the last band and column block end at the frame's
+    last row and column, overlapping the one before where the size is no multiple of the block: same values): no
+    reassembly copy. A tile of a larger frame passes its first pixel along the pass in the frame
     (``origin_along``) and the frame's extent along it (``frame_length``): the border and the cut of wide kernels
     follow the frame. ``skip_centre``: the first unit offset is the centre's (0), whose tap adds nothing."""
     if axis not in (1, 2):
@@ -215,8 +214,7 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
         line_pad = along + 2  # every clipped offset lands inside it
         position = np.arange(-line_pad, along + line_pad) + int(origin_along)  # in the frame
         outside_pad = jnp.asarray((position < 0) | (position >= frame_length), e.dtype)
-        line_share = lambda r, wl: _leaving(outside_pad, line_pad, along, unit_offsets, r, wl[None], interpolation,
-                                            limit)[0]
+        line_share = lambda r, wl: _leaving(outside_pad, line_pad, along, unit_offsets, r, wl, interpolation, limit)
         leaving = jax.vmap(jax.vmap(line_share))(reach_levels, w_levels)
 
     # which (material row, level) pairs each block needs, decided for all blocks at once: the loop then skips a
@@ -250,8 +248,8 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
                     tap_weight = lambda i: w_p[:, i][:, None, None]
                     zc = b["z"] * scale[m] if follow_surface else b["z"]
                     kept_e, kept = _separable_level(lambda start: fetch(start, jnp.asarray(m, jnp.int32)), zc,
-                                                    reach_levels[m, j], None, tap_weight, unit_offsets, per_chunk,
-                                                    limit, follow_surface, interpolation, skip_centre)
+                                                    reach_levels[m, j], tap_weight, unit_offsets, per_chunk, limit,
+                                                    follow_surface, interpolation, skip_centre)
                     left = None
                     if leaves:  # the line's share leaving: (3, 1, cols) or (3, rows, 1)
                         start = col0 if axis == 2 else row0
@@ -292,7 +290,7 @@ def _separable_impl(buffers: Buffers, material, camera: Camera, taps: int, albed
     ppm = jnp.where(prep.valid, ppm, 0.0)
     table_reach_mm = jnp.max(jnp.abs(offsets), axis=-1)  # (M,): every kernel is its reach times one tap pattern
     count = offsets.shape[0]
-    onehot = [(rows == m).astype(dtype) for m in range(count)] if count > 1 else None
+    onehot = (rows[None] == jnp.arange(count)[:, None, None]).astype(dtype) if count > 1 else None  # (M, H, W)
     per_pixel = lambda table: table[0] if count == 1 else sum(onehot[m] * table[m] for m in range(count))
     reach_mm = jnp.broadcast_to(per_pixel(table_reach_mm), ppm.shape)  # (H, W)
     reach_px = reach_mm * ppm
@@ -304,14 +302,14 @@ def _separable_impl(buffers: Buffers, material, camera: Camera, taps: int, albed
     # levels: per material row, geometric between the smallest and the largest reach among its active pixels
     log_r = _safe_log(reach_px)
     big = jnp.asarray(jnp.finfo(dtype).max, dtype)
-    of_row = active[None] & ((rows[None] == jnp.arange(count)[:, None, None]) if count > 1 else True)  # (M, H, W)
+    of_row = active[None] & (onehot > 0 if count > 1 else True)  # (M, H, W)
     lo = jnp.min(jnp.where(of_row, log_r[None], big), axis=(1, 2))
     hi = jnp.max(jnp.where(of_row, log_r[None], -big), axis=(1, 2))
     any_active = jnp.any(of_row, axis=(1, 2))
     lo, hi = jnp.where(any_active, lo, 0.0), jnp.where(any_active, hi, 0.0)
     span = hi - lo
     nlev = scale_levels
-    lo_px, span_px = (lo[0], span[0]) if count == 1 else (lo[rows], span[rows])
+    lo_px, span_px = per_pixel(lo), per_pixel(span)
     ok_span = span_px > 0
     t = jnp.where(ok_span, (log_r - lo_px) / jnp.where(ok_span, span_px, 1.0), 0.0) * (nlev - 1)
     t = jnp.clip(t, 0.0, nlev - 1)
@@ -322,13 +320,12 @@ def _separable_impl(buffers: Buffers, material, camera: Camera, taps: int, albed
     level_reach_px = jnp.where(any_active[:, None], level_reach_px, 0.0)
     unit_offsets = jnp.asarray(spec.pass_unit_offsets(taps), dtype)
     w_table = jnp.moveaxis(weights, -1, 1)  # (M, 3, n)
-    onehot_planes = None if count == 1 else jnp.stack(onehot)  # (M, H, W)
     common = dict(unit_offsets=unit_offsets, mm_per_unit=mm_per_unit, follow_surface=follow_surface,
                   interpolation=interpolation, border=border, skip_centre=True)  # the pass order is centre first
     frame_shape = tuple(buffers.depth.shape) if frame_shape is None else tuple(frame_shape)
     e = jnp.moveaxis(prep.irradiance, -1, 0)  # planar (3, H, W): the fused loops run along rows
     for axis in (2, 1):  # horizontal, then vertical
-        e = _separable_pass(e, prep.depth, prep.valid, level_weights, level_reach_px, skip, onehot_planes, w_table,
+        e = _separable_pass(e, prep.depth, prep.valid, level_weights, level_reach_px, skip, onehot, w_table,
                             inv_reach_mm, axis=axis, origin_along=origin[axis - 1],
                             frame_length=frame_shape[axis - 1], **common)
     return _finish(buffers, prep, jnp.moveaxis(e, 0, -1))
