@@ -126,20 +126,31 @@ _BAND_PIXELS = 1 << 15
 BLOCK_COLS = 128  # columns per block of a band: blocks without SSS pixels compute nothing
 
 
-def _block_needs(mask: Array, rows_per_band: int, cols: int) -> Array:
+def _block_needs(used: Callable[[int], Array], pairs: int, shape: tuple[int, int], rows_per_band: int,
+                 cols: int) -> Array:
     """``(blocks, P)``: whether any pixel of each block (bands of ``rows_per_band`` rows cut into ``cols`` columns, the
-    last band and column block ending at the frame's edge) is set in ``mask (P, H, W)``; blocks numbered band by band.
-    A block that overlaps the one before (the last, where the size is no multiple of the block) also answers for
-    the grid block it overlaps: a superset, which computes nothing wrong (a pair without pixels adds zero)."""
-    p, h, w = mask.shape
+    last band and column block ending at the frame's edge) is set in mask ``used(p) (H, W)`` of pair ``p``; blocks
+    numbered band by band. A block that overlaps the one before (the last, where the size is no multiple of the
+    block) also answers for the grid block it overlaps: a superset, which computes nothing wrong (a pair without
+    pixels adds zero). Up to 32 pairs travel as the bits of one plane, reduced with OR over each block (one pass over
+    the frame, not one per pair)."""
+    h, w = shape
     bands, col_blocks = -(-h // rows_per_band), -(-w // cols)
-    grid = jnp.pad(mask, [(0, 0), (0, bands * rows_per_band - h), (0, col_blocks * cols - w)])
-    grid = jnp.any(grid.reshape(p, bands, rows_per_band, col_blocks, cols), axis=(2, 4))  # (P, bands, col_blocks)
+    words = [list(range(p, min(p + 32, pairs))) for p in range(0, pairs, 32)]
+    grids = []
+    for word in words:
+        bits = sum(used(p).astype(jnp.uint32) << np.uint32(p - word[0]) for p in word)
+        grid = jnp.pad(bits, [(0, bands * rows_per_band - h), (0, col_blocks * cols - w)])
+        grids.append(jax.lax.reduce(grid.reshape(bands, rows_per_band, col_blocks, cols), np.uint32(0),
+                                    jax.lax.bitwise_or, (1, 3)))  # (bands, col_blocks)
+    grid = jnp.stack(grids)
     if h % rows_per_band and bands > 1:
         grid = grid.at[:, -1].set(grid[:, -1] | grid[:, -2])
     if w % cols and col_blocks > 1:
         grid = grid.at[:, :, -1].set(grid[:, :, -1] | grid[:, :, -2])
-    return jnp.moveaxis(grid.reshape(p, bands * col_blocks), 0, 1)
+    flat = grid.reshape(len(words), bands * col_blocks)
+    return jnp.concatenate([(flat[i][:, None] >> np.arange(len(word), dtype=np.uint32)[None]) & 1
+                            for i, word in enumerate(words)], axis=1) > 0
 
 
 def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, level_reach_px: Array, skip: Array,
@@ -219,8 +230,9 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
 
     # which (material row, level) pairs each block needs, decided for all blocks at once: the loop then skips a
     # block, and a pair within it, on one number (no per-block reductions, slices or writes where nothing runs)
-    used = (level_weights > 0)[None] if onehot is None else (level_weights > 0)[None] & (onehot > 0)[:, None]
-    needs = _block_needs(used.reshape((count * levels, h, w)), rows_per_band, cols)  # (blocks, M L)
+    used = ((lambda p: level_weights[p] > 0) if onehot is None
+            else (lambda p: (level_weights[p % levels] > 0) & (onehot[p // levels] > 0)))
+    needs = _block_needs(used, count * levels, (h, w), rows_per_band, cols)  # (blocks, M L)
     block_needed = jnp.any(needs, axis=1)
 
     def block(k, out):
@@ -302,10 +314,12 @@ def _separable_impl(buffers: Buffers, material, camera: Camera, taps: int, albed
     # levels: per material row, geometric between the smallest and the largest reach among its active pixels
     log_r = _safe_log(reach_px)
     big = jnp.asarray(jnp.finfo(dtype).max, dtype)
-    of_row = active[None] & (onehot > 0 if count > 1 else True)  # (M, H, W)
-    lo = jnp.min(jnp.where(of_row, log_r[None], big), axis=(1, 2))
-    hi = jnp.max(jnp.where(of_row, log_r[None], -big), axis=(1, 2))
-    any_active = jnp.any(of_row, axis=(1, 2))
+    of_row = active[None] & (onehot > 0) if count > 1 else active[None]  # (M, H, W)
+    # least and largest in one reduction (two would each write the (M, H, W) selection out first: 3x the time)
+    lo, neg_hi = jax.lax.reduce((jnp.where(of_row, log_r[None], big), jnp.where(of_row, -log_r[None], big)),
+                                (big, big), lambda a, b: (jnp.minimum(a[0], b[0]), jnp.minimum(a[1], b[1])), (1, 2))
+    hi = -neg_hi
+    any_active = lo < big
     lo, hi = jnp.where(any_active, lo, 0.0), jnp.where(any_active, hi, 0.0)
     span = hi - lo
     nlev = scale_levels
