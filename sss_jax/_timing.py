@@ -26,13 +26,16 @@ def run_times(fn: Callable[[], Any], repeats: int) -> list[float]:
     return times
 
 
-def time_call(fn: Callable[[], Any], repeats: int) -> tuple[np.ndarray, float, float]:
+def time_call(fn: Callable[[], Any], repeats: int, warmup: int = 0) -> tuple[np.ndarray, float, float]:
     """``(output, seconds, compile_seconds)``: the output as NumPy, the median wall time in seconds of ``repeats``
     runs after the first (the first's time when ``repeats`` is 0), and how much longer the first run took (compilation
-    and first-touch costs; 0 when it was not longer)."""
+    and first-touch costs; 0 when it was not longer). ``warmup``: runs after the first that are not timed (on
+    XLA:CPU an executable's first few runs after its compilation take 2-4x its steady time, a plain 25-tap separable
+    filter's too: what a benchmark of the steady state leaves out, as it does for what it compares with)."""
     t0 = time.perf_counter()
     out = _wait(fn())
     first = time.perf_counter() - t0
+    run_times(fn, warmup)
     times = run_times(fn, repeats)
     seconds = float(np.median(times)) if times else first
     return np.asarray(out), seconds, max(first - seconds, 0.0)
