@@ -6,6 +6,7 @@ from __future__ import annotations
 from typing import Callable
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -57,7 +58,7 @@ def _thickness_mm(buffers: Buffers, thickness: ParamLike | None, camera: Camera,
     return thick_units * camera.mm_per_unit.astype(dtype)
 
 
-@eqx.filter_jit
+@jax.jit
 def _translucency_impl(buffers: Buffers, params: STAParams, camera: Camera, light: DirectionalLight,
                        thickness: ParamLike | None, material_albedo: Array) -> Array:
     dtype = _work_dtype(buffers.irradiance.dtype)
