@@ -293,6 +293,28 @@ def test_materials_sharing_a_kernel_share_its_weight_term():
     assert selected[(0, 1, 0)] == selected[None] - 1
 
 
+@pytest.mark.parametrize("pairs", [3, 40])  # one word of bits, and two (more than 32 (material, level) pairs)
+def test_block_needs_table_is_each_blocks_any_by_a_loop(pairs):
+    # the block grid of the banded pass (the last band and column block end at the frame's edge, overlapping the one
+    # before), answered by a loop over the blocks' own pixels
+    rng = np.random.default_rng(pairs)
+    h, w, rows, cols = 37, 50, 8, 16
+    mask = rng.uniform(size=(pairs, h, w)) > 0.995
+    got = np.asarray(separable_module._block_needs(lambda p: jnp.asarray(mask[p]), pairs, (h, w), rows, cols))
+    bands, col_blocks = -(-h // rows), -(-w // cols)
+    want = np.zeros((bands * col_blocks, pairs), bool)
+    for k in range(bands * col_blocks):
+        r0, c0 = min((k // col_blocks) * rows, h - rows), min((k % col_blocks) * cols, w - cols)
+        want[k] = mask[:, r0:r0 + rows, c0:c0 + cols].any(axis=(1, 2))
+    assert mask.any() and not want.all()
+    # the table may answer yes for a block that overlaps a needed grid block (a superset: a pair without pixels adds
+    # nothing), never no for a block that holds a pixel of the pair
+    assert np.all(got >= want)
+    r_last, c_last = bands - 1, col_blocks - 1
+    inner = np.array([(k // col_blocks) < r_last and (k % col_blocks) < c_last for k in range(bands * col_blocks)])
+    np.testing.assert_array_equal(got[inner], want[inner])
+
+
 def test_separable_levels_exact_for_one_reach_and_close_otherwise():
     rng = np.random.default_rng(1)
     e = jnp.asarray(rng.uniform(0, 2, (16, 20, 3)))
