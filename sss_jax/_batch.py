@@ -553,14 +553,58 @@ def _folder_lock(folder: pathlib.Path):
         os.close(fd)  # closing releases the lock
 
 
+# The manifest's JSON is folded from the journal at most this often (seconds) while a run goes on, and at its end;
+# a fold rewrites the whole manifest (O(frames)), so on a long batch it waits at least FOLD_COST_RATIO times what the
+# last fold took: folding stays a few percent of the run however many frames the manifest lists.
+FOLD_SECONDS = 1.0
+FOLD_COST_RATIO = 20
+_JOURNAL = re.compile(r"^\.(?P<name>.+)\.sss_jax-(?P<host>.+)-(?P<pid>\d+)\.journal$")
+
+
+def _journal_path(manifest: pathlib.Path) -> pathlib.Path:
+    """Where a run appends its manifest entries between folds: a hidden file beside the manifest naming the writer
+    (host and pid), so a later run can tell the journal of a run that is gone (SIGKILL) from a live one's."""
+    return manifest.parent / f".{manifest.name}.sss_jax-{socket.gethostname()}-{os.getpid()}.journal"
+
+
+def _journal_entries(path: pathlib.Path) -> list[dict[str, Any]]:
+    """The entries of a journal, in order; a line cut short by a kill (the last one) is ignored."""
+    out = []
+    with contextlib.suppress(OSError):
+        for line in path.read_bytes().splitlines():
+            with contextlib.suppress(ValueError):
+                entry = json.loads(line)
+                if isinstance(entry, dict) and "output" in entry:
+                    out.append(entry)
+    return out
+
+
+def _merge_entry(frames: dict[str, Any], entry: dict[str, Any]) -> None:
+    """Put ``entry`` in ``frames``, unless the entry there is another run's, says the output is complete while
+    ``entry`` does not, and that output exists (the disk holds it)."""
+    out = entry.get("output")
+    old = frames.get(out)
+    keep_old = (old is not None and old.get("run") != entry.get("run")
+                and _RANK.get(old.get("status"), 0) > _RANK.get(entry.get("status"), 0) and os.path.exists(out))
+    if not keep_old:
+        frames[out] = entry
+
+
 class _Manifest:
     """The manifest: the settings of the runs and one entry per frame (pending, done, failed with the message,
-    skipped, and the warnings), rewritten atomically whenever a frame finishes.
+    skipped, and the warnings).
 
-    Runs into one folder at once share it: each write merges, under a lock on the folder, this run's entries into
-    what is on disk, frame by frame; an entry that says an output is complete (done/skipped) is not replaced by
-    another run's pending or failed one while that output exists (the disk holds it; that run's own result says it
-    failed). So the manifest never says a complete frame failed."""
+    Each finished frame's entry is appended to this run's journal (one JSON line, ``os.write`` on an ``O_APPEND``
+    file: O(1) per frame, in the OS's hands before the next frame starts, so a kill loses none); the manifest JSON is
+    folded from it (rewritten atomically, the journal emptied) at the first frame, at most every ``FOLD_SECONDS``
+    (longer on a long batch, see ``FOLD_COST_RATIO``) and when the run ends or is interrupted, after which the journal
+    is removed. A run finds the journals of runs on this host that are gone (killed) and folds them in at its start
+    and end.
+
+    Runs into one folder at once share it: each fold merges, under a lock on the folder, this run's entries into what
+    is on disk, frame by frame; an entry that says an output is complete (done/skipped) is not replaced by another
+    run's pending or failed one while that output exists (the disk holds it; that run's own result says it failed).
+    So the manifest never says a complete frame failed."""
 
     def __init__(self, path: pathlib.Path | None, run: dict[str, Any], jobs: list["_Job"]):
         self.path = path
@@ -571,16 +615,64 @@ class _Manifest:
         self.last: tuple[int, int] | None = None  # (inode, mtime_ns) of this run's last write: unchanged -> no merge
         self.data: dict[str, Any] = {}
         self.failed = False
-        self.write()
+        self.journal = None if path is None else _journal_path(path)
+        self.journal_fd: int | None = None
+        self.records = 0
+        self.folded_at = -math.inf
+        self.fold_s = 0.0  # what the last fold took
+        self.write(dead_journals=True)
 
     def record(self, r: "FrameResult") -> None:
-        self.mine[r.output] = {"input": r.input, "output": r.output, "status": r.status, "message": r.message,
-                               "warnings": list(r.warnings), "seconds": round(r.seconds, 4), "run": self.run_id}
-        self.write()
+        entry = {"input": r.input, "output": r.output, "status": r.status, "message": r.message,
+                 "warnings": list(r.warnings), "seconds": round(r.seconds, 4), "run": self.run_id}
+        self.mine[r.output] = entry
+        if self.path is None:
+            return
+        self.records += 1
+        appended = self._append(entry)
+        now = time.perf_counter()
+        # the first entry folds at once (a watcher sees the run progress), then at most every FOLD_SECONDS
+        due = now - self.folded_at >= max(FOLD_SECONDS, FOLD_COST_RATIO * self.fold_s)
+        if not appended or self.failed or self.records == 1 or due:
+            self.write()
 
     def close(self, state: str) -> None:
         self.run["state"] = state
-        self.write()
+        self.write(dead_journals=True)
+        if self.path is not None:
+            # the journal goes once its entries are in the manifest; else it stays for the next run to fold
+            self._drop_journal(unlink=not self.failed)
+
+    def _append(self, entry: dict[str, Any]) -> bool:
+        try:
+            if self.journal_fd is None:
+                self.journal_fd = os.open(self.journal, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o666)
+            line = (json.dumps(entry, default=str) + "\n").encode()
+            if os.write(self.journal_fd, line) != len(line):  # a short write (full disk): the fold rewrites all
+                return False
+        except OSError:
+            return False
+        return True
+
+    def _drop_journal(self, *, unlink: bool) -> None:
+        if self.journal_fd is not None:
+            with contextlib.suppress(OSError):
+                os.close(self.journal_fd)
+            self.journal_fd = None
+        if unlink:
+            with contextlib.suppress(FileNotFoundError):
+                self.journal.unlink()
+
+    def _dead_journals(self) -> list[pathlib.Path]:
+        """Journals of this manifest left by runs on this host that are gone (their entries not folded)."""
+        host, out = socket.gethostname(), []
+        with contextlib.suppress(OSError):
+            for entry in os.scandir(self.path.parent):
+                m = _JOURNAL.match(entry.name)
+                if (m is not None and m["name"] == self.path.name and m["host"] == host
+                        and int(m["pid"]) != os.getpid() and not _alive(int(m["pid"]))):
+                    out.append(pathlib.Path(entry.path))
+        return out
 
     def _stamp(self) -> tuple[int, int] | None:
         try:
@@ -589,7 +681,7 @@ class _Manifest:
             return None
         return st.st_ino, st.st_mtime_ns
 
-    def _merged(self) -> dict[str, Any]:
+    def _merged(self, dead: list[pathlib.Path]) -> dict[str, Any]:
         theirs: dict[str, Any] = {}
         if self.last is None or self._stamp() != self.last:  # another run wrote since: merge with it
             with contextlib.suppress(OSError, ValueError):
@@ -600,29 +692,39 @@ class _Manifest:
             r["run"]: r for r in self.data.get("runs", [])}
         runs[self.run_id] = dict(self.run, run=self.run_id)
         frames = {f.get("output"): f for f in (theirs or self.data).get("frames", []) if isinstance(f, dict)}
-        for out, entry in self.mine.items():
-            old = frames.get(out)
-            keep_old = (old is not None and old.get("run") != self.run_id
-                        and _RANK.get(old.get("status"), 0) > _RANK[entry["status"]] and os.path.exists(out))
-            if not keep_old:
-                frames[out] = entry
+        for journal in dead:  # a killed run's last entries, then this run's
+            for entry in _journal_entries(journal):
+                _merge_entry(frames, entry)
+        for entry in self.mine.values():
+            _merge_entry(frames, entry)
         return dict(self.run, runs=list(runs.values()), frames=list(frames.values()))
 
-    def write(self) -> None:
+    def write(self, *, dead_journals: bool = False) -> None:
+        """Fold: the manifest rewritten atomically with every entry so far, then this run's journal emptied (and
+        the dead runs' journals that were folded in removed)."""
         if self.path is None:
             return
+        t0 = time.perf_counter()
         try:
             with _folder_lock(self.path.parent):
-                self.data = self._merged()
+                dead = self._dead_journals() if dead_journals else []
+                self.data = self._merged(dead)
                 write_json_atomic(self.path, self.data)
                 self.last = self._stamp()
-        except OSError as exc:  # a full disk: the frames go on, the manifest is rewritten whole at the next frame
+                if self.journal_fd is not None:  # its entries are in the manifest now
+                    os.ftruncate(self.journal_fd, 0)
+                for journal in dead:
+                    with contextlib.suppress(FileNotFoundError):
+                        journal.unlink()
+        except OSError as exc:  # a full disk: the frames go on, the manifest is folded whole at the next frame
             if not self.failed:
                 warnings.warn(f"{self.path}: the manifest could not be written ({_describe(exc)}); it is retried "
                               "as each frame finishes", UserWarning, stacklevel=2)
             self.failed = True
         else:
             self.failed = False
+        self.folded_at = time.perf_counter()
+        self.fold_s = self.folded_at - t0
 
 
 _TEMPORARY = re.compile(r"^\.(?P<name>.+)\.sss_jax-(?P<host>.+)-(?P<pid>\d+)\.[^.]+\.tmp(\.[^.]+)?$")
