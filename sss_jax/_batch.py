@@ -45,6 +45,7 @@ Across hosts, each process calls ``jax.distributed.initialize()`` first and then
 
 from __future__ import annotations
 
+import concurrent.futures
 import contextlib
 import ctypes
 import ctypes.util
@@ -74,8 +75,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from ._io import (Frame, SSSInputError, check_writable, exr_is_complete, read_frame, read_header,
-                  write_exr, write_json_atomic, write_png_preview)
+from ._io import (Frame, SSSInputError, _frame_from_decoded, _read_image, check_writable, exr_is_complete,
+                  read_header, write_exr, write_json_atomic, write_png_preview)
 from ._kernels import separable_kernel_from_profile, two_gaussian_kernel
 from ._materials import BurleyMaterial, DirectionalLight, ProfileMaterial, STAParams, TwoGaussianMaterial
 from ._profiles import BurleyProfile, burley_inverse_ccdf
@@ -1134,6 +1135,10 @@ class _Batch:
         self.warned = _Warnings(bar)
         self.cost = _Cost()
         self.pending: dict[tuple, list[dict]] = {}
+        self.reader: concurrent.futures.ThreadPoolExecutor | None = None  # decodes the next frame's input
+        self.writer: concurrent.futures.ThreadPoolExecutor | None = None  # writes the last frame's files
+        self.ahead: tuple[_Job, concurrent.futures.Future] | None = None
+        self.in_flight: tuple[_Job, FrameResult, concurrent.futures.Future] | None = None
         self.seeded = _has_seed(tech)
         self.tiles_allowed = True
         self.base_seed = int(np.asarray(tech.seed)) if self.seeded else 0
@@ -1153,9 +1158,13 @@ class _Batch:
 
     # -- results
     def finish(self, r: FrameResult) -> None:
+        self.collect()  # the frame in flight first: results and manifest in the frames' order
         with self.signals.critical():  # a skipped or failed frame's entry too: the manifest never lags the results
             self.results.append(r)
             self.book.record(r)
+        self.report(r)
+
+    def report(self, r: FrameResult) -> None:
         if len(self.results) % 64 == 0:
             _release_free_memory()
         if self.bar is not None:
@@ -1166,13 +1175,17 @@ class _Batch:
             self.on_frame_done(r)
 
     def fail(self, job: _Job, exc: BaseException, path: pathlib.Path | None = None) -> None:
-        self.finish(FrameResult(str(job.src), str(job.dst), "failed", _describe(exc, path or job.src)))
+        self.finish(self.failure(job, exc, path))
+
+    @staticmethod
+    def failure(job: _Job, exc: BaseException, path: pathlib.Path | None = None) -> FrameResult:
+        return FrameResult(str(job.src), str(job.dst), "failed", _describe(exc, path or job.src))
 
     def write(self, job: _Job, image: np.ndarray, camera: Camera, tech, seconds: float, notes: list[str],
               warned: list[str]) -> None:
-        """The frame's files (the PNG preview first, then the EXR: an EXR with its resume record means the frame
-        is complete), atomically, and its manifest entry together with them; a failure names the file and the
-        frame fails, the batch goes on."""
+        """The frame's files, handed to the writer thread (it writes them while the next frame computes); the
+        frame before it is collected first (its files written, its result recorded), so one frame at most is in
+        flight and the results and the manifest keep the frames' order."""
         self.warned.frame(job.src, warned)  # the notes (the clamp) were said before the frame ran
         rules = {k: v for k, v in _technique_options(tech).items() if k != "technique"}
         attrs = {**self.header, **self.record(job)[0], "sss_jax:technique": _technique_options(tech)["technique"],
@@ -1183,39 +1196,105 @@ class _Batch:
                 attrs[f"sss_jax:{name}"] = int(rules[name])
         if self.seeded:
             attrs["sss_jax:seed"] = str(self.seed_of(job))  # a uint32: past a header int
+        done = FrameResult(str(job.src), str(job.dst), "done", "; ".join(notes + warned), seconds=seconds,
+                           warnings=notes + warned)
+        self.collect()
+        if self.writer is None:
+            self.writer = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="sss_jax-write")
+        self.in_flight = (job, done, self.writer.submit(self.write_files, job, image, attrs,
+                                                        job.dst in self.existing))
+
+    def write_files(self, job: _Job, image: np.ndarray, attrs: dict, overwrite: bool):
+        """(In the writer thread.) The frame's files, atomically: the PNG preview first, then the EXR (an EXR with
+        its resume record means the frame is complete). Returns None, or ``(error, file)`` of a failed write (a
+        fresh preview of a frame that has no EXR removed)."""
         preview = job.dst.with_suffix(".png")
         fresh_png = self.png and not preview.exists()
         current = preview if self.png else job.dst
+        try:
+            if self.png:
+                write_png_preview(preview, image, overwrite=True)
+            current = job.dst
+            write_exr(job.dst, image, channel_names=["R", "G", "B"], half=self.half, attributes=attrs,
+                      overwrite=overwrite)
+        except (OSError, ValueError) as exc:
+            if current == job.dst and fresh_png:  # no preview of a frame that has no output
+                with contextlib.suppress(OSError):
+                    preview.unlink()
+            return exc, current
+        return None
+
+    def collect(self) -> None:
+        """The frame in flight: wait for its files, record its result (a failed write names the file and fails
+        the frame; the batch goes on). A signal waits until the files and their manifest entry are written."""
+        if self.in_flight is None:
+            return
         with self.signals.critical():  # the files and their manifest entry together, or neither
-            try:
-                if self.png:
-                    write_png_preview(preview, image, overwrite=True)
-                current = job.dst
-                write_exr(job.dst, image, channel_names=["R", "G", "B"], half=self.half, attributes=attrs,
-                          overwrite=job.dst in self.existing)
-            except (OSError, ValueError) as exc:
-                if current == job.dst and fresh_png:  # no preview of a frame that has no output
-                    with contextlib.suppress(OSError):
-                        preview.unlink()
-                self.fail(job, exc, current)
-                return
-            self.finish(FrameResult(str(job.src), str(job.dst), "done", "; ".join(notes + warned), seconds=seconds,
-                                    warnings=notes + warned))
+            job, r, future = self.in_flight
+            failed = future.result()
+            self.in_flight = None
+            if failed is not None:
+                r = self.failure(job, *failed)
+            self.results.append(r)
+            self.book.record(r)
+        self.report(r)
+
+    def close(self) -> None:
+        """The frame in flight collected and the threads ended (also when the run is interrupted: what is on disk
+        is in the manifest)."""
+        try:
+            self.collect()
+        finally:
+            for pool in (self.reader, self.writer):
+                if pool is not None:
+                    pool.shutdown(wait=True, cancel_futures=True)
 
     # -- computing
-    def read(self, job: _Job, read_options: dict, use_albedo: bool):
-        frame = read_frame(job.src, **read_options)
-        if frame.focal_px is None:
-            raise SSSInputError(f"{job.src}: no focal length (pass focal_px or put sss_jax:focal_px in the header)")
-        camera = _camera(frame)
-        buffers = frame.to_buffers(use_albedo=use_albedo)
-        validate_buffers(buffers, materials=_material_count(self.material))
-        return frame, buffers, camera
+    def prefetch(self, job: _Job, read_options: dict, use_albedo: bool) -> None:
+        """Read the job's frame in the reader thread while the current frame computes (one frame ahead)."""
+        if self.reader is None:
+            self.reader = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="sss_jax-read")
+        self.ahead = (job, self.reader.submit(self.decode, job, read_options, use_albedo))
 
-    def run(self, job: _Job, read_options: dict, use_albedo: bool, tile_pixels: int) -> None:
+    def decode(self, job: _Job, read_options: dict, use_albedo: bool):
+        """(In the reader thread, or inline.) The frame, its buffers and camera, checked, or the error of a bad
+        frame; and the warnings reading it raised, for the main thread to say."""
+        said: list[tuple[str, type[Warning]]] = []
+        try:
+            frame = _frame_from_decoded(job.src, _read_image(job.src), **read_options,
+                                        warn=lambda message, category: said.append((message, category)))
+            if frame.focal_px is None:
+                raise SSSInputError(f"{job.src}: no focal length (pass focal_px or put sss_jax:focal_px in the "
+                                    "header)")
+            buffers = frame.to_buffers(use_albedo=use_albedo)
+            validate_buffers(buffers, materials=_material_count(self.material))
+        except (OSError, ValueError) as exc:
+            return None, exc, said
+        return (frame, buffers, _camera(frame)), None, said
+
+    def read(self, job: _Job, read_options: dict, use_albedo: bool):
+        ahead, self.ahead = self.ahead, None
+        if ahead is not None and ahead[0] == job:
+            read, error, said = ahead[1].result()
+        else:
+            read, error, said = self.decode(job, read_options, use_albedo)
+        for message, category in said:
+            warnings.warn(message, category, stacklevel=4)
+        if error is not None:
+            raise error
+        return read
+
+    def run(self, job: _Job, read_options: dict, use_albedo: bool, tile_pixels: int,
+            following: _Job | None = None) -> None:
+        """One frame: read (decoded ahead, while the frame before computed), planned, computed, handed to the
+        writer; ``following``, the frame that runs next, is decoded meanwhile."""
         t0 = time.perf_counter()
         try:
             frame, buffers, camera = self.read(job, read_options, use_albedo)
+            if following is not None and frame.shape[0] * frame.shape[1] <= tile_pixels:
+                # a sequence of frames that fit one call: the next one read meanwhile (larger frames, in tiles,
+                # gain nothing from it and would hold two frames in memory)
+                self.prefetch(following, read_options, use_albedo)
             tech = self.tech if not self.seeded else _with_seed(self.tech, self.seed_of(job))
             plan = _plan_frame(tech, buffers, self.material, camera, tile_pixels, self.cost, self.tiles_allowed)
             self.warned.frame(job.src, plan.notes)  # the clamp, what runs and its estimate: before it runs
@@ -1399,15 +1478,27 @@ def process_frames(
     read_options = dict(channel_map=channel_map, focal_px=focal_px, mm_per_unit=mm_per_unit, depth_kind=depth_kind)
     traces = _TRACES[0]
     state = "interrupted"
+    decided: dict[int, bool] = {}
+
+    def skipped(k: int) -> bool:
+        if k not in decided:
+            job = jobs[k]
+            decided[k] = resume and _is_complete(job, png, existing.get(job.dst), run.record(job)[1])
+        return decided[k]
+
     try:
         with signals:
-            for job in jobs:
-                if resume and _is_complete(job, png, existing.get(job.dst), run.record(job)[1]):
-                    run.finish(FrameResult(str(job.src), str(job.dst), "skipped", "complete output of the same "
-                                           "input and parameters"))
-                    continue
-                run.run(job, read_options, use_albedo_pass, int(tile_pixels))
-            run.flush_all()
+            try:
+                for k, job in enumerate(jobs):
+                    if skipped(k):
+                        run.finish(FrameResult(str(job.src), str(job.dst), "skipped", "complete output of the same "
+                                               "input and parameters"))
+                        continue
+                    following = jobs[k + 1] if k + 1 < len(jobs) and not skipped(k + 1) else None
+                    run.run(job, read_options, use_albedo_pass, int(tile_pixels), following)
+                run.flush_all()
+            finally:
+                run.close()  # the last frame's files and entry (also when interrupted: the manifest is the disk)
         state = "complete"
     finally:
         with contextlib.suppress(OSError, ValueError):
