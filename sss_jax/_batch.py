@@ -312,33 +312,34 @@ class _Signals:
 # ------------------------------------------------------------------------------------------------------------------
 
 
-@dataclasses.dataclass
-class _Reach:
-    """Host-side facts about one frame: per-pixel px per mm and material row of its SSS pixels."""
+def _largest_px(frame, camera: Camera, per_row_mm: np.ndarray, *, active_r99: float) -> float:
+    """The largest footprint in px over the pixels a technique computes: ``per_row_mm[row] * ppm`` (``ppm =
+    focal_px / mm_per_unit / depth``, float32 as the techniques compute it; the row is the material id - 1, or the
+    first row for a frame without ids or a single material), over the SSS pixels (finite positive depth, id >= 1)
+    whose footprint ``px * active_r99`` reaches ``_MIN_FOOTPRINT_PX``; 0 where none does.
 
-    ppm: np.ndarray  # (H, W) px per mm, 0 where no SSS
-    rows: np.ndarray  # (H, W) material row
-    valid: np.ndarray  # (H, W) SSS pixels
-
-    @classmethod
-    def of(cls, frame, camera: Camera, count: int) -> "_Reach":
-        # float32 like the techniques (and half the memory of float64 on an 8000x8000 frame)
-        depth = np.asarray(frame.depth, np.float32)
-        valid = np.isfinite(depth) & (depth > 0)
-        ids = None if frame.material_id is None else np.asarray(frame.material_id)
-        if ids is not None:
-            valid &= ids > 0
-        rows = (np.zeros(depth.shape, np.int32) if ids is None or count == 1
-                else np.clip(ids - 1, 0, count - 1).astype(np.int32))
-        scale = np.float32(float(camera.focal_px) / float(camera.mm_per_unit))
-        ppm = np.divide(scale, depth, out=np.zeros_like(depth), where=valid)
-        return cls(ppm, rows, valid)
-
-    def largest(self, per_row_mm: np.ndarray, *, active_r99: float | None = None) -> tuple[float, np.ndarray]:
-        """Largest ``per_row_mm[row] * ppm`` over the pixels a technique computes, and that plane (px)."""
-        px = per_row_mm.astype(np.float32)[self.rows] * self.ppm
-        active = self.valid & (px * (active_r99 or 1.0) >= _MIN_FOOTPRINT_PX) & (px > 0)
-        return float(np.max(px, where=active, initial=0.0)), np.where(active, px, np.nan)
+    Each row's largest value is at its nearest surface (float32 division and multiplication by a positive number
+    keep the order: the same value as the per-pixel plane, to the bit), so it takes one pass per row over the
+    depth, not per-pixel planes of the frame."""
+    depth = np.asarray(frame.depth, np.float32)
+    valid = np.isfinite(depth) & (depth > 0)
+    count = len(per_row_mm)
+    ids = None if frame.material_id is None else np.asarray(frame.material_id)
+    if ids is not None:
+        valid &= ids > 0
+    scale = np.float32(float(camera.focal_px) / float(camera.mm_per_unit))
+    per_row = per_row_mm.astype(np.float32)
+    best = 0.0
+    by_id = ids is not None and count > 1  # else every pixel takes the first row
+    for row in range(count if by_id else 1):
+        where = valid & (np.clip(ids - 1, 0, count - 1) == row) if by_id else valid
+        nearest = np.min(depth, where=where, initial=np.inf)
+        if not np.isfinite(nearest):
+            continue
+        px = per_row[row] * (scale / nearest)  # float32, and so is its product with the Python float below
+        if px * active_r99 >= _MIN_FOOTPRINT_PX and px > 0:
+            best = max(best, float(px))
+    return best
 
 
 def _separable_reach_mm(material, taps: int) -> np.ndarray:
@@ -487,7 +488,7 @@ def _clamp(tech, buffers: Buffers, material, camera: Camera):
     if option == "samples" and hasattr(material, "d_mm"):
         samples = int(tech.samples)
         d_max = np.asarray(material.d_mm, np.float64).reshape(-1, 3).max(axis=-1)
-        d_px = _Reach.of(buffers, camera, material.count).largest(d_max, active_r99=_BURLEY_R99)[0]
+        d_px = _largest_px(buffers, camera, d_max, active_r99=_BURLEY_R99)
         # the power of two keeps the sequence's distinct counts, and compilations, few
         footprint = min(math.pi * (_BURLEY_R999 * d_px) ** 2, h * w)
         bound = _next_pow2(max(footprint, 1.0))

@@ -5,6 +5,7 @@ import math
 import pathlib
 import re
 import signal
+import types
 
 import jax
 import numpy as np
@@ -389,6 +390,33 @@ def burley_r999() -> float:
         else:
             hi = mid
     return lo
+
+
+def test_the_clamps_largest_footprint_is_the_per_pixel_maximum():
+    # the clamp takes each material row's nearest surface; the reference is the per-pixel plane it replaced:
+    # px = d[row] * (focal / mm_per_unit / depth) in float32 over the SSS pixels whose px * r99 reaches 0.5 px
+    from sss_jax._batch import _MIN_FOOTPRINT_PX, _largest_px
+
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        h, w = (int(n) for n in rng.integers(1, 24, 2))
+        count = int(rng.integers(1, 4))
+        depth = rng.uniform(0.5, 300.0, (h, w)).astype(np.float32)
+        depth[rng.random((h, w)) < 0.2] = np.inf
+        depth[rng.random((h, w)) < 0.05] = 0.0
+        ids = rng.integers(0, count + 2, (h, w)).astype(np.int32) if rng.random() < 0.8 else None
+        camera = sj.Camera(float(rng.uniform(10, 2000)), float(rng.uniform(0.1, 20)))
+        per_row = rng.uniform(0.0, 5.0, count) * (rng.random(count) > 0.2)
+        r99 = float(rng.choice([0.01, 1.0, 12.95]))
+        valid = np.isfinite(depth) & (depth > 0) & (True if ids is None else ids > 0)
+        rows = np.zeros((h, w), int) if ids is None or count == 1 else np.clip(ids - 1, 0, count - 1)
+        ppm = np.divide(np.float32(camera.focal_px / camera.mm_per_unit), depth, out=np.zeros_like(depth),
+                        where=valid)
+        px = per_row.astype(np.float32)[rows] * ppm
+        active = valid & (px * r99 >= _MIN_FOOTPRINT_PX) & (px > 0)
+        want = float(np.max(px, where=active, initial=0.0))
+        frame = types.SimpleNamespace(depth=depth, material_id=ids)  # what the clamp reads of the buffers
+        assert _largest_px(frame, camera, per_row, active_r99=r99) == want
 
 
 def test_samples_beyond_the_footprint_are_clamped_with_a_warning(frames, tmp_path):
