@@ -983,11 +983,12 @@ def _material_count(material) -> int:
     return int(getattr(material, "count", 1))
 
 
-def _run_whole(tech, buffers, material, camera) -> tuple[np.ndarray, list[str]]:
-    """One frame, as a single call of the technique runs it; its own warnings are the frame's."""
+def _run_whole(tech, buffers, material, camera) -> tuple[Any, list[str]]:
+    """One frame, as a single call of the technique runs it; its own warnings are the frame's. The result is the
+    call's array, perhaps still computing (JAX dispatches asynchronously): ``np.asarray`` waits for it."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", UserWarning)
-        out = np.asarray(tech(buffers, material, camera))
+        out = tech(buffers, material, camera)
     return out, [str(w.message) for w in caught if issubclass(w.category, _TECHNIQUE_WARNINGS)]
 
 
@@ -1188,8 +1189,9 @@ class _Batch:
         frame before it is collected first (its files written, its result recorded), so one frame at most is in
         flight and the results and the manifest keep the frames' order."""
         self.warned.frame(job.src, warned)  # the notes (the clamp) were said before the frame ran
-        rules = {k: v for k, v in _technique_options(tech).items() if k != "technique"}
-        attrs = {**self.header, **self.record(job)[0], "sss_jax:technique": _technique_options(tech)["technique"],
+        options = _technique_options(tech)
+        rules = {k: v for k, v in options.items() if k != "technique"}
+        attrs = {**self.header, **self.record(job)[0], "sss_jax:technique": options["technique"],
                  "sss_jax:focal_px": float(camera.focal_px), "sss_jax:mm_per_unit": float(camera.mm_per_unit),
                  "sss_jax:rules": json.dumps(rules, sort_keys=True)}
         for name in ("samples", "taps", "radius_px"):
@@ -1314,6 +1316,16 @@ class _Batch:
                     self.tiles_allowed = False
                     plan = _plan_frame(tech, buffers, self.material, camera, tile_pixels, self.cost, False)
                     image = self.in_calls(job, frame, buffers, camera, plan, use_albedo)
+        except (OSError, ValueError) as exc:
+            self.fail(job, exc)
+            return
+        # the frame before is recorded (its files waited for, its manifest entry, the callbacks) while this one
+        # computes; its time is not this frame's
+        t1 = time.perf_counter()
+        self.collect()
+        t0 += time.perf_counter() - t1
+        try:
+            image = np.asarray(image)
         except (OSError, ValueError) as exc:
             self.fail(job, exc)
             return

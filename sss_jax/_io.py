@@ -734,7 +734,7 @@ def write_exr(
             raise SSSInputError(f"{path}: cannot open for writing ({oiio.geterror()})")
         closed = False
         try:
-            ok = out.write_image(np.ascontiguousarray(data.astype(np.float16 if half else np.float32)))
+            ok = out.write_image(np.ascontiguousarray(data.astype(np.float16 if half else np.float32, copy=False)))
         finally:
             closed = out.close()
         if not (ok and closed):
