@@ -789,6 +789,37 @@ def test_two_runs_into_one_folder_leave_a_true_manifest(frames, tmp_path):
     assert len(book["runs"]) == 2 and {r["state"] for r in book["runs"]} == {"complete"}
 
 
+def test_a_killed_runs_journal_is_folded_into_the_manifest_by_the_next_run(frames, tmp_path):
+    # entries go to a per-run journal between folds of the manifest: a run killed (SIGKILL) before its fold leaves
+    # its journal, and the next run into the folder folds it in (its frames' entries are not lost), then removes it
+    import socket
+    import subprocess
+    import sys
+
+    from sss_jax._batch import _journal_entries
+
+    src = five_frames(frames, tmp_path / "src")
+    out = tmp_path / "out"
+    out.mkdir()
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()  # a pid that is no process now
+    journal = out / f".{MANIFEST_NAME}.sss_jax-{socket.gethostname()}-{gone.pid}.journal"
+    killed = [{"input": str(tmp_path / "elsewhere" / f"k{i}.exr"), "output": str(out / f"k{i}.exr"),
+               "status": "failed", "message": f"killed run's frame {i}", "warnings": [], "seconds": 0.1,
+               "run": "killed-run"} for i in range(2)]
+    journal.write_bytes(b"".join((json.dumps(e) + "\n").encode() for e in killed) + b'{"input": "cut sh')
+    assert [e["message"] for e in _journal_entries(journal)] == ["killed run's frame 0", "killed run's frame 1"]
+    r = process_frames(str(src / "*.exr"), "burley", MAT, out_dir=out, samples=4, progress=False,
+                       devices=jax.devices()[:1])
+    assert r.ok
+    book = json.loads((out / MANIFEST_NAME).read_text())
+    by_output = {pathlib.Path(f["output"]).name: f for f in book["frames"]}
+    assert [by_output[f"k{i}.exr"]["message"] for i in range(2)] == ["killed run's frame 0", "killed run's frame 1"]
+    assert all(by_output[f"f{i}.exr"]["status"] == "done" for i in range(5))
+    assert not journal.exists()
+    assert sorted(p.name for p in out.iterdir()) == [f"f{i}.exr" for i in range(5)] + [MANIFEST_NAME]
+
+
 def test_stale_temporaries_are_removed_and_live_ones_kept(frames, tmp_path):
     import os
     import socket
