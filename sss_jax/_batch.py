@@ -11,8 +11,11 @@
   far it reaches (``reach_px``: the tile halo), what it would warn about (``check``: sampling and window warnings)
   and what count the frame's footprint can use (the clamp, with the count run and a work estimate); it never tests
   a technique's name. Until the technique classes land, an adapter over the technique functions answers for them.
-- **frames**: read one at a time. On one device each frame is one call of the technique as a single call runs it
-  (its host-side work, compaction and checks included: the batch keeps up with the pass). On several devices
+- **frames**: one at a time, in a pipeline of three threads: the next frame is read (decoded, checked, its buffers
+  built) in a reader thread and the last frame's files are written in a writer thread while the current frame
+  computes in the main thread (OpenImageIO and XLA release the GIL); one frame in flight each way, so memory stays
+  bounded, and results, progress and the manifest keep the frames' order. On one device each frame is one call of
+  the technique as a single call runs it (its host-side work, compaction and checks included). On several devices
   frames are grouped by (shape, buffers present, counts); each full group of ``len(devices)`` frames is stacked
   along a leading axis sharded over the devices (``NamedSharding(Mesh(devices, ("frames",)), P("frames"))``) and
   processed by one jitted, vmapped call, with the checks run on the host first.
@@ -24,11 +27,13 @@
   every option that ran, the frame's seed, the material, the sss_jax version, and their digest); ``resume=True``
   skips a frame whose output carries the same record and whose files all decode (EXR and PNG preview).
 - **files**: every file a run leaves (EXR, PNG preview, manifest) is written atomically (a temporary beside it,
-  fsync, checked to decode, renamed); a full disk or an I/O error fails that frame, naming the file, and the batch
-  goes on.
+  fsync, checked: the EXR's chunk table whole, the PNG decoded; renamed); a full disk or an I/O error fails that
+  frame, naming the file, and the batch goes on.
 - **manifest**: ``out_dir/sss_jax_manifest.json`` (one per process across hosts) lists every frame's input,
-  output, status, message, warnings and seconds, rewritten atomically as each frame finishes; runs into one folder
-  merge their entries frame by frame under a lock, so it never says a complete frame failed.
+  output, status, message, warnings and seconds. Each finished frame's entry is appended to the run's journal beside
+  it (O(1) per frame); the JSON is folded from it atomically at the first frame, about every second and at the end,
+  and a killed run's journal is folded by the next run. Runs into one folder merge their entries frame by frame
+  under a lock, so it never says a complete frame failed.
 - **long frames**: a frame whose calls would pass the work bound (``call_seconds``: about a second on this
   project's 2-core CPU, by the technique's cost per pixel) runs in pieces: tiles, and where a tile (or the frame)
   is still too long, the technique's own pieces (``AbstractTechnique.pieces``: Burley's frames in groups with the
@@ -1440,8 +1445,8 @@ def process_frames(
     - ``on_progress``: called with a line of text as a frame that runs in several calls progresses (the calls done,
       the time so far and left), at most every two seconds; without it, ``progress`` shows a bar per frame.
 
-    Every file is written atomically (a temporary beside it, fsync, verified to decode, renamed); temporaries that
-    killed runs left beside this run's outputs are removed first. Counts beyond what the frame's footprint can use
+    Every file is written atomically (a temporary beside it, fsync, verified: the EXR from its chunk table, the PNG
+    decoded; renamed); temporaries that killed runs left beside this run's outputs are removed first. Counts beyond what the frame's footprint can use
     are clamped, with the count run and a work estimate; the technique's sampling and window warnings are computed
     for every frame, warned about once per batch, and recorded per frame (message, manifest).
 
