@@ -1146,6 +1146,7 @@ class _Batch:
         self.writer: concurrent.futures.ThreadPoolExecutor | None = None  # writes the last frame's files
         self.ahead: tuple[_Job, concurrent.futures.Future] | None = None
         self.in_flight: tuple[_Job, FrameResult, concurrent.futures.Future] | None = None
+        self.records: dict[_Job, tuple[dict[str, str], str]] = {}
         self.seeded = _has_seed(tech)
         self.tiles_allowed = True
         self.base_seed = int(np.asarray(tech.seed)) if self.seeded else 0
@@ -1158,10 +1159,16 @@ class _Batch:
         return frame_seed(self.base_seed, job.number) if self.seeded else None
 
     def record(self, job: _Job, tech=None) -> tuple[dict[str, str], str]:
-        params = dict(self.parameters)
-        if self.seeded:
-            params["frame_seed"] = self.seed_of(job)
-        return _resume_record(job.src, params)
+        """The job's resume record; the last two are kept (resume decides one frame ahead, then the frame before
+        writes it: one record computed per frame, its input stamped before the frame is read)."""
+        if job not in self.records:
+            params = dict(self.parameters)
+            if self.seeded:
+                params["frame_seed"] = self.seed_of(job)
+            self.records[job] = _resume_record(job.src, params)
+            while len(self.records) > 2:
+                del self.records[next(iter(self.records))]
+        return self.records[job]
 
     # -- results
     def finish(self, r: FrameResult) -> None:
