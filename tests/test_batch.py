@@ -419,6 +419,22 @@ def test_the_clamps_largest_footprint_is_the_per_pixel_maximum():
         assert _largest_px(frame, camera, per_row, active_r99=r99) == want
 
 
+def test_the_work_estimate_does_not_learn_from_a_frame_that_compiled():
+    # the first frame of a shape compiles (~1 s against ~10 ms of work at 256x256): taken as work, it sent the
+    # next frames into pieces (each compiling again: seconds per frame); the estimate learns from the frames after it
+    from sss_jax._batch import _Cost, _seconds_per_px
+
+    tech = sj.technique("burley", samples=32)
+    cost = _Cost()
+    figure = _seconds_per_px(tech)
+    cost.measured(tech, 256 * 256, 1.0, shape=(256, 256), calls=1)  # the compile
+    assert cost.per_px(tech) == figure
+    cost.measured(tech, 256 * 256, 0.02, shape=(256, 256), calls=1)
+    assert cost.per_px(tech) == pytest.approx(0.02 / (256 * 256))
+    cost.measured(tech, 512 * 512, 3.0, shape=(512, 512), calls=1)  # another shape compiles too
+    assert cost.per_px(tech) == pytest.approx(0.02 / (256 * 256))
+
+
 def test_samples_beyond_the_footprint_are_clamped_with_a_warning(frames, tmp_path):
     f = _io.read_frame(frames / "f0.exr")
     # the footprint: the 99.9%-energy radius of the widest d at the nearest SSS pixel, as an area in pixels
