@@ -1461,9 +1461,10 @@ def process_frames(
       the time so far and left), at most every two seconds; without it, ``progress`` shows a bar per frame.
 
     Every file is written atomically (a temporary beside it, fsync, verified: the EXR from its chunk table, the PNG
-    decoded; renamed); temporaries that killed runs left beside this run's outputs are removed first. Counts beyond what the frame's footprint can use
-    are clamped, with the count run and a work estimate; the technique's sampling and window warnings are computed
-    for every frame, warned about once per batch, and recorded per frame (message, manifest).
+    decoded; renamed); temporaries that killed runs left beside this run's outputs are removed first. Counts beyond
+    what the frame's footprint can use are clamped, with the count run and a work estimate; the technique's sampling
+    and window warnings are computed for every frame, warned about once per batch, and recorded per frame (message,
+    manifest).
 
     Returns a per-frame status list; raises (``SSSInputError``/``ValueError``/``TypeError``, nothing written) only
     where the whole batch is impossible, and ``Interrupted`` (a ``KeyboardInterrupt``) on SIGINT/SIGTERM after
