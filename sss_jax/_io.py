@@ -34,10 +34,9 @@ from typing import Any, Callable, Iterator, Mapping
 
 import numpy as np
 
-__all__ = ["Frame", "SSSInputError", "NoSSSPixelsWarning", "read_frame", "read_channels", "read_header", "exr_is_complete",
-           "exr_chunks_complete", "write_exr",
-           "write_png_preview", "write_json_atomic", "write_bytes_atomic", "atomic_path", "check_writable",
-           "display_transform", "load_channel_map"]
+__all__ = ["Frame", "SSSInputError", "NoSSSPixelsWarning", "read_frame", "read_channels", "read_header",
+           "exr_is_complete", "exr_chunks_complete", "write_exr", "write_png_preview", "write_json_atomic",
+           "write_bytes_atomic", "atomic_path", "check_writable", "display_transform", "load_channel_map"]
 
 BUFFER_NAMES = ("irradiance", "depth", "albedo", "normal", "thickness", "id")
 _BACKGROUND_DEPTH = 1e9  # Blender writes 1e10 where there is no surface
