@@ -11,8 +11,11 @@
   far it reaches (``reach_px``: the tile halo), what it would warn about (``check``: sampling and window warnings)
   and what count the frame's footprint can use (the clamp, with the count run and a work estimate); it never tests
   a technique's name. Until the technique classes land, an adapter over the technique functions answers for them.
-- **frames**: read one at a time. On one device each frame is one call of the technique as a single call runs it
-  (its host-side work, compaction and checks included: the batch keeps up with the pass). On several devices
+- **frames**: one at a time, in a pipeline of three threads: the next frame is read (decoded, checked, its buffers
+  built) in a reader thread and the last frame's files are written in a writer thread while the current frame
+  computes in the main thread (OpenImageIO and XLA release the GIL); one frame in flight each way, so memory stays
+  bounded, and results, progress and the manifest keep the frames' order. On one device each frame is one call of
+  the technique as a single call runs it (its host-side work, compaction and checks included). On several devices
   frames are grouped by (shape, buffers present, counts); each full group of ``len(devices)`` frames is stacked
   along a leading axis sharded over the devices (``NamedSharding(Mesh(devices, ("frames",)), P("frames"))``) and
   processed by one jitted, vmapped call, with the checks run on the host first.
@@ -24,11 +27,13 @@
   every option that ran, the frame's seed, the material, the sss_jax version, and their digest); ``resume=True``
   skips a frame whose output carries the same record and whose files all decode (EXR and PNG preview).
 - **files**: every file a run leaves (EXR, PNG preview, manifest) is written atomically (a temporary beside it,
-  fsync, checked to decode, renamed); a full disk or an I/O error fails that frame, naming the file, and the batch
-  goes on.
+  fsync, checked: the EXR's chunk table whole, the PNG decoded; renamed); a full disk or an I/O error fails that
+  frame, naming the file, and the batch goes on.
 - **manifest**: ``out_dir/sss_jax_manifest.json`` (one per process across hosts) lists every frame's input,
-  output, status, message, warnings and seconds, rewritten atomically as each frame finishes; runs into one folder
-  merge their entries frame by frame under a lock, so it never says a complete frame failed.
+  output, status, message, warnings and seconds. Each finished frame's entry is appended to the run's journal beside
+  it (O(1) per frame); the JSON is folded from it atomically at the first frame, about every second and at the end,
+  and a killed run's journal is folded by the next run. Runs into one folder merge their entries frame by frame
+  under a lock, so it never says a complete frame failed.
 - **long frames**: a frame whose calls would pass the work bound (``call_seconds``: about a second on this
   project's 2-core CPU, by the technique's cost per pixel) runs in pieces: tiles, and where a tile (or the frame)
   is still too long, the technique's own pieces (``AbstractTechnique.pieces``: Burley's frames in groups with the
@@ -45,6 +50,7 @@ Across hosts, each process calls ``jax.distributed.initialize()`` first and then
 
 from __future__ import annotations
 
+import concurrent.futures
 import contextlib
 import ctypes
 import ctypes.util
@@ -74,8 +80,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from ._io import (Frame, SSSInputError, check_writable, exr_is_complete, read_frame, read_header,
-                  write_exr, write_json_atomic, write_png_preview)
+from ._io import (Frame, SSSInputError, _frame_from_decoded, _read_image, check_writable, exr_is_complete,
+                  read_header, write_exr, write_json_atomic, write_png_preview)
 from ._kernels import separable_kernel_from_profile, two_gaussian_kernel
 from ._materials import BurleyMaterial, DirectionalLight, ProfileMaterial, STAParams, TwoGaussianMaterial
 from ._profiles import BurleyProfile, burley_inverse_ccdf
@@ -311,33 +317,34 @@ class _Signals:
 # ------------------------------------------------------------------------------------------------------------------
 
 
-@dataclasses.dataclass
-class _Reach:
-    """Host-side facts about one frame: per-pixel px per mm and material row of its SSS pixels."""
+def _largest_px(frame, camera: Camera, per_row_mm: np.ndarray, *, active_r99: float) -> float:
+    """The largest footprint in px over the pixels a technique computes: ``per_row_mm[row] * ppm`` (``ppm =
+    focal_px / mm_per_unit / depth``, float32 as the techniques compute it; the row is the material id - 1, or the
+    first row for a frame without ids or a single material), over the SSS pixels (finite positive depth, id >= 1)
+    whose footprint ``px * active_r99`` reaches ``_MIN_FOOTPRINT_PX``; 0 where none does.
 
-    ppm: np.ndarray  # (H, W) px per mm, 0 where no SSS
-    rows: np.ndarray  # (H, W) material row
-    valid: np.ndarray  # (H, W) SSS pixels
-
-    @classmethod
-    def of(cls, frame, camera: Camera, count: int) -> "_Reach":
-        # float32 like the techniques (and half the memory of float64 on an 8000x8000 frame)
-        depth = np.asarray(frame.depth, np.float32)
-        valid = np.isfinite(depth) & (depth > 0)
-        ids = None if frame.material_id is None else np.asarray(frame.material_id)
-        if ids is not None:
-            valid &= ids > 0
-        rows = (np.zeros(depth.shape, np.int32) if ids is None or count == 1
-                else np.clip(ids - 1, 0, count - 1).astype(np.int32))
-        scale = np.float32(float(camera.focal_px) / float(camera.mm_per_unit))
-        ppm = np.divide(scale, depth, out=np.zeros_like(depth), where=valid)
-        return cls(ppm, rows, valid)
-
-    def largest(self, per_row_mm: np.ndarray, *, active_r99: float | None = None) -> tuple[float, np.ndarray]:
-        """Largest ``per_row_mm[row] * ppm`` over the pixels a technique computes, and that plane (px)."""
-        px = per_row_mm.astype(np.float32)[self.rows] * self.ppm
-        active = self.valid & (px * (active_r99 or 1.0) >= _MIN_FOOTPRINT_PX) & (px > 0)
-        return float(np.max(px, where=active, initial=0.0)), np.where(active, px, np.nan)
+    Each row's largest value is at its nearest surface (float32 division and multiplication by a positive number
+    keep the order: the same value as the per-pixel plane, to the bit), so it takes one pass per row over the
+    depth, not per-pixel planes of the frame."""
+    depth = np.asarray(frame.depth, np.float32)
+    valid = np.isfinite(depth) & (depth > 0)
+    count = len(per_row_mm)
+    ids = None if frame.material_id is None else np.asarray(frame.material_id)
+    if ids is not None:
+        valid &= ids > 0
+    scale = np.float32(float(camera.focal_px) / float(camera.mm_per_unit))
+    per_row = per_row_mm.astype(np.float32)
+    best = 0.0
+    by_id = ids is not None and count > 1  # else every pixel takes the first row
+    for row in range(count if by_id else 1):
+        where = valid & (np.clip(ids - 1, 0, count - 1) == row) if by_id else valid
+        nearest = np.min(depth, where=where, initial=np.inf)
+        if not np.isfinite(nearest):
+            continue
+        px = per_row[row] * (scale / nearest)  # float32, and so is its product with the Python float below
+        if px * active_r99 >= _MIN_FOOTPRINT_PX and px > 0:
+            best = max(best, float(px))
+    return best
 
 
 def _separable_reach_mm(material, taps: int) -> np.ndarray:
@@ -486,7 +493,7 @@ def _clamp(tech, buffers: Buffers, material, camera: Camera):
     if option == "samples" and hasattr(material, "d_mm"):
         samples = int(tech.samples)
         d_max = np.asarray(material.d_mm, np.float64).reshape(-1, 3).max(axis=-1)
-        d_px = _Reach.of(buffers, camera, material.count).largest(d_max, active_r99=_BURLEY_R99)[0]
+        d_px = _largest_px(buffers, camera, d_max, active_r99=_BURLEY_R99)
         # the power of two keeps the sequence's distinct counts, and compilations, few
         footprint = min(math.pi * (_BURLEY_R999 * d_px) ** 2, h * w)
         bound = _next_pow2(max(footprint, 1.0))
@@ -553,14 +560,58 @@ def _folder_lock(folder: pathlib.Path):
         os.close(fd)  # closing releases the lock
 
 
+# The manifest's JSON is folded from the journal at most this often (seconds) while a run goes on, and at its end;
+# a fold rewrites the whole manifest (O(frames)), so on a long batch it waits at least FOLD_COST_RATIO times what the
+# last fold took: folding stays a few percent of the run however many frames the manifest lists.
+FOLD_SECONDS = 1.0
+FOLD_COST_RATIO = 20
+_JOURNAL = re.compile(r"^\.(?P<name>.+)\.sss_jax-(?P<host>.+)-(?P<pid>\d+)\.journal$")
+
+
+def _journal_path(manifest: pathlib.Path) -> pathlib.Path:
+    """Where a run appends its manifest entries between folds: a hidden file beside the manifest naming the writer
+    (host and pid), so a later run can tell the journal of a run that is gone (SIGKILL) from a live one's."""
+    return manifest.parent / f".{manifest.name}.sss_jax-{socket.gethostname()}-{os.getpid()}.journal"
+
+
+def _journal_entries(path: pathlib.Path) -> list[dict[str, Any]]:
+    """The entries of a journal, in order; a line cut short by a kill (the last one) is ignored."""
+    out = []
+    with contextlib.suppress(OSError):
+        for line in path.read_bytes().splitlines():
+            with contextlib.suppress(ValueError):
+                entry = json.loads(line)
+                if isinstance(entry, dict) and "output" in entry:
+                    out.append(entry)
+    return out
+
+
+def _merge_entry(frames: dict[str, Any], entry: dict[str, Any]) -> None:
+    """Put ``entry`` in ``frames``, unless the entry there is another run's, says the output is complete while
+    ``entry`` does not, and that output exists (the disk holds it)."""
+    out = entry.get("output")
+    old = frames.get(out)
+    keep_old = (old is not None and old.get("run") != entry.get("run")
+                and _RANK.get(old.get("status"), 0) > _RANK.get(entry.get("status"), 0) and os.path.exists(out))
+    if not keep_old:
+        frames[out] = entry
+
+
 class _Manifest:
     """The manifest: the settings of the runs and one entry per frame (pending, done, failed with the message,
-    skipped, and the warnings), rewritten atomically whenever a frame finishes.
+    skipped, and the warnings).
 
-    Runs into one folder at once share it: each write merges, under a lock on the folder, this run's entries into
-    what is on disk, frame by frame; an entry that says an output is complete (done/skipped) is not replaced by
-    another run's pending or failed one while that output exists (the disk holds it; that run's own result says it
-    failed). So the manifest never says a complete frame failed."""
+    Each finished frame's entry is appended to this run's journal (one JSON line, ``os.write`` on an ``O_APPEND``
+    file: O(1) per frame, in the OS's hands before the next frame starts, so a kill loses none); the manifest JSON is
+    folded from it (rewritten atomically, the journal emptied) at the first frame, at most every ``FOLD_SECONDS``
+    (longer on a long batch, see ``FOLD_COST_RATIO``) and when the run ends or is interrupted, after which the journal
+    is removed. A run finds the journals of runs on this host that are gone (killed) and folds them in at its start
+    and end.
+
+    Runs into one folder at once share it: each fold merges, under a lock on the folder, this run's entries into what
+    is on disk, frame by frame; an entry that says an output is complete (done/skipped) is not replaced by another
+    run's pending or failed one while that output exists (the disk holds it; that run's own result says it failed).
+    So the manifest never says a complete frame failed."""
 
     def __init__(self, path: pathlib.Path | None, run: dict[str, Any], jobs: list["_Job"]):
         self.path = path
@@ -571,16 +622,64 @@ class _Manifest:
         self.last: tuple[int, int] | None = None  # (inode, mtime_ns) of this run's last write: unchanged -> no merge
         self.data: dict[str, Any] = {}
         self.failed = False
-        self.write()
+        self.journal = None if path is None else _journal_path(path)
+        self.journal_fd: int | None = None
+        self.records = 0
+        self.folded_at = -math.inf
+        self.fold_s = 0.0  # what the last fold took
+        self.write(dead_journals=True)
 
     def record(self, r: "FrameResult") -> None:
-        self.mine[r.output] = {"input": r.input, "output": r.output, "status": r.status, "message": r.message,
-                               "warnings": list(r.warnings), "seconds": round(r.seconds, 4), "run": self.run_id}
-        self.write()
+        entry = {"input": r.input, "output": r.output, "status": r.status, "message": r.message,
+                 "warnings": list(r.warnings), "seconds": round(r.seconds, 4), "run": self.run_id}
+        self.mine[r.output] = entry
+        if self.path is None:
+            return
+        self.records += 1
+        appended = self._append(entry)
+        now = time.perf_counter()
+        # the first entry folds at once (a watcher sees the run progress), then at most every FOLD_SECONDS
+        due = now - self.folded_at >= max(FOLD_SECONDS, FOLD_COST_RATIO * self.fold_s)
+        if not appended or self.failed or self.records == 1 or due:
+            self.write()
 
     def close(self, state: str) -> None:
         self.run["state"] = state
-        self.write()
+        self.write(dead_journals=True)
+        if self.path is not None:
+            # the journal goes once its entries are in the manifest; else it stays for the next run to fold
+            self._drop_journal(unlink=not self.failed)
+
+    def _append(self, entry: dict[str, Any]) -> bool:
+        try:
+            if self.journal_fd is None:
+                self.journal_fd = os.open(self.journal, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o666)
+            line = (json.dumps(entry, default=str) + "\n").encode()
+            if os.write(self.journal_fd, line) != len(line):  # a short write (full disk): the fold rewrites all
+                return False
+        except OSError:
+            return False
+        return True
+
+    def _drop_journal(self, *, unlink: bool) -> None:
+        if self.journal_fd is not None:
+            with contextlib.suppress(OSError):
+                os.close(self.journal_fd)
+            self.journal_fd = None
+        if unlink:
+            with contextlib.suppress(FileNotFoundError):
+                self.journal.unlink()
+
+    def _dead_journals(self) -> list[pathlib.Path]:
+        """Journals of this manifest left by runs on this host that are gone (their entries not folded)."""
+        host, out = socket.gethostname(), []
+        with contextlib.suppress(OSError):
+            for entry in os.scandir(self.path.parent):
+                m = _JOURNAL.match(entry.name)
+                if (m is not None and m["name"] == self.path.name and m["host"] == host
+                        and int(m["pid"]) != os.getpid() and not _alive(int(m["pid"]))):
+                    out.append(pathlib.Path(entry.path))
+        return out
 
     def _stamp(self) -> tuple[int, int] | None:
         try:
@@ -589,7 +688,7 @@ class _Manifest:
             return None
         return st.st_ino, st.st_mtime_ns
 
-    def _merged(self) -> dict[str, Any]:
+    def _merged(self, dead: list[pathlib.Path]) -> dict[str, Any]:
         theirs: dict[str, Any] = {}
         if self.last is None or self._stamp() != self.last:  # another run wrote since: merge with it
             with contextlib.suppress(OSError, ValueError):
@@ -600,29 +699,39 @@ class _Manifest:
             r["run"]: r for r in self.data.get("runs", [])}
         runs[self.run_id] = dict(self.run, run=self.run_id)
         frames = {f.get("output"): f for f in (theirs or self.data).get("frames", []) if isinstance(f, dict)}
-        for out, entry in self.mine.items():
-            old = frames.get(out)
-            keep_old = (old is not None and old.get("run") != self.run_id
-                        and _RANK.get(old.get("status"), 0) > _RANK[entry["status"]] and os.path.exists(out))
-            if not keep_old:
-                frames[out] = entry
+        for journal in dead:  # a killed run's last entries, then this run's
+            for entry in _journal_entries(journal):
+                _merge_entry(frames, entry)
+        for entry in self.mine.values():
+            _merge_entry(frames, entry)
         return dict(self.run, runs=list(runs.values()), frames=list(frames.values()))
 
-    def write(self) -> None:
+    def write(self, *, dead_journals: bool = False) -> None:
+        """Fold: the manifest rewritten atomically with every entry so far, then this run's journal emptied (and
+        the dead runs' journals that were folded in removed)."""
         if self.path is None:
             return
+        t0 = time.perf_counter()
         try:
             with _folder_lock(self.path.parent):
-                self.data = self._merged()
+                dead = self._dead_journals() if dead_journals else []
+                self.data = self._merged(dead)
                 write_json_atomic(self.path, self.data)
                 self.last = self._stamp()
-        except OSError as exc:  # a full disk: the frames go on, the manifest is rewritten whole at the next frame
+                if self.journal_fd is not None:  # its entries are in the manifest now
+                    os.ftruncate(self.journal_fd, 0)
+                for journal in dead:
+                    with contextlib.suppress(FileNotFoundError):
+                        journal.unlink()
+        except OSError as exc:  # a full disk: the frames go on, the manifest is folded whole at the next frame
             if not self.failed:
                 warnings.warn(f"{self.path}: the manifest could not be written ({_describe(exc)}); it is retried "
                               "as each frame finishes", UserWarning, stacklevel=2)
             self.failed = True
         else:
             self.failed = False
+        self.folded_at = time.perf_counter()
+        self.fold_s = self.folded_at - t0
 
 
 _TEMPORARY = re.compile(r"^\.(?P<name>.+)\.sss_jax-(?P<host>.+)-(?P<pid>\d+)\.[^.]+\.tmp(\.[^.]+)?$")
@@ -853,6 +962,7 @@ class _Cost:
 
     def __init__(self):
         self.ratio: float | None = None
+        self.seen: set[tuple] = set()
 
     def per_px(self, tech) -> float:
         return _seconds_per_px(tech) * (self.ratio or 1.0)
@@ -860,7 +970,14 @@ class _Cost:
     def source(self, tech) -> str:
         return "measured on this batch's frames" if self.ratio else "the technique's cost per pixel on a 2-core CPU"
 
-    def measured(self, tech, pixels: int, seconds: float) -> None:
+    def measured(self, tech, pixels: int, seconds: float, *, shape: tuple[int, ...] = (), calls: int = 1) -> None:
+        """Learn from a frame's seconds, except the first frame of each shape, counts and calls: it compiled (a 256x256
+        Burley frame: ~1 s of compile against ~10 ms of work), and taken as work it made the next frames run in
+        pieces, compiling again."""
+        key = (tuple(shape), calls, _count_text(tech))
+        if key not in self.seen:
+            self.seen.add(key)
+            return
         if pixels and seconds > 0:
             r = seconds / (_seconds_per_px(tech) * pixels)
             self.ratio = r if self.ratio is None else 0.7 * self.ratio + 0.3 * r
@@ -879,11 +996,12 @@ def _material_count(material) -> int:
     return int(getattr(material, "count", 1))
 
 
-def _run_whole(tech, buffers, material, camera) -> tuple[np.ndarray, list[str]]:
-    """One frame, as a single call of the technique runs it; its own warnings are the frame's."""
+def _run_whole(tech, buffers, material, camera) -> tuple[Any, list[str]]:
+    """One frame, as a single call of the technique runs it; its own warnings are the frame's. The result is the
+    call's array, perhaps still computing (JAX dispatches asynchronously): ``np.asarray`` waits for it."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", UserWarning)
-        out = np.asarray(tech(buffers, material, camera))
+        out = tech(buffers, material, camera)
     return out, [str(w.message) for w in caught if issubclass(w.category, _TECHNIQUE_WARNINGS)]
 
 
@@ -1032,6 +1150,11 @@ class _Batch:
         self.warned = _Warnings(bar)
         self.cost = _Cost()
         self.pending: dict[tuple, list[dict]] = {}
+        self.reader: concurrent.futures.ThreadPoolExecutor | None = None  # decodes the next frame's input
+        self.writer: concurrent.futures.ThreadPoolExecutor | None = None  # writes the last frame's files
+        self.ahead: tuple[_Job, concurrent.futures.Future] | None = None
+        self.in_flight: tuple[_Job, FrameResult, concurrent.futures.Future] | None = None
+        self.records: dict[_Job, tuple[dict[str, str], str]] = {}
         self.seeded = _has_seed(tech)
         self.tiles_allowed = True
         self.base_seed = int(np.asarray(tech.seed)) if self.seeded else 0
@@ -1044,16 +1167,26 @@ class _Batch:
         return frame_seed(self.base_seed, job.number) if self.seeded else None
 
     def record(self, job: _Job, tech=None) -> tuple[dict[str, str], str]:
-        params = dict(self.parameters)
-        if self.seeded:
-            params["frame_seed"] = self.seed_of(job)
-        return _resume_record(job.src, params)
+        """The job's resume record; the last two are kept (resume decides one frame ahead, then the frame before
+        writes it: one record computed per frame, its input stamped before the frame is read)."""
+        if job not in self.records:
+            params = dict(self.parameters)
+            if self.seeded:
+                params["frame_seed"] = self.seed_of(job)
+            self.records[job] = _resume_record(job.src, params)
+            while len(self.records) > 2:
+                del self.records[next(iter(self.records))]
+        return self.records[job]
 
     # -- results
     def finish(self, r: FrameResult) -> None:
+        self.collect()  # the frame in flight first: results and manifest in the frames' order
         with self.signals.critical():  # a skipped or failed frame's entry too: the manifest never lags the results
             self.results.append(r)
             self.book.record(r)
+        self.report(r)
+
+    def report(self, r: FrameResult) -> None:
         if len(self.results) % 64 == 0:
             _release_free_memory()
         if self.bar is not None:
@@ -1064,16 +1197,21 @@ class _Batch:
             self.on_frame_done(r)
 
     def fail(self, job: _Job, exc: BaseException, path: pathlib.Path | None = None) -> None:
-        self.finish(FrameResult(str(job.src), str(job.dst), "failed", _describe(exc, path or job.src)))
+        self.finish(self.failure(job, exc, path))
+
+    @staticmethod
+    def failure(job: _Job, exc: BaseException, path: pathlib.Path | None = None) -> FrameResult:
+        return FrameResult(str(job.src), str(job.dst), "failed", _describe(exc, path or job.src))
 
     def write(self, job: _Job, image: np.ndarray, camera: Camera, tech, seconds: float, notes: list[str],
               warned: list[str]) -> None:
-        """The frame's files (the PNG preview first, then the EXR: an EXR with its resume record means the frame
-        is complete), atomically, and its manifest entry together with them; a failure names the file and the
-        frame fails, the batch goes on."""
+        """The frame's files, handed to the writer thread (it writes them while the next frame computes); the
+        frame before it is collected first (its files written, its result recorded), so one frame at most is in
+        flight and the results and the manifest keep the frames' order."""
         self.warned.frame(job.src, warned)  # the notes (the clamp) were said before the frame ran
-        rules = {k: v for k, v in _technique_options(tech).items() if k != "technique"}
-        attrs = {**self.header, **self.record(job)[0], "sss_jax:technique": _technique_options(tech)["technique"],
+        options = _technique_options(tech)
+        rules = {k: v for k, v in options.items() if k != "technique"}
+        attrs = {**self.header, **self.record(job)[0], "sss_jax:technique": options["technique"],
                  "sss_jax:focal_px": float(camera.focal_px), "sss_jax:mm_per_unit": float(camera.mm_per_unit),
                  "sss_jax:rules": json.dumps(rules, sort_keys=True)}
         for name in ("samples", "taps", "radius_px"):
@@ -1081,39 +1219,105 @@ class _Batch:
                 attrs[f"sss_jax:{name}"] = int(rules[name])
         if self.seeded:
             attrs["sss_jax:seed"] = str(self.seed_of(job))  # a uint32: past a header int
+        done = FrameResult(str(job.src), str(job.dst), "done", "; ".join(notes + warned), seconds=seconds,
+                           warnings=notes + warned)
+        self.collect()
+        if self.writer is None:
+            self.writer = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="sss_jax-write")
+        self.in_flight = (job, done, self.writer.submit(self.write_files, job, image, attrs,
+                                                        job.dst in self.existing))
+
+    def write_files(self, job: _Job, image: np.ndarray, attrs: dict, overwrite: bool):
+        """(In the writer thread.) The frame's files, atomically: the PNG preview first, then the EXR (an EXR with
+        its resume record means the frame is complete). Returns None, or ``(error, file)`` of a failed write (a
+        fresh preview of a frame that has no EXR removed)."""
         preview = job.dst.with_suffix(".png")
         fresh_png = self.png and not preview.exists()
         current = preview if self.png else job.dst
+        try:
+            if self.png:
+                write_png_preview(preview, image, overwrite=True)
+            current = job.dst
+            write_exr(job.dst, image, channel_names=["R", "G", "B"], half=self.half, attributes=attrs,
+                      overwrite=overwrite)
+        except (OSError, ValueError) as exc:
+            if current == job.dst and fresh_png:  # no preview of a frame that has no output
+                with contextlib.suppress(OSError):
+                    preview.unlink()
+            return exc, current
+        return None
+
+    def collect(self) -> None:
+        """The frame in flight: wait for its files, record its result (a failed write names the file and fails
+        the frame; the batch goes on). A signal waits until the files and their manifest entry are written."""
+        if self.in_flight is None:
+            return
         with self.signals.critical():  # the files and their manifest entry together, or neither
-            try:
-                if self.png:
-                    write_png_preview(preview, image, overwrite=True)
-                current = job.dst
-                write_exr(job.dst, image, channel_names=["R", "G", "B"], half=self.half, attributes=attrs,
-                          overwrite=job.dst in self.existing)
-            except (OSError, ValueError) as exc:
-                if current == job.dst and fresh_png:  # no preview of a frame that has no output
-                    with contextlib.suppress(OSError):
-                        preview.unlink()
-                self.fail(job, exc, current)
-                return
-            self.finish(FrameResult(str(job.src), str(job.dst), "done", "; ".join(notes + warned), seconds=seconds,
-                                    warnings=notes + warned))
+            job, r, future = self.in_flight
+            failed = future.result()
+            self.in_flight = None
+            if failed is not None:
+                r = self.failure(job, *failed)
+            self.results.append(r)
+            self.book.record(r)
+        self.report(r)
+
+    def close(self) -> None:
+        """The frame in flight collected and the threads ended (also when the run is interrupted: what is on disk
+        is in the manifest)."""
+        try:
+            self.collect()
+        finally:
+            for pool in (self.reader, self.writer):
+                if pool is not None:
+                    pool.shutdown(wait=True, cancel_futures=True)
 
     # -- computing
-    def read(self, job: _Job, read_options: dict, use_albedo: bool):
-        frame = read_frame(job.src, **read_options)
-        if frame.focal_px is None:
-            raise SSSInputError(f"{job.src}: no focal length (pass focal_px or put sss_jax:focal_px in the header)")
-        camera = _camera(frame)
-        buffers = frame.to_buffers(use_albedo=use_albedo)
-        validate_buffers(buffers, materials=_material_count(self.material))
-        return frame, buffers, camera
+    def prefetch(self, job: _Job, read_options: dict, use_albedo: bool) -> None:
+        """Read the job's frame in the reader thread while the current frame computes (one frame ahead)."""
+        if self.reader is None:
+            self.reader = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="sss_jax-read")
+        self.ahead = (job, self.reader.submit(self.decode, job, read_options, use_albedo))
 
-    def run(self, job: _Job, read_options: dict, use_albedo: bool, tile_pixels: int) -> None:
+    def decode(self, job: _Job, read_options: dict, use_albedo: bool):
+        """(In the reader thread, or inline.) The frame, its buffers and camera, checked, or the error of a bad
+        frame; and the warnings reading it raised, for the main thread to say."""
+        said: list[tuple[str, type[Warning]]] = []
+        try:
+            frame = _frame_from_decoded(job.src, _read_image(job.src), **read_options,
+                                        warn=lambda message, category: said.append((message, category)))
+            if frame.focal_px is None:
+                raise SSSInputError(f"{job.src}: no focal length (pass focal_px or put sss_jax:focal_px in the "
+                                    "header)")
+            buffers = frame.to_buffers(use_albedo=use_albedo)
+            validate_buffers(buffers, materials=_material_count(self.material))
+        except (OSError, ValueError) as exc:
+            return None, exc, said
+        return (frame, buffers, _camera(frame)), None, said
+
+    def read(self, job: _Job, read_options: dict, use_albedo: bool):
+        ahead, self.ahead = self.ahead, None
+        if ahead is not None and ahead[0] == job:
+            read, error, said = ahead[1].result()
+        else:
+            read, error, said = self.decode(job, read_options, use_albedo)
+        for message, category in said:
+            warnings.warn(message, category, stacklevel=4)
+        if error is not None:
+            raise error
+        return read
+
+    def run(self, job: _Job, read_options: dict, use_albedo: bool, tile_pixels: int,
+            following: _Job | None = None) -> None:
+        """One frame: read (decoded ahead, while the frame before computed), planned, computed, handed to the
+        writer; ``following``, the frame that runs next, is decoded meanwhile."""
         t0 = time.perf_counter()
         try:
             frame, buffers, camera = self.read(job, read_options, use_albedo)
+            if following is not None and frame.shape[0] * frame.shape[1] <= tile_pixels:
+                # a sequence of frames that fit one call: the next one read meanwhile (larger frames, in tiles,
+                # gain nothing from it and would hold two frames in memory)
+                self.prefetch(following, read_options, use_albedo)
             tech = self.tech if not self.seeded else _with_seed(self.tech, self.seed_of(job))
             plan = _plan_frame(tech, buffers, self.material, camera, tile_pixels, self.cost, self.tiles_allowed)
             self.warned.frame(job.src, plan.notes)  # the clamp, what runs and its estimate: before it runs
@@ -1135,8 +1339,18 @@ class _Batch:
         except (OSError, ValueError) as exc:
             self.fail(job, exc)
             return
+        # the frame before is recorded (its files waited for, its manifest entry, the callbacks) while this one
+        # computes; its time is not this frame's
+        t1 = time.perf_counter()
+        self.collect()
+        t0 += time.perf_counter() - t1
+        try:
+            image = np.asarray(image)
+        except (OSError, ValueError) as exc:
+            self.fail(job, exc)
+            return
         seconds = time.perf_counter() - t0
-        self.cost.measured(plan.tech, frame.shape[0] * frame.shape[1], seconds)
+        self.cost.measured(plan.tech, frame.shape[0] * frame.shape[1], seconds, shape=frame.shape, calls=plan.calls)
         self.write(job, image, camera, plan.tech, seconds, plan.notes, warned)
 
     def in_calls(self, job, frame, buffers, camera, plan, use_albedo) -> np.ndarray:
@@ -1246,10 +1460,11 @@ def process_frames(
     - ``on_progress``: called with a line of text as a frame that runs in several calls progresses (the calls done,
       the time so far and left), at most every two seconds; without it, ``progress`` shows a bar per frame.
 
-    Every file is written atomically (a temporary beside it, fsync, verified to decode, renamed); temporaries that
-    killed runs left beside this run's outputs are removed first. Counts beyond what the frame's footprint can use
-    are clamped, with the count run and a work estimate; the technique's sampling and window warnings are computed
-    for every frame, warned about once per batch, and recorded per frame (message, manifest).
+    Every file is written atomically (a temporary beside it, fsync, verified: the EXR from its chunk table, the PNG
+    decoded; renamed); temporaries that killed runs left beside this run's outputs are removed first. Counts beyond
+    what the frame's footprint can use are clamped, with the count run and a work estimate; the technique's sampling
+    and window warnings are computed for every frame, warned about once per batch, and recorded per frame (message,
+    manifest).
 
     Returns a per-frame status list; raises (``SSSInputError``/``ValueError``/``TypeError``, nothing written) only
     where the whole batch is impossible, and ``Interrupted`` (a ``KeyboardInterrupt``) on SIGINT/SIGTERM after
@@ -1297,15 +1512,27 @@ def process_frames(
     read_options = dict(channel_map=channel_map, focal_px=focal_px, mm_per_unit=mm_per_unit, depth_kind=depth_kind)
     traces = _TRACES[0]
     state = "interrupted"
+    decided: dict[int, bool] = {}
+
+    def skipped(k: int) -> bool:
+        if k not in decided:
+            job = jobs[k]
+            decided[k] = resume and _is_complete(job, png, existing.get(job.dst), run.record(job)[1])
+        return decided[k]
+
     try:
         with signals:
-            for job in jobs:
-                if resume and _is_complete(job, png, existing.get(job.dst), run.record(job)[1]):
-                    run.finish(FrameResult(str(job.src), str(job.dst), "skipped", "complete output of the same "
-                                           "input and parameters"))
-                    continue
-                run.run(job, read_options, use_albedo_pass, int(tile_pixels))
-            run.flush_all()
+            try:
+                for k, job in enumerate(jobs):
+                    if skipped(k):
+                        run.finish(FrameResult(str(job.src), str(job.dst), "skipped", "complete output of the same "
+                                               "input and parameters"))
+                        continue
+                    following = jobs[k + 1] if k + 1 < len(jobs) and not skipped(k + 1) else None
+                    run.run(job, read_options, use_albedo_pass, int(tile_pixels), following)
+                run.flush_all()
+            finally:
+                run.close()  # the last frame's files and entry (also when interrupted: the manifest is the disk)
         state = "complete"
     finally:
         with contextlib.suppress(OSError, ValueError):

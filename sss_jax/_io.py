@@ -34,9 +34,9 @@ from typing import Any, Callable, Iterator, Mapping
 
 import numpy as np
 
-__all__ = ["Frame", "SSSInputError", "NoSSSPixelsWarning", "read_frame", "read_channels", "read_header", "exr_is_complete", "write_exr",
-           "write_png_preview", "write_json_atomic", "write_bytes_atomic", "atomic_path", "check_writable",
-           "display_transform", "load_channel_map"]
+__all__ = ["Frame", "SSSInputError", "NoSSSPixelsWarning", "read_frame", "read_channels", "read_header",
+           "exr_is_complete", "exr_chunks_complete", "write_exr", "write_png_preview", "write_json_atomic",
+           "write_bytes_atomic", "atomic_path", "check_writable", "display_transform", "load_channel_map"]
 
 BUFFER_NAMES = ("irradiance", "depth", "albedo", "normal", "thickness", "id")
 _BACKGROUND_DEPTH = 1e9  # Blender writes 1e10 where there is no surface
@@ -206,6 +206,70 @@ def exr_is_complete(path: str | os.PathLike) -> bool:
         return pixels is not None
     finally:
         inp.close()
+
+
+# scan lines per chunk of each OpenEXR compression (the OpenEXR file layout's table)
+_EXR_LINES_PER_CHUNK = {0: 1, 1: 1, 2: 1, 3: 16, 4: 32, 5: 16, 6: 32, 7: 32, 8: 32, 9: 256}
+
+
+def _exr_chunk_table(data: bytes) -> tuple[int, int, int, int] | None:
+    """``(first y, lines per chunk, chunks)`` and where the offset table starts, from a single-part scanline EXR's
+    header (``None`` for any other layout: tiled, multi-part, deep, or a header this reader does not follow)."""
+    import struct
+
+    if len(data) < 8 or data[:4] != b"\x76\x2f\x31\x01":
+        return None
+    flags = struct.unpack_from("<I", data, 4)[0]
+    if flags & 0x1a00:  # tiled (0x200), deep (0x800), multi-part (0x1000)
+        return None
+    pos, compression, window = 8, None, None
+    while pos < len(data) and data[pos] != 0:
+        name_end = data.index(b"\0", pos)
+        type_end = data.index(b"\0", name_end + 1)
+        (size,) = struct.unpack_from("<i", data, type_end + 1)
+        value = type_end + 5
+        name = data[pos:name_end]
+        if name == b"compression":
+            compression = data[value]
+        elif name == b"dataWindow":
+            window = struct.unpack_from("<iiii", data, value)
+        pos = value + size
+    if compression not in _EXR_LINES_PER_CHUNK or window is None or pos >= len(data):
+        return None
+    lines = _EXR_LINES_PER_CHUNK[compression]
+    return window[1], lines, -(-(window[3] - window[1] + 1) // lines), pos + 1
+
+
+def exr_chunks_complete(path: str | os.PathLike) -> bool:
+    """Whether a single-part scanline EXR holds every chunk its offset table lists, each where the table says, in
+    order, the last ending at the end of the file: what a write that lost data (a full disk, an I/O error, a
+    truncation) cannot leave, checked from the file's bytes without decoding the pixels (~50x cheaper than
+    ``exr_is_complete`` on a 256x256 frame). Other layouts (tiled, multi-part) are decoded (``exr_is_complete``)."""
+    import struct
+
+    try:
+        data = pathlib.Path(path).read_bytes()
+    except OSError:
+        return False
+    try:
+        table = _exr_chunk_table(data)
+    except (ValueError, struct.error):  # a header cut short
+        return False
+    if table is None:
+        return exr_is_complete(path)
+    y0, lines, chunks, start = table
+    if start + 8 * chunks > len(data):
+        return False
+    offsets = struct.unpack_from(f"<{chunks}Q", data, start)
+    end = start + 8 * chunks
+    for i, offset in enumerate(offsets):
+        if offset != end or offset + 8 > len(data):  # chunks written in order, each right after the one before
+            return False
+        y, size = struct.unpack_from("<ii", data, offset)
+        if y != y0 + i * lines or size <= 0:
+            return False
+        end = offset + 8 + size
+    return end == len(data)
 
 
 def load_channel_map(source: str | os.PathLike | Mapping[str, Any]) -> dict[str, Any]:
@@ -395,10 +459,25 @@ def read_frame(
     ``depth_kind``: ``"planar"`` (view depth along the camera axis) or ``"distance"`` (to the camera centre; converted
     with ``focal_px``). ``depth_path``: depth from a separate single-channel file of the same resolution.
     """
+    path = pathlib.Path(path)
     if depth_kind not in ("planar", "distance"):
         raise SSSInputError(f"depth_kind={depth_kind!r} is not one of ('planar', 'distance')")
-    path = pathlib.Path(path)
-    channels, integers, metadata, shape = _read_image(path)
+    return _frame_from_decoded(path, _read_image(path), channel_map=channel_map, depth_kind=depth_kind,
+                               focal_px=focal_px, mm_per_unit=mm_per_unit, principal_point=principal_point,
+                               depth_path=depth_path)
+
+
+def _frame_from_decoded(path: pathlib.Path, decoded, *, channel_map, depth_kind: str, focal_px: float | None,
+                        mm_per_unit: float | None, principal_point=None, depth_path=None,
+                        warn: Callable[[str, type[Warning]], None] | None = None) -> Frame:
+    """``read_frame`` after the decode: ``decoded`` is what ``_read_image(path)`` returned. ``warn(message,
+    category)`` takes the warnings instead of ``warnings.warn`` (a batch reads the next frame in a thread while the
+    current one computes, and says them in the main thread: the warnings module's state is not thread-safe)."""
+    if warn is None:
+        warn = lambda message, category: warnings.warn(message, category, stacklevel=4)
+    if depth_kind not in ("planar", "distance"):
+        raise SSSInputError(f"depth_kind={depth_kind!r} is not one of ('planar', 'distance')")
+    channels, integers, metadata, shape = decoded
     cmap = load_channel_map(channel_map) if channel_map is not None else None
     if depth_path is not None:
         d_channels, _, d_shape = read_channels(depth_path)
@@ -455,10 +534,10 @@ def read_frame(
         if layout == "blender":  # Blender's Normal pass is in world space; the techniques take camera space
             rotation = world_to_camera_rotation(metadata, side)
             if rotation is None:
-                warnings.warn(f"{path}: the Normal pass is in world space (Blender) and neither the header "
-                              f"(worldToCamera) nor a sidecar {path.with_suffix('.json').name} (camera.location and "
-                              "look_at, or matrix_world) gives the camera's orientation: the pass is not used "
-                              "(normals come from depth)", UserWarning, stacklevel=2)
+                warn(f"{path}: the Normal pass is in world space (Blender) and neither the header "
+                     f"(worldToCamera) nor a sidecar {path.with_suffix('.json').name} (camera.location and "
+                     "look_at, or matrix_world) gives the camera's orientation: the pass is not used "
+                     "(normals come from depth)", UserWarning)
                 normal = None
             else:
                 normal = (normal.astype(np.float64) @ rotation[0].T).astype(np.float32)
@@ -474,8 +553,7 @@ def read_frame(
         else:
             why = (f"id channel {plan['id'][0]!r} is 0 on every surface pixel (0 = no SSS); ids stored as floats "
                    "must hold the integer values 1, 2, ...")
-        warnings.warn(f"{path}: no pixel to scatter: {why}; the output is the input", NoSSSPixelsWarning,
-                      stacklevel=2)
+        warn(f"{path}: no pixel to scatter: {why}; the output is the input", NoSSSPixelsWarning)
     return frame
 
 
@@ -647,15 +725,18 @@ def write_exr(
             spec.attribute(key, float(value))
         else:
             spec.attribute(key, str(value))
-    with atomic_path(path, overwrite=overwrite, verify=exr_is_complete) as tmp:
+    # checked from the file's chunk table, not decoded: the write's own errors are caught (write_image, close), and
+    # what a lost write leaves (a chunk missing, misplaced or cut short) shows in the table at a fraction of a decode
+    with atomic_path(path, overwrite=overwrite, verify=exr_chunks_complete) as tmp:
         out = oiio.ImageOutput.create(str(tmp))
         if out is None or not out.open(str(tmp), spec):
             raise SSSInputError(f"{path}: cannot open for writing ({oiio.geterror()})")
+        closed = False
         try:
-            ok = out.write_image(np.ascontiguousarray(data.astype(np.float16 if half else np.float32)))
+            ok = out.write_image(np.ascontiguousarray(data.astype(np.float16 if half else np.float32, copy=False)))
         finally:
-            out.close()
-        if not ok:
+            closed = out.close()
+        if not (ok and closed):
             raise SSSInputError(f"{path}: write failed ({out.geterror()})")
     return pathlib.Path(path)
 

@@ -5,6 +5,7 @@ import math
 import pathlib
 import re
 import signal
+import types
 
 import jax
 import numpy as np
@@ -391,6 +392,49 @@ def burley_r999() -> float:
     return lo
 
 
+def test_the_clamps_largest_footprint_is_the_per_pixel_maximum():
+    # the clamp takes each material row's nearest surface; the reference is the per-pixel plane it replaced:
+    # px = d[row] * (focal / mm_per_unit / depth) in float32 over the SSS pixels whose px * r99 reaches 0.5 px
+    from sss_jax._batch import _MIN_FOOTPRINT_PX, _largest_px
+
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        h, w = (int(n) for n in rng.integers(1, 24, 2))
+        count = int(rng.integers(1, 4))
+        depth = rng.uniform(0.5, 300.0, (h, w)).astype(np.float32)
+        depth[rng.random((h, w)) < 0.2] = np.inf
+        depth[rng.random((h, w)) < 0.05] = 0.0
+        ids = rng.integers(0, count + 2, (h, w)).astype(np.int32) if rng.random() < 0.8 else None
+        camera = sj.Camera(float(rng.uniform(10, 2000)), float(rng.uniform(0.1, 20)))
+        per_row = rng.uniform(0.0, 5.0, count) * (rng.random(count) > 0.2)
+        r99 = float(rng.choice([0.01, 1.0, 12.95]))
+        valid = np.isfinite(depth) & (depth > 0) & (True if ids is None else ids > 0)
+        rows = np.zeros((h, w), int) if ids is None or count == 1 else np.clip(ids - 1, 0, count - 1)
+        ppm = np.divide(np.float32(camera.focal_px / camera.mm_per_unit), depth, out=np.zeros_like(depth),
+                        where=valid)
+        px = per_row.astype(np.float32)[rows] * ppm
+        active = valid & (px * r99 >= _MIN_FOOTPRINT_PX) & (px > 0)
+        want = float(np.max(px, where=active, initial=0.0))
+        frame = types.SimpleNamespace(depth=depth, material_id=ids)  # what the clamp reads of the buffers
+        assert _largest_px(frame, camera, per_row, active_r99=r99) == want
+
+
+def test_the_work_estimate_does_not_learn_from_a_frame_that_compiled():
+    # the first frame of a shape compiles (~1 s against ~10 ms of work at 256x256): taken as work, it sent the
+    # next frames into pieces (each compiling again: seconds per frame); the estimate learns from the frames after it
+    from sss_jax._batch import _Cost, _seconds_per_px
+
+    tech = sj.technique("burley", samples=32)
+    cost = _Cost()
+    figure = _seconds_per_px(tech)
+    cost.measured(tech, 256 * 256, 1.0, shape=(256, 256), calls=1)  # the compile
+    assert cost.per_px(tech) == figure
+    cost.measured(tech, 256 * 256, 0.02, shape=(256, 256), calls=1)
+    assert cost.per_px(tech) == pytest.approx(0.02 / (256 * 256))
+    cost.measured(tech, 512 * 512, 3.0, shape=(512, 512), calls=1)  # another shape compiles too
+    assert cost.per_px(tech) == pytest.approx(0.02 / (256 * 256))
+
+
 def test_samples_beyond_the_footprint_are_clamped_with_a_warning(frames, tmp_path):
     f = _io.read_frame(frames / "f0.exr")
     # the footprint: the 99.9%-energy radius of the widest d at the nearest SSS pixel, as an area in pixels
@@ -759,6 +803,37 @@ def test_two_runs_into_one_folder_leave_a_true_manifest(frames, tmp_path):
     assert {f["status"] for f in book["frames"]} <= {"done", "skipped"}
     assert all(_io.exr_is_complete(f["output"]) for f in book["frames"])
     assert len(book["runs"]) == 2 and {r["state"] for r in book["runs"]} == {"complete"}
+
+
+def test_a_killed_runs_journal_is_folded_into_the_manifest_by_the_next_run(frames, tmp_path):
+    # entries go to a per-run journal between folds of the manifest: a run killed (SIGKILL) before its fold leaves
+    # its journal, and the next run into the folder folds it in (its frames' entries are not lost), then removes it
+    import socket
+    import subprocess
+    import sys
+
+    from sss_jax._batch import _journal_entries
+
+    src = five_frames(frames, tmp_path / "src")
+    out = tmp_path / "out"
+    out.mkdir()
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()  # a pid that is no process now
+    journal = out / f".{MANIFEST_NAME}.sss_jax-{socket.gethostname()}-{gone.pid}.journal"
+    killed = [{"input": str(tmp_path / "elsewhere" / f"k{i}.exr"), "output": str(out / f"k{i}.exr"),
+               "status": "failed", "message": f"killed run's frame {i}", "warnings": [], "seconds": 0.1,
+               "run": "killed-run"} for i in range(2)]
+    journal.write_bytes(b"".join((json.dumps(e) + "\n").encode() for e in killed) + b'{"input": "cut sh')
+    assert [e["message"] for e in _journal_entries(journal)] == ["killed run's frame 0", "killed run's frame 1"]
+    r = process_frames(str(src / "*.exr"), "burley", MAT, out_dir=out, samples=4, progress=False,
+                       devices=jax.devices()[:1])
+    assert r.ok
+    book = json.loads((out / MANIFEST_NAME).read_text())
+    by_output = {pathlib.Path(f["output"]).name: f for f in book["frames"]}
+    assert [by_output[f"k{i}.exr"]["message"] for i in range(2)] == ["killed run's frame 0", "killed run's frame 1"]
+    assert all(by_output[f"f{i}.exr"]["status"] == "done" for i in range(5))
+    assert not journal.exists()
+    assert sorted(p.name for p in out.iterdir()) == [f"f{i}.exr" for i in range(5)] + [MANIFEST_NAME]
 
 
 def test_stale_temporaries_are_removed_and_live_ones_kept(frames, tmp_path):

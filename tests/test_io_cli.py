@@ -66,6 +66,46 @@ def test_atomic_write_keeps_the_old_file_on_failure(tmp_path):
     assert sorted(x.name for x in tmp_path.iterdir()) == ["keep.json"]
 
 
+@pytest.mark.parametrize("compression", ["none", "rle", "zips", "zip", "piz", "b44"])
+@pytest.mark.parametrize("pixel_type", ["float", "half"])
+def test_an_exr_whose_chunks_are_all_there_passes_the_write_check_and_a_damaged_one_fails(tmp_path, compression,
+                                                                                         pixel_type):
+    # write_exr checks its file from the EXR's chunk table (OpenEXR's file layout: the header, one 64-bit offset per
+    # chunk of 1/16/32 scan lines, then the chunks, each "y, size, data"), not by decoding it: every file OpenImageIO
+    # writes passes, and every kind of damage a lost write leaves fails, as the full decode does
+    p = tmp_path / "x.exr"
+    h, w = 37, 11  # not a multiple of any compression's chunk height
+    image = np.random.default_rng(0).random((h, w, 3)).astype(np.float32)
+    spec = oiio.ImageSpec(w, h, 3, oiio.FLOAT if pixel_type == "float" else oiio.HALF)
+    spec.attribute("compression", compression)
+    spec.attribute("sss_jax:note", "x" * 300)  # a long header
+    out = oiio.ImageOutput.create(str(p))
+    assert out.open(str(p), spec) and out.write_image(image) and out.close()
+    assert _io.exr_chunks_complete(p) and _io.exr_is_complete(p)
+    data = p.read_bytes()
+    first_chunk = _io._exr_chunk_table(data)[3]
+    offset = int.from_bytes(data[first_chunk:first_chunk + 8], "little")
+    damaged = {"cut by a byte": data[:-1], "cut in half": data[: len(data) // 2], "empty": b"",
+               "header only": data[:first_chunk], "a chunk header zeroed": data[:offset] + bytes(8) + data[offset + 8:],
+               "offset table zeroed": data[:first_chunk] + bytes(8) + data[first_chunk + 8:],
+               "a byte past the end": data + b"\0"}
+    for what, bad in damaged.items():
+        p.write_bytes(bad)
+        assert not _io.exr_chunks_complete(p), what
+
+
+def test_the_write_check_decodes_a_tiled_exr(tmp_path):
+    # a layout the chunk-table check does not follow (tiled) is decoded instead: a truncated one still fails
+    p = tmp_path / "tiled.exr"
+    spec = oiio.ImageSpec(40, 40, 3, oiio.FLOAT)
+    spec.tile_width = spec.tile_height = 16
+    out = oiio.ImageOutput.create(str(p))
+    assert out.open(str(p), spec) and out.write_image(np.ones((40, 40, 3), np.float32)) and out.close()
+    assert _io.exr_chunks_complete(p)
+    p.write_bytes(p.read_bytes()[:-40])
+    assert not _io.exr_chunks_complete(p)
+
+
 def test_generic_layout_and_channel_map(tmp_path):
     p = tmp_path / "f.exr"
     ch = synthetic_frame(p, focal=500.0)
