@@ -25,11 +25,14 @@ from jaxtyping import Array
 from .._materials import BurleyMaterial
 from .._scene import Buffers, Camera
 from ._burley_spec import (
+    FETCH_PAD,
     TRUNCATION_ENERGY,
+    active_footprint,
     fetch_planes,
     frame_rotation,
     normalise,
     pixel_planes,
+    pixel_planes_at,
     sample_fetch,
     sample_place,
     sample_weights,
@@ -131,23 +134,59 @@ def needs_truncation_on_device(pix: dict, active: Array) -> Array:
     return jnp.any(active.reshape(-1) & (1 - pix["inside"] > TRUNCATION_ENERGY))
 
 
+def compacted_pixels(prep, material: BurleyMaterial, camera: Camera, active: Array, fetch, *, capacity: int,
+                     min_footprint_px: float, weight_channels: int, dtype, origin: tuple[int, int],
+                     frame_shape: tuple[int, int]) -> tuple[dict, Array]:
+    """The ``capacity`` slots of compacted active pixels: their per-pixel planes (``pixel_planes_at`` on the
+    compacted pixels alone, not on the whole frame) and their indices in the buffer (``H W`` in the unused slots,
+    which hold pixels of no surface: they take part in nothing and are dropped when scattered back). A pixel's
+    irradiance and depth are read from the fetch planes (``fetch``), its place is its index."""
+    h, w = prep.depth.shape
+    idx = jnp.nonzero(active.reshape(-1), size=capacity, fill_value=h * w)[0].astype(jnp.int32)
+    used = idx < h * w
+    row, col = idx // w, idx % w
+    # the slot's pixel in the padded fetch planes; an unused slot reads the padding's corner (no surface)
+    *e, z = fetch(jnp.where(used, (row + FETCH_PAD) * (w + 2 * FETCH_PAD) + col + FETCH_PAD, 0))
+    rows = jnp.take(prep.rows.reshape(-1), idx, mode="fill", fill_value=0)
+    pix, _ = pixel_planes_at(material, camera, e=e, z=z, valid=used, rows=rows,
+                             frow=jnp.where(used, row, 0) + origin[0], fcol=jnp.where(used, col, 0) + origin[1],
+                             min_footprint_px=min_footprint_px, weight_channels=weight_channels, dtype=dtype,
+                             frame_shape=frame_shape)
+    return pix, idx
+
+
 @eqx.filter_jit
 def _burley_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, samples: int, albedo_mode: str,
                  interpolation: str, capacity: int | None, min_footprint_px: float, weight_channels: int = 3,
                  truncate: bool | None = None, pattern: str = "rotated", frames: int = 1, seed: Array | int = 0,
                  border: str = "leaves", origin: tuple[int, int] = (0, 0),
-                 frame_shape: tuple[int, int] | None = None) -> Array:
+                 frame_shape: tuple[int, int] | None = None, active: Array | None = None,
+                 planes: list[Array] | None = None) -> Array:
     """The XLA formulations: ``capacity`` slots of compacted active pixels ("compacted"), or ``None`` for every
-    pixel ("gather"); ``truncate`` decided on the host (a bool) or on the device (``None``)."""
+    pixel ("gather"); ``truncate`` decided on the host (a bool) or on the device (``None``). ``active`` (the
+    compacted layout's active mask) and ``planes`` (``padded_planes``): where the host's count computed them already
+    (``_burley._active_stats``)."""
     h, w = buffers.depth.shape
-    dtype, prep, frame_shape, pix, active = frame_pixels(buffers, material, camera, albedo_mode, min_footprint_px,
-                                                         weight_channels, origin, frame_shape)
-    planes = fetch_planes(pix, (h, w))  # the whole buffer's, before compaction; the indices are in range
+    dtype = _work_dtype(buffers.irradiance.dtype)
+    prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
+    frame_shape = tuple(buffers.depth.shape) if frame_shape is None else tuple(frame_shape)
+    # the whole buffer's, before compaction; the indices are in range
+    if planes is None:
+        planes = fetch_planes({"e": [prep.irradiance[..., c] for c in range(3)], "z": prep.depth}, (h, w))
+    else:
+        planes = [plane.reshape(-1) for plane in planes]
     fetch = lambda idx: [jnp.take(plane, idx, mode="clip") for plane in planes]
-    if capacity is not None:  # cost follows the scene: only the active pixels (unused slots past the image)
-        idx = jnp.nonzero(active.reshape(-1), size=capacity, fill_value=h * w)[0].astype(jnp.int32)
-        take = lambda a: jnp.take(a, idx, axis=0, mode="fill", fill_value=0)
-        pix = jax.tree.map(take, pix)
+    if capacity is None:
+        pix, active = pixel_planes(buffers, material, camera, prep, min_footprint_px=min_footprint_px,
+                                   weight_channels=weight_channels, dtype=dtype, origin=tuple(origin),
+                                   frame_shape=frame_shape)
+    else:  # cost follows the scene: only the active pixels' planes, and their samples
+        if active is None:
+            _, _, active = active_footprint(material.d_mm.astype(dtype), camera, depth=prep.depth, valid=prep.valid,
+                                            rows=prep.rows, min_footprint_px=min_footprint_px, dtype=dtype)
+        pix, idx = compacted_pixels(prep, material, camera, active, fetch, capacity=capacity,
+                                    min_footprint_px=min_footprint_px, weight_channels=weight_channels, dtype=dtype,
+                                    origin=tuple(origin), frame_shape=frame_shape)
     seed = jnp.asarray(seed).astype(jnp.uint32)
     kw = dict(samples=samples, frames=frames, seed=seed, pattern=pattern, border=border,
               parts=cpu_parts(pix["z"].shape[0]), weight_channels=weight_channels, buffer_shape=(h, w),
