@@ -166,22 +166,23 @@ def _burley_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, sam
     idx[:where.size] = where
     idx = jnp.asarray(idx)
     pix, rotation = _compacted_planes(buffers, material, camera, idx, planes, min_footprint_px, weight_channels,
-                                      **common)
+                                      truncate, **common)
     return _compacted_result(buffers, material, camera, pix, rotation, idx, planes, samples, albedo_mode,
                              interpolation, weight_channels, truncate, **common)
 
 
 @eqx.filter_jit
 def _compacted_planes(buffers: Buffers, material: BurleyMaterial, camera: Camera, idx: Array, planes: list[Array],
-                      min_footprint_px: float, weight_channels: int, *, pattern: str, frames: int, seed: Array,
-                      border: str, origin: tuple[int, int], frame_shape: tuple[int, int]):
+                      min_footprint_px: float, weight_channels: int, truncate: bool | None, *, pattern: str,
+                      frames: int, seed: Array, border: str, origin: tuple[int, int], frame_shape: tuple[int, int]):
     """The compacted layout's first computation: the slots' per-pixel planes (``pixel_planes_at`` on the compacted
     pixels alone, not on the whole frame) and, for one frame, their rotation. ``idx``: each slot's pixel in the
     buffer (``H W`` in the unused slots, which hold pixels of no surface: they take part in nothing and are dropped
     when scattered back); a pixel's irradiance and depth are read from the padded planes, its place is its index.
     A computation of its own so that its planes are materialised once: inside the loop's computation XLA fuses the
     compaction's reads, the rotation's hash and its sin/cos into every consumer outside the loop (each recomputing
-    them)."""
+    them). Being returned, every plane is computed: those the loop does not read (``truncate``, ``border``; the
+    frame coordinates once the rotation is computed) are left out."""
     dtype = _work_dtype(buffers.irradiance.dtype)
     h, w = buffers.depth.shape
     used = idx < h * w
@@ -194,7 +195,14 @@ def _compacted_planes(buffers: Buffers, material: BurleyMaterial, camera: Camera
                              frow=jnp.where(used, row, 0) + origin[0], fcol=jnp.where(used, col, 0) + origin[1],
                              min_footprint_px=min_footprint_px, weight_channels=weight_channels, dtype=dtype,
                              frame_shape=frame_shape)
-    rotation = frame_rotation(pix, 0, seed, pattern=pattern) if frames == 1 else None
+    rotation = None
+    if frames == 1:
+        rotation = frame_rotation(pix, 0, seed, pattern=pattern)
+        del pix["frow"], pix["fcol"]  # the hash's inputs
+    if not (truncate and border == "leaves"):
+        del pix["leave"]
+    if truncate is False:
+        del pix["inside"]  # the truncated radii's, and the device's truncation test's
     return pix, rotation
 
 
@@ -219,9 +227,12 @@ def _compacted_result(buffers: Buffers, material: BurleyMaterial, camera: Camera
                            lambda: sample_loop(pix, fetch, truncate=False, **kw))
     else:
         out = sample_loop(pix, fetch, truncate=truncate, **kw)
-    # the active pixels are the slots': every other pixel keeps its prepared irradiance
-    scattered = prep.irradiance.reshape(h * w, 3).at[idx].set(jnp.stack(out, axis=-1), mode="drop")
-    return _finish(buffers, prep, scattered.reshape(h, w, 3))
+    # the active pixels are the slots': every other pixel is finished as its own (local) shading, and the slots'
+    # finished values written over them (``_finish`` per pixel, so one pass over the frame instead of three)
+    local = _finish(buffers, prep, prep.irradiance).reshape(h * w, 3)
+    albedo = jnp.take(prep.albedo_out.reshape(h * w, 3), idx, axis=0, mode="fill", fill_value=0)
+    slots = (albedo * jnp.stack(out, axis=-1)).astype(local.dtype)
+    return local.at[idx].set(slots, mode="drop").reshape(h, w, 3)
 
 
 @eqx.filter_jit
