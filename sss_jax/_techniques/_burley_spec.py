@@ -306,7 +306,10 @@ def sample_weights(place: dict, pix: dict, *, mm_per_unit: Array, interpolation:
     ok = z_q > 0  # validity travels in the depth (0 where a pixel takes no part, and in the padding)
     v_q = jnp.where(ok, frac, 0.0)
     dz_mm = jnp.where(ok, (z_q - pix["z"][None]) * mm_per_unit, 0.0)
-    r3 = _safe_sqrt((r_mm * r_mm)[None] + dz_mm * dz_mm)
+    # the distance floored at 1e-15 mm (a square of 1e-30, a normal float32) rather than ``_safe_sqrt``'s double
+    # where: the same value wherever the kernel is not 0 anyway (r = 0 only with d_max = 0), a finite gradient at
+    # r = 0, and XLA then reads the root's result in the kernel instead of recomputing its argument there
+    r3 = jnp.sqrt(jnp.maximum((r_mm * r_mm)[None] + dz_mm * dz_mm, 1e-30))
     base = v_q * (inv_pdf[None] if jnp.ndim(inv_pdf) else inv_pdf)
     channels = lambda key: jnp.stack(pix[key])  # (weight_channels, N)
     d, inv_d, ok_d = channels("d"), channels("inv_d"), channels("ok_d")
