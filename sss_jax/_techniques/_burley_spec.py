@@ -23,7 +23,6 @@ from .._checks import checked
 from .._kernels import spiral_sample
 from .._profiles import burley_cdf, burley_inverse_ccdf
 from .._units import px_per_mm
-from ._common import _safe_sqrt
 
 # radius holding 99% (95%) of a Burley profile's energy, in units of d: the footprint the skip and compaction test
 # (the sampling check)
