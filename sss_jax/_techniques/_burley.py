@@ -171,7 +171,8 @@ def burley(
     sampling warning) and "gather" elsewhere (every pixel computed and masked, decided on the device: no host round
     trip, ``compact`` unused, no warning); "pallas" is the gather as one Pallas kernel (blocks without active pixels
     skip it). "xla-cpu" and "xla-gpu" are the old names of "compacted" and "gather". Host work per eager call of
-    "compacted": reading depth, ids and d to count the active pixels and to check the sampling.
+    "compacted": reading the active pixels' count, their widest d and their mask (computed on the device) to size
+    and fill the compacted buffer, and d to check the sampling.
     """
     _check_albedo_mode(albedo_mode)
     if interpolation not in ("bilinear", "nearest"):
