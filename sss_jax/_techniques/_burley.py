@@ -14,7 +14,14 @@ from jaxtyping import Array, Float
 from .._materials import BurleyMaterial
 from .._scene import Buffers, Camera
 from ._burley_gpu import _burley_impl as _burley_impl
-from ._burley_spec import BURLEY_R95, BURLEY_R99, active_footprint, burley_reach_px, needs_truncation
+from ._burley_spec import (
+    BURLEY_R95,
+    BURLEY_R99,
+    active_footprint,
+    burley_reach_px,
+    needs_truncation,
+    padded_planes,
+)
 from ._burley_spec import spiral_rotation as spiral_rotation
 from ._common import (
     MIN_FOOTPRINT_PX,
@@ -22,7 +29,9 @@ from ._common import (
     _check_albedo_mode,
     _check_border,
     _is_concrete,
+    _material_rows,
     _prepare,
+    _sss_mask,
     _work_dtype,
 )
 from ._dispatch import check_tile, resolve_impl
@@ -51,20 +60,39 @@ def burley_active_count(buffers: Buffers, material: BurleyMaterial, camera: Came
 
 def _burley_active(buffers: Buffers, material: BurleyMaterial, camera: Camera, min_footprint_px: float):
     """Host side: the number of active pixels and the largest widest-channel d among them, in px (0 if none)."""
-    count, widest = jax.device_get(_active_stats(buffers, material, camera, jnp.asarray(float(min_footprint_px))))
-    return int(count), float(widest)
+    count, widest, _, _ = _burley_active_mask(buffers, material, camera, min_footprint_px)
+    return count, widest
+
+
+def _burley_active_mask(buffers: Buffers, material: BurleyMaterial, camera: Camera, min_footprint_px: float,
+                        albedo_mode: str | None = None):
+    """``_burley_active`` and the active mask itself (a device array, (H, W)), and with ``albedo_mode`` the padded
+    fetch planes (``_burley_spec.padded_planes``, device arrays) too: what the compacted pass takes from the host's
+    count instead of computing them a second time."""
+    count, widest, active, planes = _active_stats(buffers, material, camera, jnp.asarray(float(min_footprint_px)),
+                                                  albedo_mode)
+    count, widest = jax.device_get((count, widest))
+    return int(count), float(widest), active, planes
 
 
 @eqx.filter_jit
-def _active_stats(buffers: Buffers, material: BurleyMaterial, camera: Camera, min_footprint_px) -> tuple[Array, Array]:
-    """``_burley_active`` as one jitted call: the pass's own active mask (``active_footprint``, the work dtype), so a
-    compacted buffer holds every pixel the pass computes; ~4x faster than the float64 NumPy count it replaces
-    (5 ms a call at 640x360, ~5% of the pass)."""
+def _active_stats(buffers: Buffers, material: BurleyMaterial, camera: Camera, min_footprint_px,
+                  albedo_mode: str | None = None) -> tuple[Array, Array, Array, list[Array] | None]:
+    """``_burley_active_mask`` as one jitted call: the pass's own active mask (``active_footprint``, the work dtype),
+    so a compacted buffer holds every pixel the pass computes; ~4x faster than the float64 NumPy count it replaced.
+    The padded planes are computed here, in a computation of their own, because they pad fastest so (``padded_planes``)."""
     dtype = _work_dtype(buffers.irradiance.dtype)
-    prep = _prepare(buffers, material.albedo, "post", dtype)
-    _, d_max, ppm, active = active_footprint(material.d_mm.astype(dtype), prep, camera,
-                                             min_footprint_px=jnp.asarray(min_footprint_px, dtype), dtype=dtype)
-    return jnp.count_nonzero(active), jnp.max(jnp.where(active, d_max * ppm, 0.0))
+    valid = _sss_mask(buffers)
+    depth = jnp.where(valid, buffers.depth.astype(dtype), 0.0)
+    d_max, ppm, active = active_footprint(material.d_mm.astype(dtype), camera, depth=depth, valid=valid,
+                                          rows=_material_rows(buffers, material.d_mm.shape[0]),
+                                          min_footprint_px=jnp.asarray(min_footprint_px, dtype), dtype=dtype)
+    planes = None
+    if albedo_mode is not None:
+        prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
+        planes = padded_planes({"e": [prep.irradiance[..., c] for c in range(3)], "z": prep.depth},
+                               tuple(buffers.depth.shape))
+    return jnp.count_nonzero(active), jnp.max(jnp.where(active, d_max * ppm, 0.0)), active, planes
 
 
 def burley(
@@ -143,7 +171,8 @@ def burley(
     sampling warning) and "gather" elsewhere (every pixel computed and masked, decided on the device: no host round
     trip, ``compact`` unused, no warning); "pallas" is the gather as one Pallas kernel (blocks without active pixels
     skip it). "xla-cpu" and "xla-gpu" are the old names of "compacted" and "gather". Host work per eager call of
-    "compacted": reading depth, ids and d to count the active pixels and to check the sampling.
+    "compacted": reading the active pixels' count, their widest d and their mask (computed on the device) to size
+    and fill the compacted buffer, and d to check the sampling.
     """
     _check_albedo_mode(albedo_mode)
     if interpolation not in ("bilinear", "nearest"):
@@ -171,16 +200,19 @@ def burley(
     if which == "pallas":  # no host count, no host read of d: nothing waits for the device
         return burley_pallas_impl(buffers, material, camera, int(samples), albedo_mode, interpolation,
                                   float(min_footprint_px), 3, **common)
-    capacity, truncate = None, None
+    capacity, truncate, active, planes = None, None, None, None
     # concrete d (under jit too): channels with one d share one kernel evaluation (a host read: compacted only)
     weight_channels = weight_channel_count(material.d_mm) if which == "compacted" else 3
     if which == "compacted" and _is_concrete(buffers, material, camera):
-        count, widest_d_px = _burley_active(buffers, material, camera, float(min_footprint_px))
+        count, widest_d_px, active, planes = _burley_active_mask(buffers, material, camera,
+                                                                 float(min_footprint_px), albedo_mode)
         truncate = needs_truncation(widest_d_px, frame_shape)
         if compact is not False:
             capacity = compaction_capacity(count, h * w)
             if compact and capacity is None:
                 capacity = compaction_capacity(count, math.inf)  # the same buckets past half the frame
+        if capacity is None:
+            active = None  # the dense layout computes every pixel's planes anyway
         if count:
             worst = burley_channel_samples(material.d_mm, int(samples) * int(frames))
             if worst is not None and worst[0] < 4:
@@ -193,7 +225,7 @@ def burley(
                               f"{implied:.2f} of an edge's contrast); more samples or frames", SamplingWarning,
                               stacklevel=2)
     return _burley_impl(buffers, material, camera, int(samples), albedo_mode, interpolation, capacity,
-                        float(min_footprint_px), weight_channels, truncate, **common)
+                        float(min_footprint_px), weight_channels, truncate, active=active, planes=planes, **common)
 
 
 def burley_halo_px(buffers: Buffers, material: BurleyMaterial, camera: Camera, *, samples: int = 32,

@@ -20,21 +20,24 @@ import os
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array
 
 from .._materials import BurleyMaterial
 from .._scene import Buffers, Camera
 from ._burley_spec import (
+    FETCH_PAD,
     TRUNCATION_ENERGY,
     fetch_planes,
     frame_rotation,
     normalise,
     pixel_planes,
+    pixel_planes_at,
     sample_fetch,
     sample_place,
     sample_weights,
 )
-from ._common import _finish, _prepare, _work_dtype
+from ._common import _finish, _material_rows, _prepare, _work_dtype
 
 
 def frame_result(pix: dict, fetch, cos_phi: Array, sin_phi: Array, *, samples: int, truncate: bool, border: str,
@@ -105,10 +108,13 @@ def frames_mean(one_frame, frames: int, zeros: Array) -> list[Array]:
     return [t / frames for t in total]
 
 
-def sample_loop(pix: dict, fetch, *, frames: int, seed: Array, pattern: str, **kw) -> list[Array]:
-    """The scattered channels over the layout's pixels, ``frames`` frames averaged (``frame_result``)."""
-    return frames_mean(lambda k: frame_result(pix, fetch, *frame_rotation(pix, k, seed, pattern=pattern), **kw),
-                       frames, jnp.zeros_like(pix["z"]))
+def sample_loop(pix: dict, fetch, *, frames: int, seed: Array, pattern: str, rotation=None, **kw) -> list[Array]:
+    """The scattered channels over the layout's pixels, ``frames`` frames averaged (``frame_result``).
+    ``rotation``: frame 0's ``frame_rotation``, where computed already (one frame only)."""
+    if rotation is not None and frames != 1:
+        raise ValueError(f"a given rotation serves one frame, not frames={frames}")
+    turn = lambda k: rotation if rotation is not None else frame_rotation(pix, k, seed, pattern=pattern)
+    return frames_mean(lambda k: frame_result(pix, fetch, *turn(k), **kw), frames, jnp.zeros_like(pix["z"]))
 
 
 def frame_pixels(buffers: Buffers, material: BurleyMaterial, camera: Camera, albedo_mode: str,
@@ -131,38 +137,129 @@ def needs_truncation_on_device(pix: dict, active: Array) -> Array:
     return jnp.any(active.reshape(-1) & (1 - pix["inside"] > TRUNCATION_ENERGY))
 
 
-@eqx.filter_jit
 def _burley_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, samples: int, albedo_mode: str,
                  interpolation: str, capacity: int | None, min_footprint_px: float, weight_channels: int = 3,
                  truncate: bool | None = None, pattern: str = "rotated", frames: int = 1, seed: Array | int = 0,
                  border: str = "leaves", origin: tuple[int, int] = (0, 0),
-                 frame_shape: tuple[int, int] | None = None) -> Array:
-    """The XLA formulations: ``capacity`` slots of compacted active pixels ("compacted"), or ``None`` for every
-    pixel ("gather"); ``truncate`` decided on the host (a bool) or on the device (``None``)."""
+                 frame_shape: tuple[int, int] | None = None, active: Array | None = None,
+                 planes: list[Array] | None = None) -> Array:
+    """The XLA formulations: ``capacity`` slots of compacted active pixels ("compacted", concrete inputs only: the
+    host compacts), or ``None`` for every pixel ("gather", one jitted call); ``truncate`` decided on the host (a
+    bool) or on the device (``None``). ``active`` (the active mask) and ``planes`` (``padded_planes``): where the
+    host's count computed them already (``_burley._active_stats``); the compacted layout needs ``active``."""
+    frame_shape = tuple(buffers.depth.shape) if frame_shape is None else tuple(frame_shape)
+    common = dict(pattern=pattern, frames=int(frames), seed=jnp.asarray(seed).astype(jnp.uint32), border=border,
+                  origin=tuple(origin), frame_shape=frame_shape)
+    if capacity is None:
+        return _gather_impl(buffers, material, camera, samples, albedo_mode, interpolation, min_footprint_px,
+                            weight_channels, truncate, planes=planes, **common)
+    if active is None or planes is None:
+        raise ValueError("the compacted layout takes the host count's active mask and padded planes "
+                         "(_burley._burley_active_mask with albedo_mode)")
     h, w = buffers.depth.shape
-    dtype, prep, frame_shape, pix, active = frame_pixels(buffers, material, camera, albedo_mode, min_footprint_px,
-                                                         weight_channels, origin, frame_shape)
-    planes = fetch_planes(pix, (h, w))  # the whole buffer's, before compaction; the indices are in range
-    fetch = lambda idx: [jnp.take(plane, idx, mode="clip") for plane in planes]
-    if capacity is not None:  # cost follows the scene: only the active pixels (unused slots past the image)
-        idx = jnp.nonzero(active.reshape(-1), size=capacity, fill_value=h * w)[0].astype(jnp.int32)
-        take = lambda a: jnp.take(a, idx, axis=0, mode="fill", fill_value=0)
-        pix = jax.tree.map(take, pix)
-    seed = jnp.asarray(seed).astype(jnp.uint32)
-    kw = dict(samples=samples, frames=frames, seed=seed, pattern=pattern, border=border,
+    # host-side compaction (a CPU formulation's strategy): NumPy's flatnonzero of the mask takes ~0.1 ms at 640x360,
+    # XLA's nonzero (a prefix sum of reduce-windows and a scatter) ~1-2 ms
+    where = np.flatnonzero(np.asarray(jax.device_get(active)).reshape(-1))
+    if where.size > capacity:
+        raise ValueError(f"capacity {capacity} holds fewer slots than the {where.size} active pixels")
+    idx = np.full(capacity, h * w, np.int32)
+    idx[:where.size] = where
+    idx = jnp.asarray(idx)
+    pix, rotation = _compacted_planes(buffers, material, camera, idx, planes, min_footprint_px, weight_channels,
+                                      truncate, **common)
+    return _compacted_result(buffers, material, camera, pix, rotation, idx, planes, samples, albedo_mode,
+                             interpolation, weight_channels, truncate, **common)
+
+
+@eqx.filter_jit
+def _compacted_planes(buffers: Buffers, material: BurleyMaterial, camera: Camera, idx: Array, planes: list[Array],
+                      min_footprint_px: float, weight_channels: int, truncate: bool | None, *, pattern: str,
+                      frames: int, seed: Array, border: str, origin: tuple[int, int], frame_shape: tuple[int, int]):
+    """The compacted layout's first computation: the slots' per-pixel planes (``pixel_planes_at`` on the compacted
+    pixels alone, not on the whole frame) and, for one frame, their rotation. ``idx``: each slot's pixel in the
+    buffer (``H W`` in the unused slots, which hold pixels of no surface: they take part in nothing and are dropped
+    when scattered back); a pixel's irradiance and depth are read from the padded planes, its place is its index.
+    A computation of its own so that its planes are materialised once: inside the loop's computation XLA fuses the
+    compaction's reads, the rotation's hash and its sin/cos into every consumer outside the loop (each recomputing
+    them). Being returned, every plane is computed: those the loop does not read (``truncate``, ``border``; the
+    frame coordinates once the rotation is computed) are left out."""
+    dtype = _work_dtype(buffers.irradiance.dtype)
+    h, w = buffers.depth.shape
+    used = idx < h * w
+    row, col = idx // w, idx % w
+    # the slot's pixel in the padded planes; an unused slot reads the padding's corner (no surface)
+    padded = jnp.where(used, (row + FETCH_PAD) * (w + 2 * FETCH_PAD) + col + FETCH_PAD, 0)
+    *e, z = [jnp.take(plane.reshape(-1), padded, mode="clip") for plane in planes]
+    rows = jnp.take(_material_rows(buffers, material.d_mm.shape[0]).reshape(-1), idx, mode="fill", fill_value=0)
+    pix, _ = pixel_planes_at(material, camera, e=e, z=z, valid=used, rows=rows,
+                             frow=jnp.where(used, row, 0) + origin[0], fcol=jnp.where(used, col, 0) + origin[1],
+                             min_footprint_px=min_footprint_px, weight_channels=weight_channels, dtype=dtype,
+                             frame_shape=frame_shape)
+    rotation = None
+    if frames == 1:
+        rotation = frame_rotation(pix, 0, seed, pattern=pattern)
+        del pix["frow"], pix["fcol"]  # the hash's inputs
+    if not (truncate and border == "leaves"):
+        del pix["leave"]
+    if truncate is False:
+        del pix["inside"]  # the truncated radii's, and the device's truncation test's
+    return pix, rotation
+
+
+@eqx.filter_jit
+def _compacted_result(buffers: Buffers, material: BurleyMaterial, camera: Camera, pix: dict, rotation, idx: Array,
+                      planes: list[Array], samples: int, albedo_mode: str, interpolation: str, weight_channels: int,
+                      truncate: bool | None, *, pattern: str, frames: int, seed: Array, border: str,
+                      origin: tuple[int, int], frame_shape: tuple[int, int]) -> Array:
+    """The compacted layout's second computation: the sample loop over the slots, scattered back into the frame."""
+    h, w = buffers.depth.shape
+    dtype = _work_dtype(buffers.irradiance.dtype)
+    prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
+    flat = [plane.reshape(-1) for plane in planes]
+    fetch = lambda at: [jnp.take(plane, at, mode="clip") for plane in flat]
+    kw = dict(samples=samples, frames=frames, seed=seed, pattern=pattern, border=border, rotation=rotation,
               parts=cpu_parts(pix["z"].shape[0]), weight_channels=weight_channels, buffer_shape=(h, w),
-              origin=tuple(origin), frame_shape=frame_shape, mm_per_unit=camera.mm_per_unit.astype(dtype),
+              origin=origin, frame_shape=frame_shape, mm_per_unit=camera.mm_per_unit.astype(dtype),
               interpolation=interpolation)
     if truncate is None:
-        wide = needs_truncation_on_device(pix, active if capacity is None else idx < h * w)
+        wide = needs_truncation_on_device(pix, idx < h * w)
         out = jax.lax.cond(wide, lambda: sample_loop(pix, fetch, truncate=True, **kw),
                            lambda: sample_loop(pix, fetch, truncate=False, **kw))
     else:
         out = sample_loop(pix, fetch, truncate=truncate, **kw)
-    result = jnp.stack(out, axis=-1)
-    if capacity is None:
-        scattered = result.reshape(h, w, 3)
+    # the active pixels are the slots': every other pixel is finished as its own (local) shading, and the slots'
+    # finished values written over them (``_finish`` per pixel, so one pass over the frame instead of three)
+    local = _finish(buffers, prep, prep.irradiance).reshape(h * w, 3)
+    albedo = jnp.take(prep.albedo_out.reshape(h * w, 3), idx, axis=0, mode="fill", fill_value=0)
+    slots = (albedo * jnp.stack(out, axis=-1)).astype(local.dtype)
+    return local.at[idx].set(slots, mode="drop").reshape(h, w, 3)
+
+
+@eqx.filter_jit
+def _gather_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, samples: int, albedo_mode: str,
+                 interpolation: str, min_footprint_px: float, weight_channels: int, truncate: bool | None, *,
+                 pattern: str, frames: int, seed: Array, border: str, origin: tuple[int, int],
+                 frame_shape: tuple[int, int], planes: list[Array] | None = None) -> Array:
+    """The gather layout: every pixel of the buffer, masked at the end, in one computation."""
+    h, w = buffers.depth.shape
+    dtype = _work_dtype(buffers.irradiance.dtype)
+    prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
+    if planes is None:  # the whole buffer's; the indices are in range
+        planes = fetch_planes({"e": [prep.irradiance[..., c] for c in range(3)], "z": prep.depth}, (h, w))
     else:
-        scattered = prep.irradiance.reshape(h * w, 3).at[idx].set(result, mode="drop").reshape(h, w, 3)
-    scattered = jnp.where(active[..., None], scattered, prep.irradiance)
+        planes = [plane.reshape(-1) for plane in planes]
+    fetch = lambda at: [jnp.take(plane, at, mode="clip") for plane in planes]
+    pix, active = pixel_planes(buffers, material, camera, prep, min_footprint_px=min_footprint_px,
+                               weight_channels=weight_channels, dtype=dtype, origin=origin, frame_shape=frame_shape)
+    kw = dict(samples=samples, frames=frames, seed=seed, pattern=pattern, border=border,
+              parts=cpu_parts(pix["z"].shape[0]), weight_channels=weight_channels, buffer_shape=(h, w),
+              origin=origin, frame_shape=frame_shape, mm_per_unit=camera.mm_per_unit.astype(dtype),
+              interpolation=interpolation)
+    if truncate is None:
+        wide = needs_truncation_on_device(pix, active)
+        out = jax.lax.cond(wide, lambda: sample_loop(pix, fetch, truncate=True, **kw),
+                           lambda: sample_loop(pix, fetch, truncate=False, **kw))
+    else:
+        out = sample_loop(pix, fetch, truncate=truncate, **kw)
+    scattered = jnp.where(active[..., None], jnp.stack(out, axis=-1).reshape(h, w, 3), prep.irradiance)
     return _finish(buffers, prep, scattered)

@@ -23,7 +23,6 @@ from .._checks import checked
 from .._kernels import spiral_sample
 from .._profiles import burley_cdf, burley_inverse_ccdf
 from .._units import px_per_mm
-from ._common import _safe_sqrt
 
 # radius holding 99% (95%) of a Burley profile's energy, in units of d: the footprint the skip and compaction test
 # (the sampling check)
@@ -120,38 +119,42 @@ def needs_truncation(widest_d_px: float, frame_shape: tuple[int, int]) -> bool:
     return (math.exp(-x) + 3 * math.exp(-x / 3)) / 4 > TRUNCATION_ENERGY
 
 
-def active_footprint(d_table: Array, prep, camera, *, min_footprint_px, dtype) -> tuple[Array, Array, Array, Array]:
-    """Each pixel's d per channel (mm, 0 where it takes no part), its widest d, its px per mm and whether it is
-    active (it takes samples): what ``pixel_planes`` computes on and the host's count (``_burley._burley_active``)
-    counts, in the same dtype, so that a compacted buffer holds every pixel the pass computes."""
-    d_pix = jnp.where(prep.valid[..., None], d_table[prep.rows], 0.0)  # (H, W, 3)
-    d_max = jnp.max(d_pix, axis=-1)
-    ppm = px_per_mm(prep.depth, focal_px=camera.focal_px.astype(dtype),
-                    mm_per_unit=camera.mm_per_unit.astype(dtype))
-    ppm = jnp.where(prep.valid, ppm, 0.0)
+def active_footprint(d_table: Array, camera, *, depth: Array, valid: Array, rows: Array, min_footprint_px,
+                     dtype) -> tuple[Array, Array, Array]:
+    """Each pixel's widest d (mm, 0 where it takes no part), its px per mm and whether it is active (it takes
+    samples), for pixels of any layout (``depth``: 0 where ``valid`` is false; ``rows``: material rows): what
+    ``pixel_planes_at`` computes on and the host's count (``_burley._burley_active``) counts, in the same dtype, so
+    that a compacted buffer holds every pixel the pass computes. The widest d is the table row's (exactly the max of
+    the pixel's three d), so no (H, W, 3) plane of d is built to count."""
+    d_max = jnp.where(valid, jnp.max(d_table, axis=-1)[rows], 0.0)
+    ppm = px_per_mm(depth, focal_px=camera.focal_px.astype(dtype), mm_per_unit=camera.mm_per_unit.astype(dtype))
+    ppm = jnp.where(valid, ppm, 0.0)
     # pixels whose footprint is below min_footprint_px keep their local shading (no samples are taken for them)
-    active = prep.valid & (d_max * ppm * BURLEY_R99 >= min_footprint_px)
-    return d_pix, d_max, ppm, active
+    active = valid & (d_max * ppm * BURLEY_R99 >= min_footprint_px)
+    return d_max, ppm, active
 
 
-def pixel_planes(buffers, material, camera, prep, *, min_footprint_px: float, weight_channels: int, dtype,
-                 origin: tuple[int, int], frame_shape: tuple[int, int]) -> tuple[dict, Array]:
-    """The flat per-pixel planes (N = H W of the buffer) ``sample_term`` reads, and the active mask (H, W).
+def pixel_planes_at(material, camera, *, e: list[Array], z: Array, valid: Array, rows: Array, frow: Array,
+                    fcol: Array, min_footprint_px: float, weight_channels: int, dtype,
+                    frame_shape: tuple[int, int]) -> tuple[dict, Array]:
+    """The per-pixel planes ``sample_term`` reads, for pixels of any layout (each input ``(N,)``: the whole buffer
+    flattened, or a compacted set of its pixels), and their active mask ``(N,)``.
 
-    ``row``/``col``: frame coordinates (floats); ``frow``/``fcol``: the same as integers (the rotation hash);
-    ``e`` (3 planes), ``z`` (0 where the pixel takes no part), ``dmax`` (widest d, mm), ``ppm`` (px per mm),
-    ``inside`` (the d_max profile's energy within the frame's diagonal), ``d``/``inv_d``/``ok_d`` and ``leave`` (the
-    energy of each weight channel's profile beyond the diagonal, per sample in the weights' units, for
-    ``border="leaves"`` with truncated sampling) per weight channel."""
+    Inputs: ``e`` (3 planes of the prepared irradiance), ``z`` (depth, 0 where ``valid`` is false), ``rows``
+    (material rows), ``frow``/``fcol`` (frame coordinates, integers). Planes: ``row``/``col`` (the same as floats),
+    ``frow``/``fcol`` (the rotation hash), ``e``, ``z``, ``dmax`` (widest d, mm), ``ppm`` (px per mm), ``inside``
+    (the d_max profile's energy within the frame's diagonal), ``d``/``inv_d``/``ok_d`` and ``leave`` (the energy of
+    each weight channel's profile beyond the diagonal, per sample in the weights' units, for ``border="leaves"`` with
+    truncated sampling) per weight channel. Each pixel's planes depend on that pixel's inputs alone, so a compacted
+    set computes exactly the values the whole frame would hold there."""
     d_table = checked(material.d_mm.astype(dtype), "d_mm")
-    h, w = buffers.depth.shape
-    d_pix, d_max, ppm, active = active_footprint(d_table, prep, camera, min_footprint_px=min_footprint_px,
-                                                 dtype=dtype)
+    d_max, ppm, active = active_footprint(d_table, camera, depth=z, valid=valid, rows=rows,
+                                          min_footprint_px=min_footprint_px, dtype=dtype)
+    d_w = jnp.where(valid[..., None], d_table[rows][..., :weight_channels], 0.0)  # (N, weight channels)
     # samples beyond the frame's diagonal can never land in it: the profile is sampled truncated there
     r_clip = jnp.where(ppm > 0, math.hypot(*frame_shape) / jnp.where(ppm > 0, ppm, 1.0), jnp.inf)
     r_clip = jnp.minimum(r_clip, 1e30)
     inside = jnp.where(d_max > 0, burley_cdf(r_clip, d_max), 1.0)
-    d_w = d_pix[..., :weight_channels]
     ok_d = d_w > 0
     inv_d = jnp.where(ok_d, 1.0 / jnp.where(ok_d, d_w, 1.0), 0.0)
     ok_dmax = d_max > 0
@@ -161,17 +164,28 @@ def pixel_planes(buffers, material, camera, prep, *, min_footprint_px: float, we
     ok_in = inside > 0
     per_sample = jnp.where(ok_in, 1.0 / jnp.where(ok_in, inside, 1.0), 0.0)
     leave = (1 - burley_cdf(r_clip[..., None], d_w)) * per_sample[..., None] * (d_w * inv_dmax[..., None]) ** 2
+    channel = lambda a, c: a[..., c]
+    pix = {"row": frow.astype(dtype), "col": fcol.astype(dtype), "frow": frow, "fcol": fcol, "e": list(e), "z": z,
+           "dmax": d_max, "ppm": ppm, "inside": inside,
+           "d": [channel(d_w, c) for c in range(weight_channels)],
+           "inv_d": [channel(inv_d, c) for c in range(weight_channels)],
+           "ok_d": [channel(ok_d, c) for c in range(weight_channels)],
+           "leave": [channel(leave, c) for c in range(weight_channels)]}
+    return pix, active
+
+
+def pixel_planes(buffers, material, camera, prep, *, min_footprint_px: float, weight_channels: int, dtype,
+                 origin: tuple[int, int], frame_shape: tuple[int, int]) -> tuple[dict, Array]:
+    """``pixel_planes_at`` over the whole buffer (N = H W, flattened), and the active mask (H, W)."""
+    h, w = buffers.depth.shape
     flat = lambda a: a.reshape(h * w)
     rows = jnp.broadcast_to(jnp.arange(h, dtype=jnp.int32)[:, None], (h, w)) + origin[0]
     cols = jnp.broadcast_to(jnp.arange(w, dtype=jnp.int32)[None, :], (h, w)) + origin[1]
-    pix = {"row": flat(rows).astype(dtype), "col": flat(cols).astype(dtype), "frow": flat(rows), "fcol": flat(cols),
-           "e": [flat(prep.irradiance[..., c]) for c in range(3)], "z": flat(prep.depth), "dmax": flat(d_max),
-           "ppm": flat(ppm), "inside": flat(inside),
-           "d": [flat(d_w[..., c]) for c in range(weight_channels)],
-           "inv_d": [flat(inv_d[..., c]) for c in range(weight_channels)],
-           "ok_d": [flat(ok_d[..., c]) for c in range(weight_channels)],
-           "leave": [flat(leave[..., c]) for c in range(weight_channels)]}
-    return pix, active
+    pix, active = pixel_planes_at(material, camera, e=[flat(prep.irradiance[..., c]) for c in range(3)],
+                                  z=flat(prep.depth), valid=flat(prep.valid), rows=flat(prep.rows), frow=flat(rows),
+                                  fcol=flat(cols), min_footprint_px=min_footprint_px,
+                                  weight_channels=weight_channels, dtype=dtype, frame_shape=frame_shape)
+    return pix, active.reshape(h, w)
 
 
 # The planes ``fetch`` reads are the buffer's padded by this many pixels of no surface (depth 0) on every side: a
@@ -187,8 +201,16 @@ def fetch_planes(pix: dict, buffer_shape: tuple[int, int]) -> list[Array]:
     gather of 4-wide rows in the pass, and a gather of each footprint's 2 x 2 x 4 window of a packed (H, W, 4) array,
     4x faster than the 16 scalar gathers alone, is fused into the kernels that read it, which then do not vectorise
     (the pass ran 1.6x slower, 2026-12-02)."""
+    return [plane.reshape(-1) for plane in padded_planes(pix, buffer_shape)]
+
+
+def padded_planes(pix: dict, buffer_shape: tuple[int, int]) -> list[Array]:
+    """``fetch_planes`` before the flattening: four ``(H + 2 FETCH_PAD, W + 2 FETCH_PAD)`` planes. A computation
+    that returns them so, for another to flatten (a bitcast), pads ~3-10x faster on XLA's CPU backend: fused with the
+    flattening, the pad runs as a loop over the flat index (a division per element, not vectorised), and once per
+    consumer (the loop's fetches, the compaction's reads)."""
     h, w = buffer_shape
-    return [jnp.pad(plane.reshape(h, w), FETCH_PAD).reshape(-1) for plane in (*pix["e"], pix["z"])]
+    return [jnp.pad(plane.reshape(h, w), FETCH_PAD) for plane in (*pix["e"], pix["z"])]
 
 
 def sample_place(i: Array | int, samples: int, cos_phi: Array, sin_phi: Array, pix: dict, *,
@@ -283,7 +305,10 @@ def sample_weights(place: dict, pix: dict, *, mm_per_unit: Array, interpolation:
     ok = z_q > 0  # validity travels in the depth (0 where a pixel takes no part, and in the padding)
     v_q = jnp.where(ok, frac, 0.0)
     dz_mm = jnp.where(ok, (z_q - pix["z"][None]) * mm_per_unit, 0.0)
-    r3 = _safe_sqrt((r_mm * r_mm)[None] + dz_mm * dz_mm)
+    # the distance floored at 1e-15 mm (a square of 1e-30, a normal float32) rather than ``_safe_sqrt``'s double
+    # where: the same value wherever the kernel is not 0 anyway (r = 0 only with d_max = 0), a finite gradient at
+    # r = 0, and XLA then reads the root's result in the kernel instead of recomputing its argument there
+    r3 = jnp.sqrt(jnp.maximum((r_mm * r_mm)[None] + dz_mm * dz_mm, 1e-30))
     base = v_q * (inv_pdf[None] if jnp.ndim(inv_pdf) else inv_pdf)
     channels = lambda key: jnp.stack(pix[key])  # (weight_channels, N)
     d, inv_d, ok_d = channels("d"), channels("inv_d"), channels("ok_d")
