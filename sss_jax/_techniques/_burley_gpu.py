@@ -117,6 +117,18 @@ def sample_loop(pix: dict, fetch, *, frames: int, seed: Array, pattern: str, rot
     return frames_mean(lambda k: frame_result(pix, fetch, *turn(k), **kw), frames, jnp.zeros_like(pix["z"]))
 
 
+def layout_result(pix: dict, fetch, active: Array, truncate: bool | None, **kw) -> list[Array]:
+    """``sample_loop`` over a layout's pixels (``kw``: its options but ``parts``, which follows the pixels' count),
+    the truncation decided on the host (``truncate`` a bool) or on the device (``None``: a ``lax.cond`` on the widest
+    profile among the ``active`` pixels)."""
+    kw["parts"] = cpu_parts(pix["z"].shape[0])
+    if truncate is None:
+        return jax.lax.cond(needs_truncation_on_device(pix, active),
+                            lambda: sample_loop(pix, fetch, truncate=True, **kw),
+                            lambda: sample_loop(pix, fetch, truncate=False, **kw))
+    return sample_loop(pix, fetch, truncate=truncate, **kw)
+
+
 def frame_pixels(buffers: Buffers, material: BurleyMaterial, camera: Camera, albedo_mode: str,
                  min_footprint_px: float, weight_channels: int, origin: tuple[int, int],
                  frame_shape: tuple[int, int] | None):
@@ -217,16 +229,10 @@ def _compacted_result(buffers: Buffers, material: BurleyMaterial, camera: Camera
     prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
     flat = [plane.reshape(-1) for plane in planes]
     fetch = lambda at: [jnp.take(plane, at, mode="clip") for plane in flat]
-    kw = dict(samples=samples, frames=frames, seed=seed, pattern=pattern, border=border, rotation=rotation,
-              parts=cpu_parts(pix["z"].shape[0]), weight_channels=weight_channels, buffer_shape=(h, w),
-              origin=origin, frame_shape=frame_shape, mm_per_unit=camera.mm_per_unit.astype(dtype),
-              interpolation=interpolation)
-    if truncate is None:
-        wide = needs_truncation_on_device(pix, idx < h * w)
-        out = jax.lax.cond(wide, lambda: sample_loop(pix, fetch, truncate=True, **kw),
-                           lambda: sample_loop(pix, fetch, truncate=False, **kw))
-    else:
-        out = sample_loop(pix, fetch, truncate=truncate, **kw)
+    out = layout_result(pix, fetch, idx < h * w, truncate, samples=samples, frames=frames, seed=seed,
+                        pattern=pattern, border=border, rotation=rotation, weight_channels=weight_channels,
+                        buffer_shape=(h, w), origin=origin, frame_shape=frame_shape,
+                        mm_per_unit=camera.mm_per_unit.astype(dtype), interpolation=interpolation)
     # the active pixels are the slots': every other pixel is finished as its own (local) shading, and the slots'
     # finished values written over them (``_finish`` per pixel, so one pass over the frame instead of three)
     local = _finish(buffers, prep, prep.irradiance).reshape(h * w, 3)
@@ -242,24 +248,14 @@ def _gather_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, sam
                  frame_shape: tuple[int, int], planes: list[Array] | None = None) -> Array:
     """The gather layout: every pixel of the buffer, masked at the end, in one computation."""
     h, w = buffers.depth.shape
-    dtype = _work_dtype(buffers.irradiance.dtype)
-    prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
-    if planes is None:  # the whole buffer's; the indices are in range
-        planes = fetch_planes({"e": [prep.irradiance[..., c] for c in range(3)], "z": prep.depth}, (h, w))
-    else:
-        planes = [plane.reshape(-1) for plane in planes]
+    dtype, prep, frame_shape, pix, active = frame_pixels(buffers, material, camera, albedo_mode, min_footprint_px,
+                                                         weight_channels, origin, frame_shape)
+    # the whole buffer's planes (the indices are in range), or the host count's, flattened
+    planes = fetch_planes(pix, (h, w)) if planes is None else [plane.reshape(-1) for plane in planes]
     fetch = lambda at: [jnp.take(plane, at, mode="clip") for plane in planes]
-    pix, active = pixel_planes(buffers, material, camera, prep, min_footprint_px=min_footprint_px,
-                               weight_channels=weight_channels, dtype=dtype, origin=origin, frame_shape=frame_shape)
-    kw = dict(samples=samples, frames=frames, seed=seed, pattern=pattern, border=border,
-              parts=cpu_parts(pix["z"].shape[0]), weight_channels=weight_channels, buffer_shape=(h, w),
-              origin=origin, frame_shape=frame_shape, mm_per_unit=camera.mm_per_unit.astype(dtype),
-              interpolation=interpolation)
-    if truncate is None:
-        wide = needs_truncation_on_device(pix, active)
-        out = jax.lax.cond(wide, lambda: sample_loop(pix, fetch, truncate=True, **kw),
-                           lambda: sample_loop(pix, fetch, truncate=False, **kw))
-    else:
-        out = sample_loop(pix, fetch, truncate=truncate, **kw)
+    out = layout_result(pix, fetch, active, truncate, samples=samples, frames=frames, seed=seed, pattern=pattern,
+                        border=border, weight_channels=weight_channels, buffer_shape=(h, w), origin=origin,
+                        frame_shape=frame_shape, mm_per_unit=camera.mm_per_unit.astype(dtype),
+                        interpolation=interpolation)
     scattered = jnp.where(active[..., None], jnp.stack(out, axis=-1).reshape(h, w, 3), prep.irradiance)
     return _finish(buffers, prep, scattered)
