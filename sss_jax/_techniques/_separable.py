@@ -374,10 +374,7 @@ def _kernels_for(material, taps: int, dtype, kernel_groups) -> tuple[Array, Arra
     built = _built_kernels(material, taps, dtype, kernel_groups)
     if not _is_concrete(built):  # called while something traces (a jit around it): staged, not kept
         return built
-    if len(_KERNELS) > 64:  # a long fit over many parameters: keep it bounded
-        _KERNELS.clear()
-    _KERNELS[key] = built
-    return built
+    return _remember(_KERNELS, key, built, limit=64)  # a long fit over many parameters: bounded
 
 
 def separable(
@@ -523,10 +520,17 @@ def separable_edge_error(buffers: Buffers, material, camera: Camera, taps: int,
             if error > worst[0]:
                 worst = (error, reach_px, float(np.max(cells)))
     if memo_key is not None:
-        if len(_EDGE_ERRORS) > 256:  # many frames of varying depth: keep it bounded
-            _EDGE_ERRORS.clear()
-        _EDGE_ERRORS[memo_key] = worst
+        _remember(_EDGE_ERRORS, memo_key, worst)  # many frames of varying depth: bounded
     return worst
+
+
+def _remember(cache: dict, key, value, *, limit: int = 256):
+    """``value``, kept under ``key`` in one of the eager call's host caches, which empties once it holds more than
+    ``limit`` entries (a long fit over many parameters, or many frames of varying depth, keeps it bounded)."""
+    if len(cache) > limit:
+        cache.clear()
+    cache[key] = value
+    return value
 
 
 _EDGE_ERRORS: dict = {}
@@ -564,9 +568,7 @@ def _host_kernels(material, taps: int, *, with_key: bool = False):
         out = np.asarray(kernels.offsets_mm, np.float64), np.asarray(kernels.weights, np.float64)
         if key is None:
             return (None, out) if with_key else out
-        if len(_HOST_KERNELS) > 256:  # a long fit over many parameters: keep the cache bounded
-            _HOST_KERNELS.clear()
-        _HOST_KERNELS[key] = out
+        _remember(_HOST_KERNELS, key, out)  # a long fit over many parameters: bounded
     return (key, _HOST_KERNELS[key]) if with_key else _HOST_KERNELS[key]
 
 
@@ -585,10 +587,7 @@ def kernel_groups(material) -> tuple[int, ...] | None:
     groups: dict[bytes, int] = {}
     out = tuple(groups.setdefault(row.tobytes(), len(groups)) for row in key)
     out = out if len(groups) < len(out) else None
-    if len(_GROUPS) > 256:
-        _GROUPS.clear()
-    _GROUPS[memo] = out
-    return out
+    return _remember(_GROUPS, memo, out)
 
 
 _GROUPS: dict = {}
