@@ -336,8 +336,9 @@ def _largest_px(frame, camera: Camera, per_row_mm: np.ndarray, *, active_r99: fl
     per_row = per_row_mm.astype(np.float32)
     best = 0.0
     by_id = ids is not None and count > 1  # else every pixel takes the first row
+    rows = np.clip(ids - 1, 0, count - 1) if by_id else None
     for row in range(count if by_id else 1):
-        where = valid & (np.clip(ids - 1, 0, count - 1) == row) if by_id else valid
+        where = valid & (rows == row) if by_id else valid
         nearest = np.min(depth, where=where, initial=np.inf)
         if not np.isfinite(nearest):
             continue

@@ -28,6 +28,7 @@ import json
 import os
 import pathlib
 import socket
+import struct
 import tempfile
 import warnings
 from typing import Any, Callable, Iterator, Mapping
@@ -215,8 +216,6 @@ _EXR_LINES_PER_CHUNK = {0: 1, 1: 1, 2: 1, 3: 16, 4: 32, 5: 16, 6: 32, 7: 32, 8: 
 def _exr_chunk_table(data: bytes) -> tuple[int, int, int, int] | None:
     """``(first y, lines per chunk, chunks)`` and where the offset table starts, from a single-part scanline EXR's
     header (``None`` for any other layout: tiled, multi-part, deep, or a header this reader does not follow)."""
-    import struct
-
     if len(data) < 8 or data[:4] != b"\x76\x2f\x31\x01":
         return None
     flags = struct.unpack_from("<I", data, 4)[0]
@@ -245,8 +244,6 @@ def exr_chunks_complete(path: str | os.PathLike) -> bool:
     order, the last ending at the end of the file: what a write that lost data (a full disk, an I/O error, a
     truncation) cannot leave, checked from the file's bytes without decoding the pixels (~50x cheaper than
     ``exr_is_complete`` on a 256x256 frame). Other layouts (tiled, multi-part) are decoded (``exr_is_complete``)."""
-    import struct
-
     try:
         data = pathlib.Path(path).read_bytes()
     except OSError:
