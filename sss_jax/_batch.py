@@ -11,11 +11,14 @@
   far it reaches (``reach_px``: the tile halo), what it would warn about (``check``: sampling and window warnings)
   and what count the frame's footprint can use (the clamp, with the count run and a work estimate); it never tests
   a technique's name. Until the technique classes land, an adapter over the technique functions answers for them.
-- **frames**: one at a time, in a pipeline of three threads: the next frame is read (decoded, checked, its buffers
-  built) in a reader thread and the last frame's files are written in a writer thread while the current frame
-  computes in the main thread (OpenImageIO and XLA release the GIL); one frame in flight each way, so memory stays
-  bounded, and results, progress and the manifest keep the frames' order. On one device each frame is one call of
-  the technique as a single call runs it (its host-side work, compaction and checks included). On several devices
+- **frames**: in a pipeline of threads: the next frame is read (decoded, checked, its buffers built) in a reader
+  thread and the last frame's files are written in a writer thread while the current frame computes (OpenImageIO
+  and XLA release the GIL); one frame in flight each way, so memory stays bounded, and results, progress and the
+  manifest keep the frames' order. On one device each frame is one call of the technique as a single call runs it
+  (its host-side work, compaction and checks included); small frames (``OVERLAP_PIXELS``) whose shape and counts
+  have compiled compute ``COMPUTE_THREADS`` at a time in compute threads (one call leaves a small frame's cores idle
+  part of the time), each call's warnings kept for its frame (``_CallWarnings``); the rest compute in the main
+  thread, alone. On several devices
   frames are grouped by (shape, buffers present, counts); each full group of ``len(devices)`` frames is stacked
   along a leading axis sharded over the devices (``NamedSharding(Mesh(devices, ("frames",)), P("frames"))``) and
   processed by one jitted, vmapped call, with the checks run on the host first.
@@ -50,6 +53,7 @@ Across hosts, each process calls ``jax.distributed.initialize()`` first and then
 
 from __future__ import annotations
 
+import collections
 import concurrent.futures
 import contextlib
 import ctypes
@@ -111,6 +115,16 @@ PIECES_PER_BOUND = 4
 SPREAD_CALLS = 4
 # Progress inside a frame: one line at most this often (seconds), for a frame that runs in several calls.
 PROGRESS_EVERY_S = 2.0
+# Frames of at most this many pixels that run as one call on one device compute COMPUTE_THREADS at a time, each in a
+# thread of its own: one call leaves a small frame's cores idle part of the time (its host-side work, Burley's count
+# and compaction, the loop's start and end, the threads' hand-offs), which the other frame's call fills. The
+# technique called on the same frames one after another, and two at a time in two threads (2026-12-02, 2 cores, load
+# ~1): Burley 32 at 256x256 8.1 -> 6.2 ms a frame, at 640x360 36.2 -> 30.1 ms; separable 25 at 256x256 5.3 -> 3.5 ms;
+# at 1920x1080 two at a time are slower (Burley 469 -> 545 ms a frame: the two working sets leave the caches), so
+# larger frames compute one at a time, as do tiles and pieces (their calls are long already) and a frame whose
+# shape, counts and calls have not run yet (it compiles, alone).
+OVERLAP_PIXELS = 1 << 18
+COMPUTE_THREADS = 2
 # Footprint pixels of the reach of the techniques' own checks (the 99%-energy footprint below which a pixel keeps
 # its local shading, MIN_FOOTPRINT_PX in the techniques)
 _MIN_FOOTPRINT_PX = 0.5
@@ -971,11 +985,19 @@ class _Cost:
     def source(self, tech) -> str:
         return "measured on this batch's frames" if self.ratio else "the technique's cost per pixel on a 2-core CPU"
 
+    @staticmethod
+    def key(tech, shape: tuple[int, ...], calls: int) -> tuple:
+        return tuple(shape), calls, _count_text(tech)
+
+    def has_run(self, tech, shape: tuple[int, ...], calls: int) -> bool:
+        """Whether a frame of this shape, counts and calls has run (compiled) in this batch."""
+        return self.key(tech, shape, calls) in self.seen
+
     def measured(self, tech, pixels: int, seconds: float, *, shape: tuple[int, ...] = (), calls: int = 1) -> None:
         """Learn from a frame's seconds, except the first frame of each shape, counts and calls: it compiled (a 256x256
         Burley frame: ~1 s of compile against ~10 ms of work), and taken as work it made the next frames run in
         pieces, compiling again."""
-        key = (tuple(shape), calls, _count_text(tech))
+        key = self.key(tech, shape, calls)
         if key not in self.seen:
             self.seen.add(key)
             return
@@ -997,13 +1019,48 @@ def _material_count(material) -> int:
     return int(getattr(material, "count", 1))
 
 
-def _run_whole(tech, buffers, material, camera) -> tuple[Any, list[str]]:
+class _CallWarnings:
+    """The technique warnings of each call, kept for the frame it computes, in whichever thread computes it.
+    ``warnings.catch_warnings`` swaps process-wide state, so two frames computing at once could not each use it: this
+    is installed once for the run (``installed``, in the main thread), and each call records into a list of its own
+    thread's (``call``). Warnings raised outside a call (the main thread's, where it says a frame's warnings to the
+    user) go where they went before; while the run goes, the technique warnings are always shown or recorded (a
+    call records them for every frame; the batch says each once, ``_Warnings``)."""
+
+    def __init__(self):
+        self.local = threading.local()
+
+    @contextlib.contextmanager
+    def installed(self):
+        with warnings.catch_warnings():
+            previous = warnings.showwarning
+
+            def show(message, category, filename, lineno, file=None, line=None):
+                caught = getattr(self.local, "caught", None)
+                if caught is None:
+                    previous(message, category, filename, lineno, file, line)
+                elif issubclass(category, _TECHNIQUE_WARNINGS):  # a call's other warnings are not the frame's
+                    caught.append(str(message))
+
+            warnings.showwarning = show
+            for category in _TECHNIQUE_WARNINGS:
+                warnings.simplefilter("always", category)
+            yield self
+
+    def call(self, fn: Callable, *args) -> tuple[Any, list[str]]:
+        """``fn(*args)`` and the technique warnings it raised (in this thread)."""
+        self.local.caught = []
+        try:
+            out = fn(*args)
+        finally:
+            caught, self.local.caught = self.local.caught, None
+        return out, caught
+
+
+def _run_whole(tech, buffers, material, camera, recorder: _CallWarnings) -> tuple[Any, list[str]]:
     """One frame, as a single call of the technique runs it; its own warnings are the frame's. The result is the
     call's array, perhaps still computing (JAX dispatches asynchronously): ``np.asarray`` waits for it."""
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", UserWarning)
-        out = tech(buffers, material, camera)
-    return out, [str(w.message) for w in caught if issubclass(w.category, _TECHNIQUE_WARNINGS)]
+    return recorder.call(tech, buffers, material, camera)
 
 
 _TRACES = [0]
@@ -1138,6 +1195,18 @@ def _camera(frame: Frame) -> Camera:
     return Camera(frame.focal_px, frame.mm_per_unit if frame.mm_per_unit is not None else 1.0)
 
 
+@dataclasses.dataclass
+class _Computing:
+    """A frame computing in a compute thread: what its write needs, and the future of its image."""
+
+    job: _Job
+    plan: _FramePlan
+    camera: Camera
+    shape: tuple[int, int]
+    read_s: float
+    future: concurrent.futures.Future
+
+
 class _Batch:
     """One run's state: the technique and material, the records, the manifest, the results, the progress."""
 
@@ -1155,6 +1224,9 @@ class _Batch:
         self.writer: concurrent.futures.ThreadPoolExecutor | None = None  # writes the last frame's files
         self.ahead: tuple[_Job, concurrent.futures.Future] | None = None
         self.in_flight: tuple[_Job, FrameResult, concurrent.futures.Future] | None = None
+        self.computer: concurrent.futures.ThreadPoolExecutor | None = None  # small frames, COMPUTE_THREADS at once
+        self.computing: collections.deque[_Computing] = collections.deque()  # in the frames' order
+        self.call_warnings = _CallWarnings()
         self.records: dict[_Job, tuple[dict[str, str], str]] = {}
         self.seeded = _has_seed(tech)
         self.tiles_allowed = True
@@ -1181,7 +1253,12 @@ class _Batch:
 
     # -- results
     def finish(self, r: FrameResult) -> None:
-        self.collect()  # the frame in flight first: results and manifest in the frames' order
+        self.settle()  # the frames computing and the frame in flight first: results and manifest in the frames' order
+        self.collect()
+        self.append(r)
+
+    def append(self, r: FrameResult) -> None:
+        """A frame's result recorded (the frames before it are)."""
         with self.signals.critical():  # a skipped or failed frame's entry too: the manifest never lags the results
             self.results.append(r)
             self.book.record(r)
@@ -1265,11 +1342,12 @@ class _Batch:
 
     def close(self) -> None:
         """The frame in flight collected and the threads ended (also when the run is interrupted: what is on disk
-        is in the manifest)."""
+        is in the manifest; frames still computing then write nothing, as the frame a signal stops in the main
+        thread does)."""
         try:
             self.collect()
         finally:
-            for pool in (self.reader, self.writer):
+            for pool in (self.computer, self.reader, self.writer):
                 if pool is not None:
                     pool.shutdown(wait=True, cancel_futures=True)
 
@@ -1327,8 +1405,12 @@ class _Batch:
                 warned = [str(w) for w in plan.tech.check(buffers, self.material, camera)]
                 self.queue(job, buffers, camera, plan, warned, time.perf_counter() - t0)
                 return
+            if plan.calls == 1 and self.overlaps(plan, frame.shape):
+                self.start(job, plan, buffers, camera, frame.shape, time.perf_counter() - t0)
+                return
+            self.settle()  # alone: the frames computing are written first (their order), no compile beside them
             if plan.calls == 1:
-                image, warned = _run_whole(plan.tech, buffers, self.material, camera)
+                image, warned = _run_whole(plan.tech, buffers, self.material, camera, self.call_warnings)
             else:
                 warned = [str(w) for w in plan.tech.check(buffers, self.material, camera)]
                 try:
@@ -1350,9 +1432,49 @@ class _Batch:
         except (OSError, ValueError) as exc:
             self.fail(job, exc)
             return
-        seconds = time.perf_counter() - t0
-        self.cost.measured(plan.tech, frame.shape[0] * frame.shape[1], seconds, shape=frame.shape, calls=plan.calls)
+        self.computed(job, plan, camera, frame.shape, image, warned, time.perf_counter() - t0)
+
+    def computed(self, job: _Job, plan: _FramePlan, camera: Camera, shape: tuple[int, int], image: np.ndarray,
+                 warned: list[str], seconds: float) -> None:
+        """A computed frame: its seconds taught to the work estimate, its files handed to the writer."""
+        self.cost.measured(plan.tech, shape[0] * shape[1], seconds, shape=shape, calls=plan.calls)
         self.write(job, image, camera, plan.tech, seconds, plan.notes, warned)
+
+    def overlaps(self, plan: _FramePlan, shape: tuple[int, int]) -> bool:
+        """Whether this one-call frame computes beside others (``OVERLAP_PIXELS``): small, and its shape, counts
+        and calls have run (compiled) already."""
+        return (COMPUTE_THREADS > 1 and shape[0] * shape[1] <= OVERLAP_PIXELS
+                and self.cost.has_run(plan.tech, shape, plan.calls))
+
+    def start(self, job: _Job, plan: _FramePlan, buffers: Buffers, camera: Camera, shape: tuple[int, int],
+              read_s: float) -> None:
+        """The frame computed in a compute thread; the oldest computing frames settled while more than
+        ``COMPUTE_THREADS - 1`` wait (so at most that many compute beside the next frame's reading and planning)."""
+        if self.computer is None:
+            self.computer = concurrent.futures.ThreadPoolExecutor(COMPUTE_THREADS, thread_name_prefix="sss_jax-compute")
+        future = self.computer.submit(self.compute, plan.tech, buffers, camera)
+        self.computing.append(_Computing(job, plan, camera, shape, read_s, future))
+        self.settle(keep=COMPUTE_THREADS - 1)
+
+    def compute(self, tech, buffers: Buffers, camera: Camera) -> tuple[np.ndarray, list[str], float]:
+        """(In a compute thread.) The frame's image, its technique warnings and the call's seconds."""
+        t0 = time.perf_counter()
+        image, warned = _run_whole(tech, buffers, self.material, camera, self.call_warnings)
+        image = np.asarray(image)
+        return image, warned, time.perf_counter() - t0
+
+    def settle(self, keep: int = 0) -> None:
+        """The oldest frames computing in the compute threads, until ``keep`` are left: each waited for and handed
+        to the writer (its results in the frames' order), or failed."""
+        while len(self.computing) > keep:
+            c = self.computing.popleft()
+            try:
+                image, warned, seconds = c.future.result()
+            except (OSError, ValueError) as exc:
+                self.collect()
+                self.append(self.failure(c.job, exc))
+                continue
+            self.computed(c.job, c.plan, c.camera, c.shape, image, warned, c.read_s + seconds)
 
     def in_calls(self, job, frame, buffers, camera, plan, use_albedo) -> np.ndarray:
         """The frame as the plan's calls (tiles, each as the plan's pieces), with progress."""
@@ -1522,7 +1644,7 @@ def process_frames(
         return decided[k]
 
     try:
-        with signals:
+        with signals, run.call_warnings.installed():
             try:
                 for k, job in enumerate(jobs):
                     if skipped(k):
@@ -1531,6 +1653,7 @@ def process_frames(
                         continue
                     following = jobs[k + 1] if k + 1 < len(jobs) and not skipped(k + 1) else None
                     run.run(job, read_options, use_albedo_pass, int(tile_pixels), following)
+                run.settle()
                 run.flush_all()
             finally:
                 run.close()  # the last frame's files and entry (also when interrupted: the manifest is the disk)

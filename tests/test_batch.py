@@ -883,6 +883,59 @@ def test_the_technique_warnings_reach_the_user_once_and_the_manifest_per_frame(f
     assert r4.ok and all(any("5 taps" in w for w in f.warnings) for f in r4.frames)
 
 
+def test_small_frames_compute_two_at_a_time_in_order_and_a_failed_call_fails_its_frame_alone(frames, tmp_path,
+                                                                                           monkeypatch):
+    # one device, small frames of one shape: the first runs alone (it compiles), then COMPUTE_THREADS frames' calls
+    # run at once in the compute threads; the calls here linger, so overlapping calls show that they do; results,
+    # manifest and files keep the frames' order, the pixels are a one-at-a-time run's, and a frame whose call fails
+    # (in a compute thread) fails alone, named
+    import threading
+    import time
+
+    from sss_jax import _batch
+
+    src = five_frames(frames, tmp_path / "src")
+    sums = [float(_io.read_frame(src / f"f{i}.exr").irradiance.sum()) for i in range(5)]
+    spans, real = [], _batch._run_whole
+
+    def lingering(tech, buffers, material, camera, recorder):
+        k = int(np.argmin([abs(float(np.asarray(buffers.irradiance).sum()) - s) for s in sums]))
+        t0 = time.monotonic()
+        out = real(tech, buffers, material, camera, recorder)
+        np.asarray(out[0])
+        time.sleep(0.3)
+        spans.append((k, threading.current_thread().name, t0, time.monotonic()))
+        if k == 3:
+            raise ValueError("frame 3's call failed")
+        return out
+
+    monkeypatch.setattr(_batch, "_run_whole", lingering)
+    r = process_frames(str(src / "*.exr"), "burley", MAT, out_dir=tmp_path / "two", samples=4, progress=False,
+                       devices=jax.devices()[:1])
+    assert [pathlib.Path(f.input).name for f in r.frames] == [f"f{i}.exr" for i in range(5)]
+    assert [f.status for f in r.frames] == ["done", "done", "done", "failed", "done"]
+    assert "frame 3's call failed" in r.frames[3].message
+    book = json.loads((tmp_path / "two" / MANIFEST_NAME).read_text())
+    assert {pathlib.Path(f["input"]).name: f["status"] for f in book["frames"]} == {
+        f"f{i}.exr": "failed" if i == 3 else "done" for i in range(5)}
+    assert sorted(p.name for p in (tmp_path / "two").iterdir()) == sorted(
+        [MANIFEST_NAME] + [f"f{i}.exr" for i in (0, 1, 2, 4)])
+    overlap = lambda a, b: a[2] < b[3] and b[2] < a[3]
+    first = next(s for s in spans if s[0] == 0)
+    assert not any(overlap(first, s) for s in spans if s is not first)  # the compiling frame alone
+    assert any(overlap(a, b) and a[1] != b[1] for a in spans for b in spans if a[0] < b[0])
+    assert any(name.startswith("sss_jax-compute") for _, name, _, _ in spans)
+
+    monkeypatch.setattr(_batch, "COMPUTE_THREADS", 1)  # one at a time, in the main thread: the same pixels
+    spans.clear()
+    r1 = process_frames(str(src / "*.exr"), "burley", MAT, out_dir=tmp_path / "one", samples=4, progress=False,
+                        devices=jax.devices()[:1])
+    assert [f.status for f in r1.frames] == [f.status for f in r.frames]
+    assert not any(overlap(a, b) for a in spans for b in spans if a is not b)
+    for i in (0, 1, 2, 4):
+        np.testing.assert_array_equal(read_rgb(tmp_path / "two" / f"f{i}.exr"), read_rgb(tmp_path / "one" / f"f{i}.exr"))
+
+
 def test_frames_of_a_sequence_get_their_own_reproducible_rotation(frames, tmp_path):
     from sss_jax._batch import frame_number
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import warnings
 from typing import Callable
 
@@ -369,8 +370,9 @@ def _kernels_for(material, taps: int, dtype, kernel_groups) -> tuple[Array, Arra
     if base is None:
         return None
     key = (base, taps, np.dtype(dtype).name, kernel_groups)
-    if key in _KERNELS:
-        return _KERNELS[key]
+    known = _KERNELS.get(key)  # one read: another thread may empty the cache
+    if known is not None:
+        return known
     built = _built_kernels(material, taps, dtype, kernel_groups)
     if not _is_concrete(built):  # called while something traces (a jit around it): staged, not kept
         return built
@@ -500,8 +502,9 @@ def separable_edge_error(buffers: Buffers, material, camera: Camera, taps: int,
     key, (offsets, weights) = _host_kernels(material, taps, with_key=True)
     shape = tuple(buffers.depth.shape[-2:])
     memo_key = None if key is None else (key, shape, ppm, float(min_footprint_px))
-    if memo_key is not None and memo_key in _EDGE_ERRORS:
-        return _EDGE_ERRORS[memo_key]
+    known = None if memo_key is None else _EDGE_ERRORS.get(memo_key)  # one read: another thread may empty it
+    if known is not None:
+        return known
     reach_mm = np.max(np.abs(offsets), axis=-1)  # (M,)
     worst = (0.0, 0.0, 0.0)
     unit = spec.pass_unit_offsets(taps)
@@ -541,15 +544,15 @@ def _parameter_key(material):
     """Host side: a key naming a material's kernel parameters (type, shapes, bytes), or ``None`` where they are
     traced or the material has none: what the per-parameter caches of an eager call (host kernels, the pass's
     kernels, the sampling bound, the kernel groups) are keyed on."""
-    last = _LAST_KEY.get("material")
-    if last is not None and last is material:  # an eager call asks three times (groups, kernels, sampling bound)
-        return _LAST_KEY["key"]
+    last = _LAST_KEY.get("last")  # (material, key) in one slot: calls in two threads (a batch) never mix them
+    if last is not None and last[0] is material:  # an eager call asks three times (groups, kernels, sampling bound)
+        return last[1]
     params = material.kernel_parameters()
     if params is None or not _is_concrete(params):
         return None
     key = (type(material).__name__, tuple((np.shape(p), np.asarray(p).tobytes()) for p in params))
     if all(isinstance(p, jax.Array) for p in params):  # immutable: the key holds while the object lives (kept here)
-        _LAST_KEY.update(material=material, key=key)
+        _LAST_KEY["last"] = (material, key)
     return key
 
 
@@ -563,13 +566,13 @@ def _host_kernels(material, taps: int, *, with_key: bool = False):
     (``None`` where they are traced or the material has none)."""
     base = _parameter_key(material)
     key = None if base is None else (base, taps)
-    if key is None or key not in _HOST_KERNELS:
+    out = None if key is None else _HOST_KERNELS.get(key)  # one read: another thread may empty the cache
+    if out is None:
         kernels = material.separable_kernels(taps, jax.dtypes.canonicalize_dtype(jnp.float64))
         out = np.asarray(kernels.offsets_mm, np.float64), np.asarray(kernels.weights, np.float64)
-        if key is None:
-            return (None, out) if with_key else out
-        _remember(_HOST_KERNELS, key, out)  # a long fit over many parameters: bounded
-    return (key, _HOST_KERNELS[key]) if with_key else _HOST_KERNELS[key]
+        if key is not None:
+            _remember(_HOST_KERNELS, key, out)  # a long fit over many parameters: bounded
+    return (key, out) if with_key else out
 
 
 def kernel_groups(material) -> tuple[int, ...] | None:
@@ -582,7 +585,8 @@ def kernel_groups(material) -> tuple[int, ...] | None:
         return None
     memo = _parameter_key(material)
     if memo in _GROUPS:
-        return _GROUPS[memo]
+        with contextlib.suppress(KeyError):  # another thread may have emptied the cache since
+            return _GROUPS[memo]
     key = np.concatenate([np.asarray(p).reshape(np.shape(params[0])[0], -1) for p in params], axis=1)
     groups: dict[bytes, int] = {}
     out = tuple(groups.setdefault(row.tobytes(), len(groups)) for row in key)
