@@ -145,6 +145,42 @@ def test_grey_channels_share_one_kernel_evaluation():
     assert np.abs(shared - 0.9 * np.asarray(b.irradiance)[..., :1]).max() > 1e-3  # it did scatter
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_bilinear_fetch_reads_each_footprint_row_as_one_element(dtype):
+    # ``xla_fetch`` reads a bilinear footprint's two pixels of a row as one complex element (8 gathers per sample
+    # instead of 16): the values are those of one scalar gather per corner and plane, to the bit, the right neighbour
+    # of a row's last padded pixel included; the gradient too, to the rounding of its sums' order
+    from sss_jax._techniques._burley_spec import FETCH_PAD, xla_fetch
+
+    h, w = 5, 7
+    step = w + 2 * FETCH_PAD
+    size = (h + 2 * FETCH_PAD) * step
+    rng = np.random.default_rng(7)
+    planes = [jnp.asarray(rng.random(size).astype(dtype)) for _ in range(4)]
+    top_left = np.concatenate([rng.integers(0, size - step - 1, 40), [size - step - 2]])  # the last footprint too
+    idx = jnp.asarray(top_left, jnp.int32)
+    idx_q = jnp.stack([idx, idx + 1, idx + step, idx + step + 1])  # ``sample_fetch``'s corners
+    plain = lambda ps: [jnp.take(p, idx_q, mode="clip") for p in ps]
+    paired = lambda ps: xla_fetch(ps, "bilinear")(idx_q)
+    for got, want in zip(paired(planes), plain(planes)):
+        assert got.dtype == dtype
+        np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
+    weights = [jnp.asarray(rng.random((4, idx.size)).astype(dtype)) for _ in range(4)]
+    loss = lambda fetch: lambda ps: sum(jnp.sum(v * c) for v, c in zip(fetch(ps), weights))
+    eps = np.finfo(dtype).eps
+    for got, want in zip(jax.grad(loss(paired))(planes), jax.grad(loss(plain))(planes)):
+        np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=8 * eps, atol=8 * eps)
+    assert len(_equations(paired, planes, primitive="gather")) == 8  # 16 read one element each
+    assert len(_equations(lambda ps: xla_fetch(ps, "nearest")(idx_q[:1]), planes, primitive="gather")) == 4
+    # and the pass's sample loop reads through it: 8 gathers in the loop of a bilinear frame, not 16
+    b = _scene(coverage_rows=24)
+    frame = lambda interpolation: lambda bb: _burley_impl(bb, MAT, CAM, samples=8, albedo_mode="post",
+                                                          interpolation=interpolation, capacity=None,
+                                                          min_footprint_px=0.5, weight_channels=3, truncate=False)
+    gathers = lambda interpolation: len(_equations(frame(interpolation), b, primitive="gather"))
+    assert gathers("bilinear") - gathers("nearest") == 8 - 4
+
+
 def test_untruncated_frames_share_the_sample_radii():
     # a wide frame against a small d: the tail beyond the image diagonal is below TRUNCATION_ENERGY, so the per-pixel
     # truncated sampling and the shared radii give the same image; where the diagonal cuts the profile (large d) the

@@ -36,6 +36,7 @@ from ._burley_spec import (
     sample_fetch,
     sample_place,
     sample_weights,
+    xla_fetch,
 )
 from ._common import _finish, _material_rows, _prepare, _work_dtype
 
@@ -227,8 +228,7 @@ def _compacted_result(buffers: Buffers, material: BurleyMaterial, camera: Camera
     h, w = buffers.depth.shape
     dtype = _work_dtype(buffers.irradiance.dtype)
     prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
-    flat = [plane.reshape(-1) for plane in planes]
-    fetch = lambda at: [jnp.take(plane, at, mode="clip") for plane in flat]
+    fetch = xla_fetch([plane.reshape(-1) for plane in planes], interpolation)
     out = layout_result(pix, fetch, idx < h * w, truncate, samples=samples, frames=frames, seed=seed,
                         pattern=pattern, border=border, rotation=rotation, weight_channels=weight_channels,
                         buffer_shape=(h, w), origin=origin, frame_shape=frame_shape,
@@ -252,7 +252,7 @@ def _gather_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, sam
                                                          weight_channels, origin, frame_shape)
     # the whole buffer's planes (the indices are in range), or the host count's, flattened
     planes = fetch_planes(pix, (h, w)) if planes is None else [plane.reshape(-1) for plane in planes]
-    fetch = lambda at: [jnp.take(plane, at, mode="clip") for plane in planes]
+    fetch = xla_fetch(planes, interpolation)
     out = layout_result(pix, fetch, active, truncate, samples=samples, frames=frames, seed=seed, pattern=pattern,
                         border=border, weight_channels=weight_channels, buffer_shape=(h, w), origin=origin,
                         frame_shape=frame_shape, mm_per_unit=camera.mm_per_unit.astype(dtype),

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
@@ -202,6 +203,25 @@ def fetch_planes(pix: dict, buffer_shape: tuple[int, int]) -> list[Array]:
     4x faster than the 16 scalar gathers alone, is fused into the kernels that read it, which then do not vectorise
     (the pass ran 1.6x slower, 2026-12-02)."""
     return [plane.reshape(-1) for plane in padded_planes(pix, buffer_shape)]
+
+
+def xla_fetch(planes: list[Array], interpolation: str):
+    """``fetch`` for the XLA layouts, over the flattened ``fetch_planes``: ``fetch(idx_q)`` gives R, G, B and depth
+    at ``sample_fetch``'s indices. For a bilinear footprint each plane is read as pairs of horizontal neighbours, one
+    complex element per footprint row (real part: the pixel, imaginary part: its right neighbour, which the padding
+    keeps inside the plane): 8 gathers per sample instead of 16, the same values bit for bit. XLA's CPU gathers cost
+    per element, not per byte: the default pass at 640x360 took ~0.92 of its time (2026-12-02, side by side). The
+    pairs are built once per call, outside the sample loop."""
+    if interpolation != "bilinear":
+        return lambda idx: [jnp.take(plane, idx, mode="clip") for plane in planes]
+    pairs = [jax.lax.complex(plane, jnp.concatenate([plane[1:], plane[-1:]])) for plane in planes]
+
+    def fetch(idx_q: Array) -> list[Array]:
+        top, bottom = idx_q[0], idx_q[2]  # corners 1 and 3 are their right neighbours (``sample_fetch``)
+        rows = [(jnp.take(pair, top, mode="clip"), jnp.take(pair, bottom, mode="clip")) for pair in pairs]
+        return [jnp.stack([jnp.real(t), jnp.imag(t), jnp.real(b), jnp.imag(b)]) for t, b in rows]
+
+    return fetch
 
 
 def padded_planes(pix: dict, buffer_shape: tuple[int, int]) -> list[Array]:

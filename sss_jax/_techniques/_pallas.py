@@ -26,7 +26,7 @@ from jaxtyping import Array
 from .._materials import BurleyMaterial
 from .._scene import Buffers, Camera
 from ._burley_gpu import frame_pixels, frame_result, frames_mean, needs_truncation_on_device
-from ._burley_spec import fetch_planes, frame_rotation
+from ._burley_spec import fetch_planes, frame_rotation, xla_fetch
 from ._common import _finish
 from ._separable_gpu import gather_pass, pass_result, pass_tables
 from ._separable_spec import cell_edge
@@ -220,8 +220,7 @@ def _burley_fwd(pix, active, buffer_shape, origin, frame_shape, samples, mm_per_
 def _burley_bwd(buffer_shape, origin, frame_shape, samples, interpolation, weight_channels, truncate, border, block,
                 residuals, cotangent):
     def xla(pix, active, mm_per_unit):  # the gather layout of the same frame: its gradient is the forward's
-        planes = fetch_planes(pix, buffer_shape)
-        fetch = lambda idx: [jnp.take(plane, idx, mode="clip") for plane in planes]
+        fetch = xla_fetch(fetch_planes(pix, buffer_shape), interpolation)
         return frame_result(pix, fetch, pix["cos_phi"], pix["sin_phi"], samples=samples, truncate=truncate,
                             border=border, weight_channels=weight_channels, buffer_shape=buffer_shape, origin=origin,
                             frame_shape=frame_shape, mm_per_unit=mm_per_unit, interpolation=interpolation)
