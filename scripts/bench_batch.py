@@ -204,12 +204,12 @@ def large_run(args) -> int:
 
 
 def vs_pass(args) -> int:
+    from concurrent.futures import ThreadPoolExecutor
+
     import numpy as np
 
     import sss_jax as sj
     from sss_jax import _io
-    from concurrent.futures import ThreadPoolExecutor
-
     from sss_jax._batch import COMPUTE_THREADS, process_frames
     from sss_jax._demo import demo_burley_material
 
