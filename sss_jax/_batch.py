@@ -1260,9 +1260,13 @@ class _Batch:
     def append(self, r: FrameResult) -> None:
         """A frame's result recorded (the frames before it are)."""
         with self.signals.critical():  # a skipped or failed frame's entry too: the manifest never lags the results
-            self.results.append(r)
-            self.book.record(r)
+            self.record_result(r)
         self.report(r)
+
+    def record_result(self, r: FrameResult) -> None:
+        """(Inside a critical section.) The result in the run's results and the manifest."""
+        self.results.append(r)
+        self.book.record(r)
 
     def report(self, r: FrameResult) -> None:
         if len(self.results) % 64 == 0:
@@ -1336,8 +1340,7 @@ class _Batch:
             self.in_flight = None
             if failed is not None:
                 r = self.failure(job, *failed)
-            self.results.append(r)
-            self.book.record(r)
+            self.record_result(r)
         self.report(r)
 
     def close(self) -> None:

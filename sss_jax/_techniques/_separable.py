@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
 import warnings
 from typing import Callable
 
@@ -584,9 +583,9 @@ def kernel_groups(material) -> tuple[int, ...] | None:
     if params is None or not _is_concrete(params) or np.ndim(params[0]) < 2 or np.shape(params[0])[0] < 2:
         return None
     memo = _parameter_key(material)
-    if memo in _GROUPS:
-        with contextlib.suppress(KeyError):  # another thread may have emptied the cache since
-            return _GROUPS[memo]
+    known = _GROUPS.get(memo, _GROUPS)  # one read (another thread may empty the cache); None is a cached answer
+    if known is not _GROUPS:
+        return known
     key = np.concatenate([np.asarray(p).reshape(np.shape(params[0])[0], -1) for p in params], axis=1)
     groups: dict[bytes, int] = {}
     out = tuple(groups.setdefault(row.tobytes(), len(groups)) for row in key)
