@@ -26,6 +26,7 @@ from ._burley_spec import spiral_rotation as spiral_rotation
 from ._common import (
     MIN_FOOTPRINT_PX,
     SamplingWarning,
+    _as_seed,
     _check_albedo_mode,
     _check_border,
     _is_concrete,
@@ -69,7 +70,7 @@ def _burley_active_mask(buffers: Buffers, material: BurleyMaterial, camera: Came
     """``_burley_active`` and the active mask itself (a device array, (H, W)), and with ``albedo_mode`` the padded
     fetch planes (``_burley_spec.padded_planes``, device arrays) too: what the compacted pass takes from the host's
     count instead of computing them a second time."""
-    count, widest, active, planes = _active_stats(buffers, material, camera, jnp.asarray(float(min_footprint_px)),
+    count, widest, active, planes = _active_stats(buffers, material, camera, np.asarray(float(min_footprint_px)),
                                                   albedo_mode)
     count, widest = jax.device_get((count, widest))
     return int(count), float(widest), active, planes
@@ -190,7 +191,7 @@ def burley(
         raise ValueError(f"frames must be a positive integer, got {frames!r}")
     if _is_concrete(seed) and not (np.ndim(seed) == 0 and float(seed) == int(seed) and 0 <= int(seed) < 2**32):
         raise ValueError(f"seed must be an integer in [0, 2**32), got {seed!r}")
-    seed = jnp.asarray(np.uint32(int(seed)) if _is_concrete(seed) else seed).astype(jnp.uint32)
+    seed = _as_seed(np.uint32(int(seed)) if _is_concrete(seed) else seed)
     h, w = buffers.depth.shape[-2:]
     origin, frame_shape = check_tile((h, w), origin, frame_shape)
     options = dict(pattern=pattern, border=border, frames=int(frames), interpolation=interpolation)

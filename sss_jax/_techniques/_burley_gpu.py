@@ -21,7 +21,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array
+from jaxtyping import Array, ArrayLike
 
 from .._materials import BurleyMaterial
 from .._scene import Buffers, Camera
@@ -38,7 +38,7 @@ from ._burley_spec import (
     sample_weights,
     xla_fetch,
 )
-from ._common import _finish, _material_rows, _prepare, _work_dtype
+from ._common import _as_seed, _finish, _material_rows, _prepare, _work_dtype
 
 
 def frame_result(pix: dict, fetch, cos_phi: Array, sin_phi: Array, *, samples: int, truncate: bool, border: str,
@@ -152,7 +152,7 @@ def needs_truncation_on_device(pix: dict, active: Array) -> Array:
 
 def _burley_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, samples: int, albedo_mode: str,
                  interpolation: str, capacity: int | None, min_footprint_px: float, weight_channels: int = 3,
-                 truncate: bool | None = None, pattern: str = "rotated", frames: int = 1, seed: Array | int = 0,
+                 truncate: bool | None = None, pattern: str = "rotated", frames: int = 1, seed: ArrayLike = 0,
                  border: str = "leaves", origin: tuple[int, int] = (0, 0),
                  frame_shape: tuple[int, int] | None = None, active: Array | None = None,
                  planes: list[Array] | None = None) -> Array:
@@ -161,7 +161,7 @@ def _burley_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, sam
     bool) or on the device (``None``). ``active`` (the active mask) and ``planes`` (``padded_planes``): where the
     host's count computed them already (``_burley._active_stats``); the compacted layout needs ``active``."""
     frame_shape = tuple(buffers.depth.shape) if frame_shape is None else tuple(frame_shape)
-    common = dict(pattern=pattern, frames=int(frames), seed=jnp.asarray(seed).astype(jnp.uint32), border=border,
+    common = dict(pattern=pattern, frames=int(frames), seed=_as_seed(seed), border=border,
                   origin=tuple(origin), frame_shape=frame_shape)
     if capacity is None:
         return _gather_impl(buffers, material, camera, samples, albedo_mode, interpolation, min_footprint_px,
@@ -177,7 +177,7 @@ def _burley_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, sam
         raise ValueError(f"capacity {capacity} holds fewer slots than the {where.size} active pixels")
     idx = np.full(capacity, h * w, np.int32)
     idx[:where.size] = where
-    idx = jnp.asarray(idx)
+    idx = jax.device_put(idx)  # a transfer, not an eager jnp dispatch
     pix, rotation = _compacted_planes(buffers, material, camera, idx, planes, min_footprint_px, weight_channels,
                                       truncate, **common)
     return _compacted_result(buffers, material, camera, pix, rotation, idx, planes, samples, albedo_mode,

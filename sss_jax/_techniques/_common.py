@@ -127,6 +127,14 @@ def _is_concrete(*trees) -> bool:
     return not any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(trees))
 
 
+def _as_seed(seed):
+    """A seed as the passes take it, uint32: a concrete one stays a NumPy value until a jitted call takes it (an
+    eager ``jnp`` conversion is a device dispatch of its own, ~0.1-0.3 ms of a call's host time), a traced one is
+    converted in its trace."""
+    if _is_concrete(seed):
+        return np.asarray(seed).astype(np.uint32)
+    return jnp.asarray(seed).astype(jnp.uint32)
+
 
 # Footprint below which a pixel keeps its local shading (px): the paper's Fig. 1, scattering narrower than a pixel
 # is invisible. The footprint is the radius holding 99% of the widest channel's energy, projected at the pixel.

@@ -21,7 +21,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jax.experimental import pallas as pl
-from jaxtyping import Array
+from jaxtyping import Array, ArrayLike
 
 from .._materials import BurleyMaterial
 from .._scene import Buffers, Camera
@@ -244,7 +244,7 @@ def burley_pallas_frame(pix: dict, active: Array, *, buffer_shape: tuple[int, in
 @eqx.filter_jit
 def burley_pallas_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, samples: int, albedo_mode: str,
                        interpolation: str, min_footprint_px: float, weight_channels: int = 3,
-                       pattern: str = "rotated", frames: int = 1, seed: Array | int = 0, border: str = "leaves",
+                       pattern: str = "rotated", frames: int = 1, seed: ArrayLike = 0, border: str = "leaves",
                        origin: tuple[int, int] = (0, 0), frame_shape: tuple[int, int] | None = None,
                        block: int = BLOCK) -> Array:
     """``burley``'s "pallas" formulation: the gather layout's frame as Pallas blocks, decided on the device."""
