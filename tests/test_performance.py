@@ -181,6 +181,36 @@ def test_bilinear_fetch_reads_each_footprint_row_as_one_element(dtype):
     assert gathers("bilinear") - gathers("nearest") == 8 - 4
 
 
+def test_rotation_cos_and_sin_come_from_a_table_not_a_per_pixel_trig_call():
+    # XLA's CPU backend calls libm per element for sin and cos (~1 ms of a 640x360 call): the rotation's cos and sin
+    # come from a 4096-angle table and the angle-sum formulas. Their values: NumPy's cos and sin of the documented
+    # angle (``spiral_rotation``: 2 pi times the hash's top 24 bits over 2^24) to a few float64 ulps, and to within
+    # two float32 ulps in float32
+    from sss_jax._techniques._burley_spec import _rotation_turn, frame_rotation, spiral_rotation, turn_cos_sin
+
+    rng = np.random.default_rng(5)
+    turn = np.concatenate([[0, 1, 4095, 4096, 1 << 23, (1 << 24) - 1], rng.integers(0, 1 << 24, 5000)])
+    angle = turn * (2 * np.pi / (1 << 24))
+    for dtype, tol in ((jnp.float64, 1e-15), (jnp.float32, 2 * np.finfo(np.float32).eps)):
+        c, s_ = turn_cos_sin(jnp.asarray(turn, jnp.uint32), dtype)
+        assert c.dtype == dtype and s_.dtype == dtype
+        np.testing.assert_allclose(np.asarray(c, np.float64), np.cos(angle), rtol=0, atol=tol)
+        np.testing.assert_allclose(np.asarray(s_, np.float64), np.sin(angle), rtol=0, atol=tol)
+    # the fixed pattern's frame 0 turns by nothing: exactly (1, 0)
+    c0, s0 = turn_cos_sin(jnp.zeros(3, jnp.uint32), jnp.float32)
+    assert np.all(np.asarray(c0) == 1) and np.all(np.asarray(s0) == 0)
+    # the pass's rotation is the documented angle's, and it is computed without sin or cos
+    rows, cols = jnp.arange(12)[:, None] * jnp.ones((1, 9), jnp.int32), jnp.ones((12, 1), jnp.int32) * jnp.arange(9)[None, :]
+    pix = {"frow": rows, "fcol": cols, "z": jnp.zeros((12, 9), jnp.float64)}
+    c, s_ = frame_rotation(pix, 3, jnp.uint32(7), pattern="rotated")
+    phi = np.asarray(spiral_rotation(rows, cols, 3, 7, dtype=jnp.float64))
+    np.testing.assert_allclose(np.asarray(c), np.cos(phi), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(np.asarray(s_), np.sin(phi), rtol=0, atol=1e-15)
+    assert np.array_equal(np.asarray(_rotation_turn(rows, cols, 3, 7)) * (2 * np.pi / (1 << 24)), phi)
+    rotation = lambda p: frame_rotation(p, 3, jnp.uint32(7), pattern="rotated")
+    assert not _equations(rotation, pix, primitive="sin") and not _equations(rotation, pix, primitive="cos")
+
+
 def test_untruncated_frames_share_the_sample_radii():
     # a wide frame against a small d: the tail beyond the image diagonal is below TRUNCATION_ENERGY, so the per-pixel
     # truncated sampling and the shared radii give the same image; where the diagonal cuts the profile (large d) the

@@ -109,7 +109,7 @@ def frames_mean(one_frame, frames: int, zeros: Array) -> list[Array]:
     return [t / frames for t in total]
 
 
-def sample_loop(pix: dict, fetch, *, frames: int, seed: Array, pattern: str, rotation=None, **kw) -> list[Array]:
+def sample_loop(pix: dict, fetch, *, frames: int, seed: ArrayLike, pattern: str, rotation=None, **kw) -> list[Array]:
     """The scattered channels over the layout's pixels, ``frames`` frames averaged (``frame_result``).
     ``rotation``: frame 0's ``frame_rotation``, where computed already (one frame only)."""
     if rotation is not None and frames != 1:
@@ -187,7 +187,7 @@ def _burley_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, sam
 @eqx.filter_jit
 def _compacted_planes(buffers: Buffers, material: BurleyMaterial, camera: Camera, idx: Array, planes: list[Array],
                       min_footprint_px: float, weight_channels: int, truncate: bool | None, *, pattern: str,
-                      frames: int, seed: Array, border: str, origin: tuple[int, int], frame_shape: tuple[int, int]):
+                      frames: int, seed: ArrayLike, border: str, origin: tuple[int, int], frame_shape: tuple[int, int]):
     """The compacted layout's first computation: the slots' per-pixel planes (``pixel_planes_at`` on the compacted
     pixels alone, not on the whole frame) and, for one frame, their rotation. ``idx``: each slot's pixel in the
     buffer (``H W`` in the unused slots, which hold pixels of no surface: they take part in nothing and are dropped
@@ -222,7 +222,7 @@ def _compacted_planes(buffers: Buffers, material: BurleyMaterial, camera: Camera
 @eqx.filter_jit
 def _compacted_result(buffers: Buffers, material: BurleyMaterial, camera: Camera, pix: dict, rotation, idx: Array,
                       planes: list[Array], samples: int, albedo_mode: str, interpolation: str, weight_channels: int,
-                      truncate: bool | None, *, pattern: str, frames: int, seed: Array, border: str,
+                      truncate: bool | None, *, pattern: str, frames: int, seed: ArrayLike, border: str,
                       origin: tuple[int, int], frame_shape: tuple[int, int]) -> Array:
     """The compacted layout's second computation: the sample loop over the slots, scattered back into the frame."""
     h, w = buffers.depth.shape
@@ -244,7 +244,7 @@ def _compacted_result(buffers: Buffers, material: BurleyMaterial, camera: Camera
 @eqx.filter_jit
 def _gather_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, samples: int, albedo_mode: str,
                  interpolation: str, min_footprint_px: float, weight_channels: int, truncate: bool | None, *,
-                 pattern: str, frames: int, seed: Array, border: str, origin: tuple[int, int],
+                 pattern: str, frames: int, seed: ArrayLike, border: str, origin: tuple[int, int],
                  frame_shape: tuple[int, int], planes: list[Array] | None = None) -> Array:
     """The gather layout: every pixel of the buffer, masked at the end, in one computation."""
     h, w = buffers.depth.shape

@@ -18,7 +18,7 @@ import math
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array
+from jaxtyping import Array, ArrayLike
 
 from .._checks import checked
 from .._kernels import spiral_sample
@@ -65,7 +65,7 @@ def _hash_u32(x: Array) -> Array:
     return x ^ (x >> 16)
 
 
-def _rotation_turn(rows: Array, cols: Array, frame: Array | int, seed: Array | int, *, per_pixel: bool = True) -> Array:
+def _rotation_turn(rows: Array, cols: Array, frame: ArrayLike, seed: ArrayLike, *, per_pixel: bool = True) -> Array:
     """``spiral_rotation``'s angle as an integer: the hash's top 24 bits, in units of 2^-24 of a turn (uint32)."""
     frame = jnp.asarray(frame).astype(jnp.uint32)
     seed = jnp.asarray(seed).astype(jnp.uint32)
@@ -80,7 +80,7 @@ def _rotation_turn(rows: Array, cols: Array, frame: Array | int, seed: Array | i
     return key >> 8
 
 
-def spiral_rotation(rows: Array, cols: Array, frame: Array | int, seed: Array | int, *, per_pixel: bool = True,
+def spiral_rotation(rows: Array, cols: Array, frame: ArrayLike, seed: ArrayLike, *, per_pixel: bool = True,
                     dtype=jnp.float32) -> Array:
     """Angle (radians, in [0, 2 pi)) by which pixel (``rows``, ``cols``: integer-valued arrays, frame coordinates)
     turns the golden-angle spiral in ``frame`` of a sequence, for ``seed``: a hash of the four, so neighbouring pixels
@@ -402,7 +402,7 @@ def normalise(num: list[Array], den: list[Array], e: list[Array]) -> list[Array]
     return out
 
 
-def frame_rotation(pix: dict, frame: Array | int, seed: Array, *, pattern: str) -> tuple[Array, Array]:
+def frame_rotation(pix: dict, frame: ArrayLike, seed: ArrayLike, *, pattern: str) -> tuple[Array, Array]:
     """cos and sin of each pixel's rotation of the spiral in ``frame`` (``spiral_rotation`` at frame coordinates,
     through ``turn_cos_sin``)."""
     turn = _rotation_turn(pix["frow"], pix["fcol"], frame, seed, per_pixel=pattern == "rotated")
