@@ -1192,7 +1192,15 @@ def _category(message: str) -> type[Warning]:
 
 
 def _camera(frame: Frame) -> Camera:
-    return Camera(frame.focal_px, frame.mm_per_unit if frame.mm_per_unit is not None else 1.0)
+    """The frame's camera: one ``Camera`` per (focal length, unit) and precision, shared by the frames of a sequence
+    (immutable; building one is device work: two conversions and two reads back)."""
+    return _camera_for(frame.focal_px, frame.mm_per_unit if frame.mm_per_unit is not None else 1.0,
+                       bool(jax.config.jax_enable_x64))
+
+
+@functools.lru_cache(maxsize=64)
+def _camera_for(focal_px, mm_per_unit, x64: bool) -> Camera:
+    return Camera(focal_px, mm_per_unit)
 
 
 @dataclasses.dataclass
