@@ -3,7 +3,9 @@
 For each technique and sample/tap count: compile time, median time per frame (``block_until_ready``), the compiled
 program's memory, and the error against ``reference`` on the demo scene and on test patterns. Peers timed on the
 same frames in the same run: OpenCV's ``sepFilter2D`` (plain separable filter with the same taps, not depth-aware),
-``filter2D`` (dense 25x25 kernel) and SciPy's ``fftconvolve``. Timings belong here, never in tests.
+``filter2D`` (dense 25x25 kernel) and SciPy's ``fftconvolve``. The goals' ratios (at ``ratio_resolution``) time
+their passes and peers side by side: rounds that run each of them once, in turn (``_timing.side_by_side``), so the
+machine's changes of speed during the run fall on both sides of a ratio. Timings belong here, never in tests.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ import numpy as np
 from ._cost import cost_per_pixel, frame_cost
 from ._metrics import rel_l2
 from ._sweep import as_counts, changed_options, run_label, technique_runs
-from ._timing import run_times, time_call
+from ._timing import run_times, side_by_side, time_call
 from ._demo import demo_burley_material
 from ._materials import BurleyMaterial, STAParams
 from ._scene import Buffers, Camera, demo_scene
@@ -179,20 +181,21 @@ def _front(base: list[dict]) -> list[dict]:
     return front
 
 
-def _peers(b: Buffers, repeats: int, cv2, fftconvolve) -> dict[str, float]:
-    """The peers' median times (s) on ``b``'s irradiance: OpenCV's separable and dense 25-tap filters, SciPy's FFT."""
+def _peer_fns(b: Buffers, cv2, fftconvolve) -> dict[str, Callable[[], Any]]:
+    """The peers on ``b``'s irradiance: OpenCV's separable and dense 25-tap filters, SciPy's FFT (none without cv2)."""
     if cv2 is None:
         return {}
     img = np.ascontiguousarray(np.asarray(b.irradiance, np.float32))
     k25, k_dense = _peer_kernels()
+    return {"cv2.sepFilter2D_25": lambda: cv2.sepFilter2D(img, -1, k25, k25),
+            "cv2.filter2D_25x25": lambda: cv2.filter2D(img, -1, k_dense),
+            "scipy.fftconvolve_25x25": lambda: fftconvolve(img, k_dense[..., None], mode="same", axes=(0, 1))}
+
+
+def _peers(b: Buffers, repeats: int, cv2, fftconvolve) -> dict[str, float]:
+    """The peers' median times (s) on ``b``'s irradiance (``_peer_fns``)."""
     # the peers take milliseconds: more repeats cost little and steady the ratios' denominators
-    peer_repeats = max(repeats, 11)
-    return {
-        "cv2.sepFilter2D_25": _median_time(lambda: cv2.sepFilter2D(img, -1, k25, k25), peer_repeats),
-        "cv2.filter2D_25x25": _median_time(lambda: cv2.filter2D(img, -1, k_dense), peer_repeats),
-        "scipy.fftconvolve_25x25": _median_time(
-            lambda: fftconvolve(img, k_dense[..., None], mode="same", axes=(0, 1)), peer_repeats),
-    }
+    return {name: _median_time(fn, max(repeats, 11)) for name, fn in _peer_fns(b, cv2, fftconvolve).items()}
 
 
 def _peer_kernels() -> tuple[np.ndarray, np.ndarray]:
@@ -353,16 +356,24 @@ def run_bench(*, quick: bool = False, repeats: int = 3, progress: Callable[[str]
     b, cam = scene.buffers, scene.camera
     img = np.ascontiguousarray(np.asarray(b.irradiance, np.float32))
     k25, _ = _peer_kernels()
-    peer_repeats = max(repeats, 11)
-    peers = _peers(b, repeats, cv2, fftconvolve)
-    peer = lambda name: peers.get(name, float("nan"))
+    peer_fns = _peer_fns(b, cv2, fftconvolve)
     planar, k25_jax = jnp.asarray(np.moveaxis(img, -1, 0)), jnp.asarray(k25[:, 0])
-    _, t_xla_plain = _compile_and_time(lambda: xla_plain_separable(planar, k25_jax), peer_repeats)
-    # the ratios' passes with the options given (a count given is the grid's: the ratios keep 25 taps, 32 samples)
-    c_sep, t_sep = _compile_and_time(lambda: separable(b, mat, cam, taps=25, **opt("separable")), repeats)
-    c_bur, t_bur = _compile_and_time(lambda: burley(b, mat, cam, samples=32, **opt("burley")), repeats)
-    # the point-fetch lever (HDRP's): a quarter of the fetches and kernel evaluations, side by side with the default
-    _, t_bur_nearest = _compile_and_time(lambda: burley(b, mat, cam, samples=32, interpolation="nearest"), repeats)
+    # the ratios' numerators and denominators timed side by side (rounds that run each once, in turn): a change in
+    # the machine's speed during the run falls on both sides of a ratio. The passes take the options given (a count
+    # given is the grid's: the ratios keep 25 taps, 32 samples); the point-fetch lever (HDRP's: a quarter of the
+    # fetches and kernel evaluations) beside the default
+    side, first = side_by_side({
+        **peer_fns,
+        "xla_plain": lambda: xla_plain_separable(planar, k25_jax),
+        "separable": lambda: separable(b, mat, cam, taps=25, **opt("separable")),
+        "burley": lambda: burley(b, mat, cam, samples=32, **opt("burley")),
+        "burley_nearest": lambda: burley(b, mat, cam, samples=32, interpolation="nearest"),
+    }, rounds=max(repeats, 11), warmup=WARMUP_RUNS)
+    peers = {name: side[name] for name in peer_fns}
+    peer = lambda name: peers.get(name, float("nan"))
+    t_xla_plain, t_sep, t_bur, t_bur_nearest = (side[k] for k in ("xla_plain", "separable", "burley",
+                                                                  "burley_nearest"))
+    c_sep, c_bur = first["separable"], first["burley"]
     # 10% coverage: the same frame with SSS on a tenth of the pixels (a band of rows) against SSS on all of them;
     # the background gets a far wall (depth 80) so that every pixel has a surface and the fractions are exact
     wall = jnp.where(jnp.isfinite(b.depth), b.depth, 80.0)

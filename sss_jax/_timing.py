@@ -4,11 +4,11 @@
 from __future__ import annotations
 
 import time
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
-__all__ = ["run_times", "time_call"]
+__all__ = ["run_times", "side_by_side", "time_call"]
 
 
 def _wait(out: Any) -> Any:
@@ -39,3 +39,29 @@ def time_call(fn: Callable[[], Any], repeats: int, warmup: int = 0) -> tuple[np.
     times = run_times(fn, repeats)
     seconds = float(np.median(times)) if times else first
     return np.asarray(out), seconds, max(first - seconds, 0.0)
+
+
+def side_by_side(fns: Mapping[str, Callable[[], Any]], rounds: int, warmup: int = 0) -> tuple[dict[str, float],
+                                                                                           dict[str, float]]:
+    """``(seconds, first_extra)`` by name: the median wall time of each function over ``rounds`` rounds, each of
+    which runs every function once in turn, and how much longer each one's first run took (compilation). Timed so,
+    a change in the machine's speed during the run (another job, the clock) falls on all of them alike and their
+    ratios keep it out: timed one after another, the ratios of a shared 2-core machine swung 1.5x between two runs of
+    the same tree. ``warmup``: untimed rounds after the first runs (an XLA:CPU executable's first runs after its
+    compilation are slower than its steady state)."""
+    first = {}
+    for name, fn in fns.items():
+        t0 = time.perf_counter()
+        _wait(fn())
+        first[name] = time.perf_counter() - t0
+    for _ in range(warmup):
+        for fn in fns.values():
+            _wait(fn())
+    times: dict[str, list[float]] = {name: [] for name in fns}
+    for _ in range(rounds):
+        for name, fn in fns.items():
+            t0 = time.perf_counter()
+            _wait(fn())
+            times[name].append(time.perf_counter() - t0)
+    seconds = {name: float(np.median(t)) for name, t in times.items()}
+    return seconds, {name: max(first[name] - seconds[name], 0.0) for name in fns}
