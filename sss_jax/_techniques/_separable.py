@@ -440,8 +440,8 @@ def separable(
     ``Separable.reach_px`` gives the frame's pixels with "gather"/"pallas"; with "banded" only where the tile holds
     each material's least and largest reach in the frame (its levels are its buffer's), so "auto" on a CPU refuses a
     tile ("cannot place a tile": a batch runs such frames whole) rather than give other pixels than the frame. Host
-    work per eager call of "banded": the sampling check (``separable_edge_error``: the frame's nearest depth read
-    back, the bound kept per kernels, shape and nearest depth) and ``kernel_groups``; the kernels are built once per material
+    work per eager call of "banded": the sampling check (``separable_edge_error``: NumPy over the depth and ids, the
+    bound kept per kernels, shape and nearest depth) and ``kernel_groups``; the kernels are built once per material
     parameters and taps (traced parameters build them inside the pass); the whole-frame layouts read nothing back.
     """
     _check_border(border)
@@ -488,10 +488,13 @@ def separable_edge_error(buffers: Buffers, material, camera: Camera, taps: int,
     the kernel's, as a fraction of the edge's contrast. A tap stands for the kernel's mass over its cell; with linear
     fetches a cell up to a pixel wide is resolved, a wider one moves its whole mass at once as the edge crosses it, by
     up to ``w_i (1 - 1 / cell_i) / 2`` (half way across, on average); the largest over the taps of either pass (after
-    ``frame_truncation``), is the bound. NumPy throughout but the nearest depth (one reduction on the device,
-    ``_nearest_depth``); the bound is kept per kernels, frame shape and nearest depth (an eager call of the same
-    material on the next frame reads its nearest depth, nothing more)."""
-    nearest = float(_nearest_depth(buffers.depth, buffers.material_id))
+    ``frame_truncation``), is the bound. NumPy throughout; the bound is kept per kernels, frame shape and nearest
+    depth (an eager call of the same material on the next frame reads its depth and ids, nothing more)."""
+    depth = np.asarray(buffers.depth)  # the buffer's own type: its least valid depth is one of its values
+    valid = np.isfinite(depth) & (depth > 0)
+    if buffers.material_id is not None:
+        valid &= np.asarray(buffers.material_id) > 0
+    nearest = float(np.min(depth, where=valid, initial=np.inf))
     if not np.isfinite(nearest):
         return 0.0, 0.0, 0.0
     ppm = float(camera.focal_px) / (nearest * float(camera.mm_per_unit))
@@ -521,17 +524,6 @@ def separable_edge_error(buffers: Buffers, material, camera: Camera, taps: int,
     if memo_key is not None:
         _remember(_EDGE_ERRORS, memo_key, worst)  # many frames of varying depth: bounded
     return worst
-
-
-@jax.jit
-def _nearest_depth(depth: Array, material_id: Array | None) -> Array:
-    """The least valid depth (finite, > 0, material id > 0 where ids are given), in the buffer's own type (so one of
-    its values), +inf where none: one reduction on the device and a scalar read, instead of reading the frame's depth
-    and ids back for NumPy (~0.5 ms of an eager 640x360 call)."""
-    valid = jnp.isfinite(depth) & (depth > 0)
-    if material_id is not None:
-        valid &= material_id > 0
-    return jnp.min(jnp.where(valid, depth, jnp.inf))
 
 
 def _remember(cache: dict, key, value, *, limit: int = 256):
