@@ -85,19 +85,18 @@ class Frame:
 
     def to_buffers(self, *, use_albedo: bool = True):
         """The frame as ``sss_jax.Buffers`` (``use_albedo=False`` drops the albedo buffer so materials decide)."""
-        import jax
+        import jax.numpy as jnp
 
         from ._scene import Buffers
 
-        # transfers (device_put), not eager jnp conversions: each of those is a device dispatch of its own
-        opt = lambda a: None if a is None else jax.device_put(a)
+        opt = lambda a: None if a is None else jnp.asarray(a)
         return Buffers(
-            irradiance=jax.device_put(self.irradiance),
-            depth=jax.device_put(self.depth),
+            irradiance=jnp.asarray(self.irradiance),
+            depth=jnp.asarray(self.depth),
             albedo=opt(self.albedo) if use_albedo else None,
             normal=opt(self.normal),
             thickness=opt(self.thickness),
-            material_id=None if self.material_id is None else jax.device_put(np.asarray(self.material_id, np.int32)),
+            material_id=None if self.material_id is None else jnp.asarray(self.material_id, dtype=jnp.int32),
         )
 
 

@@ -177,7 +177,7 @@ def _burley_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, sam
         raise ValueError(f"capacity {capacity} holds fewer slots than the {where.size} active pixels")
     idx = np.full(capacity, h * w, np.int32)
     idx[:where.size] = where
-    idx = jax.device_put(idx)  # a transfer, not an eager jnp dispatch
+    idx = jnp.asarray(idx)
     pix, rotation = _compacted_planes(buffers, material, camera, idx, planes, min_footprint_px, weight_channels,
                                       truncate, **common)
     return _compacted_result(buffers, material, camera, pix, rotation, idx, planes, samples, albedo_mode,
