@@ -211,6 +211,28 @@ def test_rotation_cos_and_sin_come_from_a_table_not_a_per_pixel_trig_call():
     assert not _equations(rotation, pix, primitive="sin") and not _equations(rotation, pix, primitive="cos")
 
 
+def test_separable_host_kernels_are_one_compiled_program():
+    # the sampling check's float64 kernels: built eagerly they were ~80 small dispatches, each compiled on first use
+    # (~3 s of a process's first separable call); now one program. A table of 7 materials and 13 taps, which no other
+    # test uses, so nothing of it is cached yet; the kernels equal the material's own (eager) build
+    from jax._src import dispatch
+    from sss_jax._techniques._separable import _host_kernels
+
+    rng = np.random.default_rng(11)
+    mat = sj.BurleyMaterial(albedo=np.full((7, 3), 0.8), d_mm=rng.uniform(0.5, 4.0, (7, 3)))
+    compiles = []
+    listener = lambda event, seconds, **kw: compiles.append(event) if event == dispatch.BACKEND_COMPILE_EVENT else None
+    jax.monitoring.register_event_duration_secs_listener(listener)
+    try:
+        offsets, weights = _host_kernels(mat, 13)
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listener)
+    assert len(compiles) == 1, len(compiles)
+    eager = mat.separable_kernels(13, jnp.float64)
+    np.testing.assert_allclose(offsets, np.asarray(eager.offsets_mm), rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(weights, np.asarray(eager.weights), rtol=1e-12, atol=1e-15)
+
+
 def test_untruncated_frames_share_the_sample_radii():
     # a wide frame against a small d: the tail beyond the image diagonal is below TRUNCATION_ENERGY, so the per-pixel
     # truncated sampling and the shared radii give the same image; where the diagonal cuts the profile (large d) the

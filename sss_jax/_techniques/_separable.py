@@ -567,11 +567,16 @@ def _host_kernels(material, taps: int, *, with_key: bool = False):
     key = None if base is None else (base, taps)
     out = None if key is None else _HOST_KERNELS.get(key)  # one read: another thread may empty the cache
     if out is None:
-        kernels = material.separable_kernels(taps, jax.dtypes.canonicalize_dtype(jnp.float64))
+        kernels = _host_kernel_build(material, taps, jax.dtypes.canonicalize_dtype(jnp.float64))
         out = np.asarray(kernels.offsets_mm, np.float64), np.asarray(kernels.weights, np.float64)
         if key is not None:
             _remember(_HOST_KERNELS, key, out)  # a long fit over many parameters: bounded
     return (key, out) if with_key else out
+
+
+# the host kernels as one compiled program: built eagerly they were ~80 small dispatches, each compiled on its first
+# use, ~3 s of a process's first separable call (most of the bench's compile_seconds)
+_host_kernel_build = eqx.filter_jit(lambda material, taps, dtype: material.separable_kernels(taps, dtype))
 
 
 def kernel_groups(material) -> tuple[int, ...] | None:
