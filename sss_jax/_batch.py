@@ -1195,11 +1195,12 @@ def _camera(frame: Frame) -> Camera:
     """The frame's camera: one ``Camera`` per (focal length, unit) and precision, shared by the frames of a sequence
     (immutable; building one is device work: two conversions and two reads back)."""
     return _camera_for(frame.focal_px, frame.mm_per_unit if frame.mm_per_unit is not None else 1.0,
-                       bool(jax.config.jax_enable_x64))
+                       jax.dtypes.canonicalize_dtype(jnp.float64))
 
 
 @functools.lru_cache(maxsize=64)
-def _camera_for(focal_px, mm_per_unit, x64: bool) -> Camera:
+def _camera_for(focal_px, mm_per_unit, widest) -> Camera:
+    """``widest``: the widest float JAX makes now (float64 with x64 on): a Camera's precision follows it."""
     return Camera(focal_px, mm_per_unit)
 
 

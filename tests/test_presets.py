@@ -270,9 +270,20 @@ def _assert_close(a, b, where):
         for i, (x, y) in enumerate(zip(a, b)):
             _assert_close(x, y, f"{where}[{i}]")
     elif isinstance(a, float):
-        assert math.isclose(a, b, rel_tol=1e-5, abs_tol=1e-9), (where, a, b)
+        # the engines' rendered fits (``rendered_fit`` blocks, the ``*-refit`` errors) are least-squares fits with
+        # finite-difference Jacobians (diff_step 1e-4) through sampled passes (HDRP's nearest fetches, EEVEE Next's
+        # TAA): their steps follow the float rounding of the CPU's vector code, so another CPU lands elsewhere on a
+        # flat minimum (ketchup recomputed on an AMD EPYC against the preset written on an Intel Xeon, 2026-12-02:
+        # HDRP medium's d 1.2-1.8% apart, its fitted error 0.1-7.9% apart with the same mean over the channels,
+        # 0.2533 and 0.2530; EEVEE Next and Jimenez within 6e-4); the same CPU reproduces them exactly
+        refit = "rendered_fit" in where or "-refit" in where
+        assert math.isclose(a, b, rel_tol=0.1 if refit else 1e-5, abs_tol=1e-9), (where, a, b)
     elif isinstance(a, str) and where.endswith(("hlsl", "glsl")):
         assert a.splitlines()[0] == b.splitlines()[0], where  # digits beyond 1e-6 may differ across CPUs
+    elif isinstance(a, str) and "rendered_fit" in where and where.endswith("(inspector hex)"):
+        # a rendered fit's colour as the inspector's 8-bit hex (see above): each byte within 4 steps
+        assert len(a) == len(b) == 7 and all(abs(int(a[i:i + 2], 16) - int(b[i:i + 2], 16)) <= 4
+                                             for i in (1, 3, 5)), (where, a, b)
     else:
         assert a == b, where
 
