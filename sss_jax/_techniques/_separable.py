@@ -574,8 +574,8 @@ def _host_kernels(material, taps: int, *, with_key: bool = False):
     return (key, out) if with_key else out
 
 
-# the host kernels as one compiled program: built eagerly they were ~80 small dispatches, each compiled on its first
-# use, ~3 s of a process's first separable call (most of the bench's compile_seconds)
+# the host kernels as one compiled program: built eagerly they were ~75 small dispatches, each compiled on its first
+# use, ~2 s of a process's first separable call (4.6-5.1 -> 2.5-3.0 s; most of the bench's compile_seconds)
 _host_kernel_build = eqx.filter_jit(lambda material, taps, dtype: material.separable_kernels(taps, dtype))
 
 
