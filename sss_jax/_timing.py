@@ -49,19 +49,13 @@ def side_by_side(fns: Mapping[str, Callable[[], Any]], rounds: int, warmup: int 
     ratios keep it out: timed one after another, the ratios of a shared 2-core machine swung 1.5x between two runs of
     the same tree. ``warmup``: untimed rounds after the first runs (an XLA:CPU executable's first runs after its
     compilation are slower than its steady state)."""
-    first = {}
-    for name, fn in fns.items():
-        t0 = time.perf_counter()
-        _wait(fn())
-        first[name] = time.perf_counter() - t0
+    first = {name: run_times(fn, 1)[0] for name, fn in fns.items()}
     for _ in range(warmup):
         for fn in fns.values():
             _wait(fn())
     times: dict[str, list[float]] = {name: [] for name in fns}
     for _ in range(rounds):
         for name, fn in fns.items():
-            t0 = time.perf_counter()
-            _wait(fn())
-            times[name].append(time.perf_counter() - t0)
+            times[name] += run_times(fn, 1)
     seconds = {name: float(np.median(t)) for name, t in times.items()}
     return seconds, {name: max(first[name] - seconds[name], 0.0) for name in fns}

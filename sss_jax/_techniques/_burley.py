@@ -191,7 +191,7 @@ def burley(
         raise ValueError(f"frames must be a positive integer, got {frames!r}")
     if _is_concrete(seed) and not (np.ndim(seed) == 0 and float(seed) == int(seed) and 0 <= int(seed) < 2**32):
         raise ValueError(f"seed must be an integer in [0, 2**32), got {seed!r}")
-    seed = _as_seed(np.uint32(int(seed)) if _is_concrete(seed) else seed)
+    seed = _as_seed(seed)  # validated above where concrete
     h, w = buffers.depth.shape[-2:]
     origin, frame_shape = check_tile((h, w), origin, frame_shape)
     options = dict(pattern=pattern, border=border, frames=int(frames), interpolation=interpolation)
