@@ -223,10 +223,13 @@ def vs_pass(args) -> int:
         paths = sorted(os.path.join(src, n) for n in os.listdir(src))
         frames = [_io.read_frame(p) for p in paths]
         inputs = [(f.to_buffers(), sj.Camera(f.focal_px, 10.0)) for f in frames]
+        cpu = {}  # CPU seconds (every thread of the process) of the last run of each
+
         def pass_alone() -> float:
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             for b, c in inputs:
                 np.asarray(fn(b, c))
+            cpu["pass"] = time.process_time() - c0
             return time.perf_counter() - t0
 
         def pass_overlapped() -> float:
@@ -242,10 +245,10 @@ def vs_pass(args) -> int:
         overlapped_s = pass_overlapped()
         process_frames(paths[:1], args.technique, mat, out_dir=os.path.join(tmp, "warm"), progress=False,
                        samples=args.samples, taps=args.taps, devices=None)
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         r = process_frames(paths, args.technique, mat, out_dir=os.path.join(tmp, "out"), progress=False,
                            samples=args.samples, taps=args.taps)
-        batch_s = time.perf_counter() - t0
+        batch_s, cpu["batch"] = time.perf_counter() - t0, time.process_time() - c0
         # the pass again after the batch: the ratio takes the faster of the two (load that comes or goes during
         # the run never flatters the batch)
         pass_s.append(pass_alone())
@@ -261,6 +264,11 @@ def vs_pass(args) -> int:
     print(f"  (the pass {COMPUTE_THREADS} frames at a time, as the batch computes small frames, no files: "
           f"{args.frames / overlapped_s:.2f} frames/s; the batch reaches {batch_fps * overlapped_s / args.frames:.3f} "
           "of it)")
+    # what bounds the ratio on a small machine: the batch's CPU time a frame (reading, checking, writing on top of
+    # the pass's) against the cores there are; the batch cannot run faster than its CPU time over the cores
+    print(f"  CPU time a frame: pass {1e3 * cpu['pass'] / args.frames:.1f} ms, batch {1e3 * cpu['batch'] / ok:.1f} ms "
+          f"({os.cpu_count()} cores: the batch's floor is {1e3 * cpu['batch'] / ok / os.cpu_count():.1f} ms a frame, "
+          f"{ok * os.cpu_count() / cpu['batch']:.0f} frames/s)")
     return 0 if ok == args.frames else 1
 
 

@@ -404,6 +404,8 @@ def test_the_clamps_largest_footprint_is_the_per_pixel_maximum():
         depth = rng.uniform(0.5, 300.0, (h, w)).astype(np.float32)
         depth[rng.random((h, w)) < 0.2] = np.inf
         depth[rng.random((h, w)) < 0.05] = 0.0
+        depth[rng.random((h, w)) < 0.03] = np.nan  # renderers' holes: not SSS pixels
+        depth[rng.random((h, w)) < 0.03] = -np.inf
         ids = rng.integers(0, count + 2, (h, w)).astype(np.int32) if rng.random() < 0.8 else None
         camera = sj.Camera(float(rng.uniform(10, 2000)), float(rng.uniform(0.1, 20)))
         per_row = rng.uniform(0.0, 5.0, count) * (rng.random(count) > 0.2)
