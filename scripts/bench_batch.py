@@ -266,9 +266,11 @@ def vs_pass(args) -> int:
           "of it)")
     # what bounds the ratio on a small machine: the batch's CPU time a frame (reading, checking, writing on top of
     # the pass's) against the cores there are; the batch cannot run faster than its CPU time over the cores
-    print(f"  CPU time a frame: pass {1e3 * cpu['pass'] / args.frames:.1f} ms, batch {1e3 * cpu['batch'] / ok:.1f} ms "
-          f"({os.cpu_count()} cores: the batch's floor is {1e3 * cpu['batch'] / ok / os.cpu_count():.1f} ms a frame, "
-          f"{ok * os.cpu_count() / cpu['batch']:.0f} frames/s)")
+    if ok:  # (no frame done: nothing to divide by, and the exit status says so)
+        batch_cpu, cores = cpu["batch"] / ok, os.cpu_count() or 1
+        print(f"  CPU time a frame: pass {1e3 * cpu['pass'] / args.frames:.1f} ms, batch {1e3 * batch_cpu:.1f} ms "
+              f"({cores} cores: the batch's floor is {1e3 * batch_cpu / cores:.1f} ms a frame, "
+              f"{cores / batch_cpu:.0f} frames/s)")
     return 0 if ok == args.frames else 1
 
 
