@@ -16,6 +16,7 @@ passes on frames; docs/engines.md cites the sources.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -34,16 +35,25 @@ EEVEE_FRAMES = 256  # TAA samples of a final EEVEE render (the viewport default 
 
 def ring_masses(radii: np.ndarray, weights: np.ndarray, edges: np.ndarray) -> np.ndarray:
     """Bin masses of the 1D marginal of rings: ring ``i`` of radius ``radii (n,)`` (mm) carries ``weights (n, 3)``
-    (each column sums to 1) spread uniformly over its angle; a ring of radius 0 is a Dirac at 0."""
+    (each column sums to 1) spread uniformly over its angle; a ring of radius 0 is a Dirac at 0.
+
+    A ring of radius r puts ``(2/pi) arcsin(|x|/r)`` of its mass within ``|x|`` (all of it past r), so its CDF is
+    ``1/2 + sign(x)/2`` of that; the arcsines are taken once per distinct ``|x|`` (the bins are symmetric about 0,
+    so half of them) and weighted by one product per channel."""
+    radii = np.asarray(radii, np.float64)
+    weights = np.asarray(weights, np.float64)
+    ring = radii > 0
+    r = np.where(ring, radii, 1.0)[None, :]
+    w_ring = np.where(ring[:, None], weights, 0.0)
+    w_dirac = weights[~ring].sum(axis=0)
     cdfs = []
     for c in range(3):
-        x = edges[c][:, None]
-        r = radii[None, :]
-        ax = np.abs(x)
-        inside = np.where(r > ax, (2.0 / math.pi) * np.arcsin(np.clip(ax / np.where(r > 0, r, 1.0), 0.0, 1.0)), 1.0)
-        half = np.where(x >= 0, 0.5, -0.5)
-        cdf_rings = np.where(r > 0, 0.5 + half * inside, np.where(x >= 0, 1.0, 0.0))
-        cdfs.append(cdf_rings @ weights[:, c])
+        x = edges[c]
+        ax, where = np.unique(np.abs(x), return_inverse=True)
+        a = ax[:, None]
+        inside = np.where(r > a, (2.0 / math.pi) * np.arcsin(np.clip(a / r, 0.0, 1.0)), 1.0)
+        within = (inside @ w_ring[:, c])[where.reshape(-1)]  # mass of the rings within |x|
+        cdfs.append(0.5 * w_ring[:, c].sum() + np.where(x >= 0, 0.5, -0.5) * within + np.where(x >= 0, w_dirac[c], 0.0))
     return masses_from_cdf(np.stack(cdfs))
 
 
@@ -66,6 +76,27 @@ def hdrp_samples(d_mm: np.ndarray, budget: int, px_per_mm: float) -> tuple[np.nd
     return radii, w / w.sum(axis=0)
 
 
+@functools.lru_cache(maxsize=8)
+def _eevee_next_unit_rings(frames: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(frames, 16)`` radii in units of ``max(radius)`` and their inverse pdf, one row per TAA sample ``k``: they
+    depend on nothing but ``k`` (``rand_v``, the base-3 radical inverse of ``k + 1``), so they are computed once per
+    frame count, read-only (a rendered fit evaluates the pass for hundreds of d)."""
+    rand_v = np.zeros(frames)
+    for k in range(frames):
+        f, idx = 1.0, k + 1
+        while idx > 0:
+            f /= 3
+            rand_v[k] += f * (idx % 3)
+            idx //= 3
+    i = np.arange(EEVEE_SAMPLE_LEN)
+    x = (1 + rand_v[:, None] / EEVEE_SAMPLE_LEN) * (i[None, :] / EEVEE_SAMPLE_LEN)
+    r_unit = EEVEE_D0 * unit_burley_inverse_cdf(x * EEVEE_TRUNCATE_CDF)
+    pdf_inv = EEVEE_TRUNCATE_CDF * 8 * math.pi * EEVEE_D0 / (np.exp(-r_unit / EEVEE_D0) + np.exp(-r_unit / (3 * EEVEE_D0)))
+    r_unit.setflags(write=False)
+    pdf_inv.setflags(write=False)
+    return r_unit, pdf_inv
+
+
 def eevee_next_weights(albedo, d_mm: np.ndarray, frames: int) -> list[tuple[np.ndarray, np.ndarray]]:
     """Per TAA sample (``rand_v`` from the base-3 radical inverse of ``k + 1``, as the ``eevee-next`` technique),
     the radii (16,) mm and per-channel weights (16, 3) of EEVEE Next's pass on a flat surface."""
@@ -76,22 +107,11 @@ def eevee_next_weights(albedo, d_mm: np.ndarray, frames: int) -> list[tuple[np.n
     radius = d * 4 * math.pi * s
     max_radius = float(np.max(radius))
     d_shader = 0.25 / math.pi * np.maximum(EEVEE_MIN_RADIUS, radius / max_radius) * max_radius / s
-    out = []
-    i = np.arange(EEVEE_SAMPLE_LEN)
-    for k in range(frames):
-        rand_v, f, idx = 0.0, 1.0, k + 1
-        while idx > 0:
-            f /= 3
-            rand_v += f * (idx % 3)
-            idx //= 3
-        x = (1 + rand_v / EEVEE_SAMPLE_LEN) * (i / EEVEE_SAMPLE_LEN)
-        r_unit = EEVEE_D0 * unit_burley_inverse_cdf(x * EEVEE_TRUNCATE_CDF)
-        pdf_inv = EEVEE_TRUNCATE_CDF * 8 * math.pi * EEVEE_D0 / (np.exp(-r_unit / EEVEE_D0)
-                                                                 + np.exp(-r_unit / (3 * EEVEE_D0)))
-        r = r_unit * max_radius
-        w = (np.exp(-r[:, None] / d_shader) + np.exp(-r[:, None] / (3 * d_shader))) / (4 * d_shader) * pdf_inv[:, None]
-        out.append((r, w / w.sum(axis=0)))
-    return out
+    r_unit, pdf_inv = _eevee_next_unit_rings(int(frames))
+    r = r_unit * max_radius  # (frames, 16)
+    w = (np.exp(-r[..., None] / d_shader) + np.exp(-r[..., None] / (3 * d_shader))) / (4 * d_shader) * pdf_inv[..., None]
+    w = w / w.sum(axis=1, keepdims=True)  # each TAA sample's weights renormalised per channel
+    return [(r[k], w[k]) for k in range(r.shape[0])]
 
 
 def hdrp_masses(d_mm: np.ndarray, budget: int, edges: np.ndarray, px_per_mm: float = RENDER_PX_PER_MM) -> np.ndarray:
