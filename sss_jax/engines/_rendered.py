@@ -91,7 +91,8 @@ def _eevee_next_unit_rings(frames: int) -> tuple[np.ndarray, np.ndarray]:
     i = np.arange(EEVEE_SAMPLE_LEN)
     x = (1 + rand_v[:, None] / EEVEE_SAMPLE_LEN) * (i[None, :] / EEVEE_SAMPLE_LEN)
     r_unit = EEVEE_D0 * unit_burley_inverse_cdf(x * EEVEE_TRUNCATE_CDF)
-    pdf_inv = EEVEE_TRUNCATE_CDF * 8 * math.pi * EEVEE_D0 / (np.exp(-r_unit / EEVEE_D0) + np.exp(-r_unit / (3 * EEVEE_D0)))
+    pdf_inv = EEVEE_TRUNCATE_CDF * 8 * math.pi * EEVEE_D0 / (np.exp(-r_unit / EEVEE_D0)
+                                                             + np.exp(-r_unit / (3 * EEVEE_D0)))
     r_unit.setflags(write=False)
     pdf_inv.setflags(write=False)
     return r_unit, pdf_inv
@@ -109,7 +110,8 @@ def eevee_next_weights(albedo, d_mm: np.ndarray, frames: int) -> list[tuple[np.n
     d_shader = 0.25 / math.pi * np.maximum(EEVEE_MIN_RADIUS, radius / max_radius) * max_radius / s
     r_unit, pdf_inv = _eevee_next_unit_rings(int(frames))
     r = r_unit * max_radius  # (frames, 16)
-    w = (np.exp(-r[..., None] / d_shader) + np.exp(-r[..., None] / (3 * d_shader))) / (4 * d_shader) * pdf_inv[..., None]
+    burley = (np.exp(-r[..., None] / d_shader) + np.exp(-r[..., None] / (3 * d_shader))) / (4 * d_shader)
+    w = burley * pdf_inv[..., None]
     w = w / w.sum(axis=1, keepdims=True)  # each TAA sample's weights renormalised per channel
     return [(r[k], w[k]) for k in range(r.shape[0])]
 
