@@ -464,3 +464,35 @@ def test_rendered_engine_kernels():
         err["hdrp:medium-refit"]["error_relative_l2"])
     assert blocks["eevee-next"]["rendered_fit"]["error_relative_l2_exact"] == pytest.approx(
         err["eevee-next:taa256"]["error_relative_l2"])
+
+
+def test_eevee_next_weights_follow_blenders_sample_loop_one_frame_at_a_time():
+    # an independent loop over TAA samples and samples, as eevee_subsurface.cc's precompute_samples_location and the
+    # convolve shader do it: rand_v the base-3 radical inverse of k + 1, x = (1 + rand_v / 16) i / 16 of the CDF
+    # truncated at 0.99638, the unit radius its root (scipy's brentq on Burley's CDF, not the library's Newton),
+    # weights burley_eval(d_c, r) / pdf(r) renormalised per channel; the library computes the rings once per frame
+    # count, every frame at once
+    from scipy.optimize import brentq
+
+    from sss_jax.engines._rendered import EEVEE_D0, EEVEE_MIN_RADIUS, EEVEE_TRUNCATE_CDF, eevee_next_weights
+
+    albedo, d = np.array([0.8, 0.5, 0.4]), np.array([3.0, 1.4, 0.8])
+    a = albedo / albedo.max()
+    s = 1.9 - a + 3.5 * (a - 0.8) ** 2
+    radius = d * 4 * math.pi * s
+    d_shader = 0.25 / math.pi * np.maximum(EEVEE_MIN_RADIUS, radius / radius.max()) * radius.max() / s
+    cdf = lambda x: 1 - math.exp(-x) / 4 - 3 * math.exp(-x / 3) / 4  # Burley's CDF in r / d (Christensen & Burley)
+    got = eevee_next_weights(albedo, d, 5)
+    assert len(got) == 5
+    for k, (r_got, w_got) in enumerate(got):
+        digits = [(k + 1) // 3**j % 3 for j in range(8)]
+        rand_v = sum(dig / 3 ** (j + 1) for j, dig in enumerate(digits))
+        w_ref = []
+        for i in range(16):
+            u = (1 + rand_v / 16) * (i / 16) * EEVEE_TRUNCATE_CDF
+            x = 0.0 if u == 0 else brentq(lambda t: cdf(t) - u, 0.0, 100.0, xtol=1e-14)
+            r = EEVEE_D0 * x * radius.max()
+            assert r_got[i] == pytest.approx(r, rel=1e-10, abs=1e-12)
+            pdf = math.exp(-x) + math.exp(-x / 3)  # the sampling pdf up to a constant, which the renormalising cancels
+            w_ref.append((np.exp(-r / d_shader) + np.exp(-r / (3 * d_shader))) / (4 * d_shader) / pdf)
+        np.testing.assert_allclose(w_got, np.array(w_ref) / np.sum(w_ref, axis=0), rtol=1e-9)
