@@ -98,9 +98,8 @@ def _eevee_next_unit_rings(frames: int) -> tuple[np.ndarray, np.ndarray]:
     return r_unit, pdf_inv
 
 
-def eevee_next_weights(albedo, d_mm: np.ndarray, frames: int) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Per TAA sample (``rand_v`` from the base-3 radical inverse of ``k + 1``, as the ``eevee-next`` technique),
-    the radii (16,) mm and per-channel weights (16, 3) of EEVEE Next's pass on a flat surface."""
+def _eevee_next_rings(albedo, d_mm: np.ndarray, frames: int) -> tuple[np.ndarray, np.ndarray]:
+    """``eevee_next_weights`` stacked: radii ``(frames, 16)`` mm and weights ``(frames, 16, 3)``."""
     a = np.asarray(albedo, np.float64)
     a = a / max(1e-6, float(np.max(a)))
     s = 1.9 - a + 3.5 * (a - 0.8) ** 2
@@ -112,8 +111,13 @@ def eevee_next_weights(albedo, d_mm: np.ndarray, frames: int) -> list[tuple[np.n
     r = r_unit * max_radius  # (frames, 16)
     burley = (np.exp(-r[..., None] / d_shader) + np.exp(-r[..., None] / (3 * d_shader))) / (4 * d_shader)
     w = burley * pdf_inv[..., None]
-    w = w / w.sum(axis=1, keepdims=True)  # each TAA sample's weights renormalised per channel
-    return [(r[k], w[k]) for k in range(r.shape[0])]
+    return r, w / w.sum(axis=1, keepdims=True)  # each TAA sample's weights renormalised per channel
+
+
+def eevee_next_weights(albedo, d_mm: np.ndarray, frames: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per TAA sample (``rand_v`` from the base-3 radical inverse of ``k + 1``, as the ``eevee-next`` technique),
+    the radii (16,) mm and per-channel weights (16, 3) of EEVEE Next's pass on a flat surface."""
+    return list(zip(*_eevee_next_rings(albedo, d_mm, frames)))
 
 
 def hdrp_masses(d_mm: np.ndarray, budget: int, edges: np.ndarray, px_per_mm: float = RENDER_PX_PER_MM) -> np.ndarray:
@@ -124,9 +128,9 @@ def hdrp_masses(d_mm: np.ndarray, budget: int, edges: np.ndarray, px_per_mm: flo
 
 def eevee_next_masses(albedo, d_mm: np.ndarray, frames: int, edges: np.ndarray) -> np.ndarray:
     """EEVEE Next's pass after ``frames`` TAA samples as bin masses (noise-averaged rings)."""
-    per_frame = eevee_next_weights(albedo, d_mm, frames)
-    radii = np.concatenate([r for r, _ in per_frame])  # every frame's rings at once, each frame's weight 1/frames
-    return ring_masses(radii, np.concatenate([w for _, w in per_frame]) / len(per_frame), edges)
+    r, w = _eevee_next_rings(albedo, d_mm, frames)
+    # every frame's rings at once, each frame's weight 1/frames
+    return ring_masses(r.reshape(-1), w.reshape(-1, 3) / r.shape[0], edges)
 
 
 def fit_d_through(render, d_mm: np.ndarray, edges: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
