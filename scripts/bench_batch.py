@@ -211,6 +211,7 @@ def vs_pass(args) -> int:
     import sss_jax as sj
     from sss_jax import _io
     from sss_jax._batch import COMPUTE_THREADS, process_frames
+    from sss_jax._machine import usable_cores
     from sss_jax._demo import demo_burley_material
 
     mat = demo_burley_material()
@@ -267,7 +268,7 @@ def vs_pass(args) -> int:
     # what bounds the ratio on a small machine: the batch's CPU time a frame (reading, checking, writing on top of
     # the pass's) against the cores there are; the batch cannot run faster than its CPU time over the cores
     if ok:  # (no frame done: nothing to divide by, and the exit status says so)
-        batch_cpu, cores = cpu["batch"] / ok, os.cpu_count() or 1
+        batch_cpu, cores = cpu["batch"] / ok, usable_cores()
         print(f"  CPU time a frame: pass {1e3 * cpu['pass'] / args.frames:.1f} ms, batch {1e3 * batch_cpu:.1f} ms "
               f"({cores} cores: the batch's floor is {1e3 * batch_cpu / cores:.1f} ms a frame, "
               f"{cores / batch_cpu:.0f} frames/s)")

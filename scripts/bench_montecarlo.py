@@ -56,11 +56,10 @@ def main() -> int:
     ap.add_argument("--rounds", type=int, default=3, help="alternating timed rounds of each walk; the best counts")
     ap.add_argument("--json", type=pathlib.Path, help="also write the figures here")
     args = ap.parse_args()
-    import os
-
+    from sss_jax._machine import usable_cores
     from sss_jax._montecarlo import simulate
 
-    threads = os.cpu_count() or 1
+    threads = usable_cores()
     walks = {
         # the default: batches on every core, each batch a jitted walk on one core
         "sss_jax": lambda seed: simulate(args.albedo, photons=args.photons, seed=seed),

@@ -6,7 +6,17 @@ import os
 import platform
 import time
 
-__all__ = ["machine_info"]
+__all__ = ["machine_info", "usable_cores"]
+
+
+def usable_cores() -> int:
+    """The cores this process may run on: its CPU affinity where the OS tells it (``taskset``, a container's CPU set),
+    else every core (``os.cpu_count``). What XLA sizes its CPU thread pool by; ``os.cpu_count`` counts the whole
+    machine's, so work split by it would oversubscribe a restricted process."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):  # not on Linux
+        return os.cpu_count() or 1
 
 
 def machine_info() -> dict:
@@ -38,6 +48,7 @@ def machine_info() -> dict:
         "os": platform.platform(),
         "cpu": cpu,
         "cpu_count": os.cpu_count(),
+        "usable_cores": usable_cores(),
         "load_average_1_5_15_min": load,
         "jax_backend": jax.default_backend(),
         "devices": f"{len(devices)} x {devices[0].device_kind}" if devices else "none",

@@ -28,13 +28,14 @@ import collections
 import concurrent.futures
 import dataclasses
 import math
-import os
 import time
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from ._machine import usable_cores
 
 __all__ = ["MCResult", "simulate", "fresnel_unpolarised", "to_tabulated_profile"]
 
@@ -452,9 +453,9 @@ def simulate(
     Execution (none of it changes the physics; the numbers depend on ``seed``, ``photons``, ``batch_photons``,
     ``lanes`` and ``unroll``, never on ``workers``): photons run in batches of at most ``batch_photons`` (split evenly),
     each a jitted walk over ``lanes`` parallel photons advancing ``unroll`` events per loop iteration (default 4 at
-    albedo >= 0.8, else 2); ``workers`` threads (default: one per CPU core) run batches side by side, at most
-    ``workers`` at a time, so memory stays ``O(workers * (lanes + bins))`` for any photon count; ``progress`` shows a
-    bar advancing per batch.
+    albedo >= 0.8, else 2); ``workers`` threads (default: one per core this process may use,
+    ``_machine.usable_cores``) run batches side by side, at most ``workers`` at a time, so memory stays
+    ``O(workers * (lanes + bins))`` for any photon count; ``progress`` shows a bar advancing per batch.
     """
     if not (0.0 <= albedo <= 1.0):
         raise ValueError(f"albedo must lie in [0, 1], got {albedo}")
@@ -510,7 +511,7 @@ def simulate(
         return jax.tree.map(np.asarray, t)
 
     if workers is None:
-        workers = os.cpu_count() or 1
+        workers = usable_cores()
     workers = max(1, min(int(workers), len(sizes)))
     t0 = time.perf_counter()
     # each jitted call runs on one core; calls from several threads run side by side (XLA releases the GIL), at most

@@ -75,6 +75,8 @@ def shared_dir() -> pathlib.Path:
 def pytest_xdist_auto_num_workers(config):
     """``-n auto`` (the README's test command): one worker per core, as many as memory holds at the suite's peak of
     ~3.4 GB per process (measured with /usr/bin/time -v), so a many-core machine with little memory does not swap."""
+    # ``sss_jax._machine.usable_cores``'s rule, not imported: importing the package starts JAX's backend (~2 s) in
+    # the xdist controller, which runs no test
     try:
         cores = len(os.sched_getaffinity(0))
     except AttributeError:  # not on Linux

@@ -62,6 +62,24 @@ def test_compaction_capacity_buckets_by_quarter_octaves():
     assert compaction_capacity(600, 2000) == 640 and compaction_capacity(900, 2000) is None  # over half: dense
 
 
+def test_work_is_split_by_the_cores_this_process_may_use(monkeypatch):
+    """Burley's independent chains of pixels and the Monte Carlo's default workers follow the process's CPU affinity
+    (a container's CPU set, ``taskset``), as XLA's thread pool does, not the machine's core count."""
+    import os
+
+    from sss_jax._machine import machine_info, usable_cores
+    from sss_jax._techniques._burley_gpu import cpu_parts
+
+    monkeypatch.setattr(os, "cpu_count", lambda: 64)
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {3}, raising=False)
+    assert usable_cores() == 1 and machine_info()["usable_cores"] == 1
+    assert cpu_parts(1 << 20) == 1  # one chain on one usable core, whatever the machine has
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 2, 5}, raising=False)
+    assert usable_cores() == 3 and cpu_parts(1 << 20) == 3 and cpu_parts(3 * 16384 - 1) == 2
+    monkeypatch.delattr(os, "sched_getaffinity", raising=False)  # not Linux: every core
+    assert usable_cores() == 64
+
+
 def test_compacted_equals_dense():
     b = _scene(coverage_rows=3)
     assert burley_active_count(b, MAT, CAM) == 3 * 32

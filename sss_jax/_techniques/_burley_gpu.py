@@ -15,14 +15,13 @@ rule and the tile's place in its frame are the spec's, the same in every layout.
 
 from __future__ import annotations
 
-import os
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike
 
+from .._machine import usable_cores
 from .._materials import BurleyMaterial
 from .._scene import Buffers, Camera
 from ._burley_spec import (
@@ -93,11 +92,12 @@ def frame_result(pix: dict, fetch, cos_phi: Array, sin_phi: Array, *, samples: i
 
 
 def cpu_parts(pixels: int) -> int:
-    """How many independent chains ``frame_result`` splits ``pixels`` into: one per core on a CPU backend (at least
-    16384 pixels each: below that the fusions' fixed cost wins), else 1 (a GPU parallelises each fusion itself)."""
+    """How many independent chains ``frame_result`` splits ``pixels`` into: one per core this process may use
+    (``_machine.usable_cores``) on a CPU backend (at least 16384 pixels each: below that the fusions' fixed cost wins),
+    else 1 (a GPU parallelises each fusion itself)."""
     if jax.default_backend() != "cpu":
         return 1
-    return max(1, min(os.cpu_count() or 1, pixels // 16384))
+    return max(1, min(usable_cores(), pixels // 16384))
 
 
 def frames_mean(one_frame, frames: int, zeros: Array) -> list[Array]:
