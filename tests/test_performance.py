@@ -62,23 +62,45 @@ def test_compaction_capacity_buckets_by_quarter_octaves():
     assert compaction_capacity(600, 2000) == 640 and compaction_capacity(900, 2000) is None  # over half: dense
 
 
-def test_work_is_split_by_the_cores_this_process_may_use(monkeypatch):
-    """Burley's independent chains of pixels and the Monte Carlo's default workers follow the process's CPU affinity
-    (a container's CPU set, ``taskset``), as XLA's thread pool does, not the machine's core count."""
+def test_usable_cores_follow_the_process_affinity(monkeypatch):
+    """The Monte Carlo's default workers and the benches' core counts follow the process's CPU affinity (a
+    container's CPU set, ``taskset``), as XLA's thread pool does, not the machine's core count."""
     import os
 
     from sss_jax._machine import machine_info, usable_cores
-    from sss_jax._techniques._burley_gpu import cpu_parts
 
     monkeypatch.setattr(os, "cpu_count", lambda: 64)
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {3}, raising=False)
     assert usable_cores() == 1 and machine_info()["usable_cores"] == 1
-    assert cpu_parts(1 << 20) == 1  # one chain on one usable core, whatever the machine has
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 2, 5}, raising=False)
-    assert usable_cores() == 3 and cpu_parts(1 << 20) == 3 and cpu_parts(3 * 16384 - 1) == 2
+    assert usable_cores() == 3
     monkeypatch.delattr(os, "sched_getaffinity", raising=False)  # not Linux: every core
     assert usable_cores() == 64
 
+
+def test_burley_runs_large_layouts_in_cache_sized_chunks_with_the_same_result():
+    """On a CPU the sample loop runs over chunks of at most CHUNK_PIXELS pixels, each a multiple of CHUNK_ALIGN (the
+    last padded with pixels of no surface): the result is the one-loop result, the chunks' count follows the pixels'."""
+    from sss_jax._techniques import _burley_gpu
+
+    assert _burley_gpu.cpu_chunks(1) == 1 and _burley_gpu.cpu_chunks(_burley_gpu.CHUNK_PIXELS) == 1
+    assert _burley_gpu.cpu_chunks(_burley_gpu.CHUNK_PIXELS + 1) == 2 and _burley_gpu.cpu_chunks(230400) == 8
+    b = _scene(24, h=30, w=41, dtype=jnp.float32)  # 1230 pixels: chunks of 512 leave 306 of padding in the last
+    cam = sj.Camera(focal_px=400.0, mm_per_unit=10.0)
+    one = np.asarray(_burley_impl(b, MAT, cam, 16, "post", "bilinear", None, 0.0))
+    counts = []
+    original = _burley_gpu.cpu_chunks
+    try:
+        for chunks in (2, 3):
+            _burley_gpu.cpu_chunks = lambda pixels, chunks=chunks: counts.append(pixels) or chunks
+            jax.clear_caches()
+            many = np.asarray(_burley_impl(b, MAT, cam, 16, "post", "bilinear", None, 0.0))
+            np.testing.assert_allclose(many, one, rtol=2e-6, atol=1e-7)
+    finally:
+        _burley_gpu.cpu_chunks = original
+        jax.clear_caches()
+    assert counts == [30 * 41] * 2  # asked once per compilation, with the layout's pixel count
+    assert not np.array_equal(np.asarray(b.irradiance), one)  # the pass did scatter light
 
 def test_compacted_equals_dense():
     b = _scene(coverage_rows=3)
