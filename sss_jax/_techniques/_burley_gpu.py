@@ -55,19 +55,10 @@ def frame_result(pix: dict, fetch, cos_phi: Array, sin_phi: Array, *, samples: i
     planes = dict(pix, cos_phi=cos_phi, sin_phi=sin_phi)
     n = pix["z"].shape[0]
 
-    # A grey weight reads the gathered depth alone, and XLA's CPU backend then fuses the gather into the weight's
-    # kernel, which keeps the kernel from being vectorised (~7x slower per element, so the grey path ran slower than
-    # RGB's three weights): fetched an iteration ahead and carried, the depth is a materialised plane. RGB's weights
-    # get a materialised depth from XLA already (their sqrt feeds three channels), and carrying it costs ~5% there.
-    depth_ahead = weight_channels == 1
-
     def place(piece, i):
-        here = sample_place(i, samples, piece["cos_phi"], piece["sin_phi"], piece, buffer_shape=buffer_shape,
+        return sample_place(i, samples, piece["cos_phi"], piece["sin_phi"], piece, buffer_shape=buffer_shape,
                             origin=origin, frame_shape=frame_shape, interpolation=interpolation, truncate=truncate,
                             border=border)
-        if depth_ahead:
-            here = sample_fetch(here, fetch, buffer_shape=buffer_shape, interpolation=interpolation, depth_only=True)
-        return here
 
     def sums(piece: dict) -> tuple[Array, Array]:
         """Every sample's weighted sums over one chunk's pixels: numerator (3, m), denominator (weight_channels, m)."""

@@ -307,13 +307,13 @@ def sample_place(i: Array | int, samples: int, cos_phi: Array, sin_phi: Array, p
     return place
 
 
-def sample_fetch(place: dict, fetch, *, buffer_shape: tuple[int, int], interpolation: str,
-                 depth_only: bool = False) -> dict:
+def sample_fetch(place: dict, fetch, *, buffer_shape: tuple[int, int], interpolation: str) -> dict:
     """``place`` (``sample_place``) with what its fetch reads: ``e_q`` (R, G, B) and ``z_q`` (depth), each
     ``(corners, N)``, at the nearest pixel or the bilinear footprint's four corners (``fetch(idx)`` reads the planes of
-    ``fetch_planes`` at the indices ``idx``); ``depth_only``: ``z_q`` alone. What ``place`` holds already stays.
+    ``fetch_planes`` at the indices ``idx``).
 
-    Apart from ``sample_weights`` so that a loop can fetch a sample's depth an iteration ahead (``frame_result``)."""
+    Apart from ``sample_place`` so that a loop can place a sample an iteration ahead and fetch it in the next
+    (``_burley_gpu.frame_result``)."""
     idx = place["idx"]
     if interpolation == "nearest":
         idx_q = idx[None]
@@ -321,8 +321,7 @@ def sample_fetch(place: dict, fetch, *, buffer_shape: tuple[int, int], interpola
         step = buffer_shape[1] + 2 * FETCH_PAD  # one row down in the padded planes
         idx_q = jnp.stack([idx, idx + 1, idx + step, idx + step + 1])
     *e_q, z_q = fetch(idx_q)
-    read = {"z_q": z_q} if depth_only else {"e_q": e_q, "z_q": z_q}
-    return {**read, **place}
+    return {**place, "e_q": e_q, "z_q": z_q}
 
 
 def sample_weights(place: dict, pix: dict, *, mm_per_unit: Array, interpolation: str, weight_channels: int,
