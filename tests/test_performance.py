@@ -78,29 +78,27 @@ def test_usable_cores_follow_the_process_affinity(monkeypatch):
     assert usable_cores() == 64
 
 
-def test_burley_runs_large_layouts_in_cache_sized_chunks_with_the_same_result():
+def test_burley_runs_large_layouts_in_cache_sized_chunks_with_the_same_result(monkeypatch):
     """On a CPU the sample loop runs over chunks of at most CHUNK_PIXELS pixels, each a multiple of CHUNK_ALIGN (the
     last padded with pixels of no surface): the result is the one-loop result, the chunks' count follows the pixels'."""
     from sss_jax._techniques import _burley_gpu
 
     assert _burley_gpu.cpu_chunks(1) == 1 and _burley_gpu.cpu_chunks(_burley_gpu.CHUNK_PIXELS) == 1
     assert _burley_gpu.cpu_chunks(_burley_gpu.CHUNK_PIXELS + 1) == 2 and _burley_gpu.cpu_chunks(230400) == 8
-    b = _scene(24, h=30, w=41, dtype=jnp.float32)  # 1230 pixels: chunks of 512 leave 306 of padding in the last
+    b = _scene(24, h=30, w=41, dtype=jnp.float32)  # 1230 pixels: 2 chunks of 1024 (818 padding), 3 of 512 (306)
     cam = sj.Camera(focal_px=400.0, mm_per_unit=10.0)
     one = np.asarray(_burley_impl(b, MAT, cam, 16, "post", "bilinear", None, 0.0))
     counts = []
-    original = _burley_gpu.cpu_chunks
-    try:
-        for chunks in (2, 3):
-            _burley_gpu.cpu_chunks = lambda pixels, chunks=chunks: counts.append(pixels) or chunks
-            jax.clear_caches()
-            many = np.asarray(_burley_impl(b, MAT, cam, 16, "post", "bilinear", None, 0.0))
-            np.testing.assert_allclose(many, one, rtol=2e-6, atol=1e-7)
-    finally:
-        _burley_gpu.cpu_chunks = original
-        jax.clear_caches()
+    for chunks in (2, 3):
+        monkeypatch.setattr(_burley_gpu, "cpu_chunks", lambda pixels, chunks=chunks: counts.append(pixels) or chunks)
+        jax.clear_caches()  # retrace: the chunks are decided while tracing
+        many = np.asarray(_burley_impl(b, MAT, cam, 16, "post", "bilinear", None, 0.0))
+        np.testing.assert_allclose(many, one, rtol=2e-6, atol=1e-7)
+    monkeypatch.undo()
+    jax.clear_caches()
     assert counts == [30 * 41] * 2  # asked once per compilation, with the layout's pixel count
     assert not np.array_equal(np.asarray(b.irradiance), one)  # the pass did scatter light
+
 
 def test_compacted_equals_dense():
     b = _scene(coverage_rows=3)
