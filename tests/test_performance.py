@@ -774,3 +774,43 @@ def test_measure_candidates_keeps_the_median_and_spread_of_the_timings(monkeypat
     assert cands[1].delta_e > 0
     advice = Advice("x", 10.0, cands[0], cands, "r")
     assert "2.00-4.00" in advice.table() and advice.to_json()["candidates"][1]["ms_high"] == 13.0
+
+
+def test_gpu_goals_script_runs_the_library_defaults(monkeypatch, tmp_path):
+    """``scripts/gpu_goals.py --semantics defaults`` (issue #28's GPU table, run once on a lent device) calls every
+    technique with its defaults (no border or pattern of its own, whatever the formulation) and writes every goal's
+    row; ``--semantics gpu`` turns Burley's spiral fixed (issue #17's rows). The passes are recorded, not run: what
+    is checked is the script, before a device's few minutes depend on it."""
+    import runpy
+    import sys
+    from pathlib import Path
+
+    import sss_jax._timing as timing
+
+    calls = []
+
+    def recorder(name):
+        def fake(buffers, material, camera, *args, **options):
+            calls.append((name, options))
+            leaves = [x for x in jax.tree.leaves(material) if jnp.issubdtype(jnp.result_type(x), jnp.floating)]
+            return jnp.zeros((*buffers.depth.shape, 3)) + sum(jnp.sum(x) for x in leaves)
+        return fake
+
+    for name in ("separable", "burley", "translucency", "reference"):
+        monkeypatch.setattr(sj, name, recorder(name))
+    monkeypatch.setattr(timing, "time_call", lambda fn, repeats: (jax.block_until_ready(fn()), 1e-3, 0.5))
+    script = str(Path(__file__).resolve().parents[1] / "scripts" / "gpu_goals.py")
+    for semantics in ("defaults", "gpu"):
+        calls.clear()
+        out = tmp_path / f"{semantics}.json"
+        monkeypatch.setattr(sys, "argv", [script, "--size", "16x12", "--reference-size", "8x6", "--repeats", "1",
+                                          "--impl", "gather", "--semantics", semantics, "--json", str(out)])
+        with pytest.raises(SystemExit) as done:
+            runpy.run_path(script, run_name="__main__")
+        assert done.value.code == 0
+        rows = json.loads(out.read_text())["rows"]
+        assert set(rows) == {"separable 25", "burley 32", "burley 32 jit", "translucency", "grad burley 32 (d)",
+                             "separable 25 x8 vmap", "reference"}
+        assert {name for name, _ in calls} == {"separable", "burley", "translucency", "reference"}
+        chosen = {k for _, options in calls for k in options} - {"taps", "samples", "impl"}
+        assert chosen == (set() if semantics == "defaults" else {"pattern", "border"})
