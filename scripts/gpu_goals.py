@@ -34,7 +34,7 @@ def main() -> int:
     ap.add_argument("--impl", default="auto", choices=["auto", "gather", "pallas", "xla-cpu", "xla-gpu"])
     ap.add_argument("--reference-size", default="640x360")
     ap.add_argument("--semantics", default="defaults", choices=["defaults", "gpu"],
-                    help="defaults: the library's defaults (issue #28); gpu: Burley's pattern='fixed' (issue #17's rows)")
+                    help="defaults: the library's defaults (issue #28); gpu: Burley's fixed spiral (issue #17)")
     ap.add_argument("--json")
     args = ap.parse_args()
     w, h = (int(v) for v in args.size.lower().split("x"))
