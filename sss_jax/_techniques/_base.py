@@ -22,12 +22,15 @@ report, match, bench, advise, the CLI) ask the object; none of them tests a tech
 from __future__ import annotations
 
 import abc
+import collections
 import dataclasses
 import functools
 import inspect
+import threading
 from typing import Any, Callable, ClassVar
 
 import equinox as eqx
+import jax
 from jaxtyping import Array, Float
 
 from .._errors import TilePlacementError
@@ -145,18 +148,36 @@ def _choices_of(cls: type) -> tuple[tuple[str, tuple], ...]:
     return tuple((f.name, f.metadata["choices"]) for f in dataclasses.fields(cls) if "choices" in f.metadata)
 
 
-@functools.lru_cache(maxsize=256)
-def _built(cls: type, key: tuple) -> AbstractTechnique:
-    return cls(**{name: value for name, _, value in key})
+_BUILT: collections.OrderedDict = collections.OrderedDict()  # (class, field ids, options) -> (fields, technique)
+_BUILT_LOCK = threading.Lock()
+_BUILT_KEPT = 256
 
 
-def built(cls: type, options: dict[str, Any]) -> AbstractTechnique:
-    """``cls(**options)``, the same object again for the same hashable options (the wrappers build one per call;
-    building an equinox Module costs ~0.1-0.3 ms). Types are part of the key: ``True`` is not ``1``."""
+def built(cls: type, options: dict[str, Any], fields: tuple = ()) -> AbstractTechnique:
+    """``cls(*fields, **options)``, the same object again for the same hashable options (the wrappers build one per
+    call; building an equinox Module costs ~0.01-0.3 ms). Types are part of the key: ``True`` is not ``1``.
+    ``fields``: leading fields that are Modules of arrays (STA's light), which cannot be hashed: matched by identity
+    (the last ``_BUILT_KEPT`` objects are kept with their fields, so an id is never reused while it is a key); fields
+    holding a tracer (a call under ``jit``) are never kept. An unhashable option (an array seed, a tracer): built
+    afresh, its errors raised as they are."""
     try:
-        return _built(cls, tuple((k, type(v), v) for k, v in sorted(options.items())))
-    except TypeError:  # an unhashable option (an array seed, a tracer): built afresh, its errors raised as they are
-        return cls(**options)
+        key = (cls, tuple(id(f) for f in fields), tuple((k, type(v), v) for k, v in sorted(options.items())))
+        hash(key)
+    except TypeError:
+        return cls(*fields, **options)
+    if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(fields)):
+        return cls(*fields, **options)
+    with _BUILT_LOCK:
+        hit = _BUILT.get(key)
+        if hit is not None:
+            _BUILT.move_to_end(key)
+            return hit[1]
+    technique = cls(*fields, **options)
+    with _BUILT_LOCK:
+        _BUILT[key] = (fields, technique)
+        while len(_BUILT) > _BUILT_KEPT:
+            _BUILT.popitem(last=False)
+    return technique
 
 
 def call_options(technique: AbstractTechnique, material: Any) -> dict[str, Any]:

@@ -17,7 +17,7 @@ from .._materials import BurleyMaterial, DirectionalLight, STAParams
 from .._scene import Buffers, Camera
 from .._slab import MediumMaterial
 from . import _translucency
-from ._base import AbstractTechnique, call_options, default_of, option
+from ._base import AbstractTechnique, built, call_options, default_of, option
 
 _f = _translucency.translucency
 
@@ -75,7 +75,7 @@ class Translucency(AbstractTechnique):
 
 def translucency(buffers: Buffers, params: STAParams | BurleyMaterial | MediumMaterial, camera: Camera,
                  light: DirectionalLight, **options) -> Float[Array, "H W 3"]:
-    return Translucency(light, **options)(buffers, params, camera)
+    return built(Translucency, options, (light,))(buffers, params, camera)
 
 
 # the function's own docstring and signature (its options, their defaults): help() and inspect read them
