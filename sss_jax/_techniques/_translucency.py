@@ -60,8 +60,10 @@ def _thickness_mm(buffers: Buffers, thickness: ParamLike | None, camera: Camera,
 
 @jax.jit
 def _translucency_impl(buffers: Buffers, params: STAParams, camera: Camera, light: DirectionalLight,
-                       thickness: ParamLike | None, material_albedo: Array) -> Array:
+                       thickness: ParamLike | None, material_albedo: Array | None) -> Array:
     dtype = _work_dtype(buffers.irradiance.dtype)
+    if material_albedo is None:  # white: every material row
+        material_albedo = jnp.ones((1, 3), buffers.irradiance.dtype)
     prep = _prepare(buffers, material_albedo, "post", dtype)
     normal = buffers.normal.astype(dtype) if buffers.normal is not None else normals_from_depth(prep.depth, camera)
     pos = camera_positions(prep.depth, camera)
@@ -200,9 +202,10 @@ def translucency(
         return _transmission_impl(buffers, params, camera, light, thickness, model, medium)
     if not isinstance(params, STAParams):
         raise TypeError(f"translucency needs STAParams, got {type(params).__name__}")
-    # NumPy (no eager dispatch per call, and nothing a trace around the call could stage): the jitted pass takes it
+    # NumPy (no eager dispatch per call, and nothing a trace around the call could stage): the jitted pass takes it;
+    # none (white) is built inside it, a constant of the program (a host table would be copied in on every call)
     if albedo is None:
-        table = np.ones((1, 3), buffers.irradiance.dtype)
+        table = None
     elif _is_concrete(albedo):
         table = np.reshape(np.asarray(albedo), (-1, 3))
     else:
