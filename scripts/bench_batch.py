@@ -211,8 +211,8 @@ def vs_pass(args) -> int:
     import sss_jax as sj
     from sss_jax import _io
     from sss_jax._batch import COMPUTE_THREADS, process_frames
-    from sss_jax._machine import usable_cores
     from sss_jax._demo import demo_burley_material
+    from sss_jax._machine import usable_cores
 
     mat = demo_burley_material()
     fn = {"burley": lambda b, c: sj.burley(b, mat, c, samples=args.samples),
