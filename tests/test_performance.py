@@ -20,6 +20,7 @@ from sss_jax._advise import (
     measure_candidates,
     resolve_material,
 )
+from sss_jax._demo import demo_burley_material
 from sss_jax._techniques import _separable as separable_module
 from sss_jax._techniques import (
     burley_active_count,
@@ -347,6 +348,30 @@ def _numpy_depth_aware_pass(e, z, valid, w_table, rows, reach_px, reach_mm, unit
                 acc += w_table[rows[y, x], :, i] * sample
             out[:, y, x] = acc
     return out
+
+
+def _largest_fusion_reads(taps: int) -> int:
+    """The most dynamic slices (a tap's fetches) one computation of the compiled separable pass holds."""
+    scene = sj.demo_scene(32, 48)
+    material = demo_burley_material()
+    hlo = jax.jit(lambda b: sj.separable(b, material, scene.camera, taps=taps)).lower(scene.buffers).compile()
+    return max(block.count(" dynamic-slice(") for block in hlo.as_text().split("\n\n"))
+
+
+def test_wide_separable_kernels_stay_in_chunks_after_compilation():
+    # a wide kernel's taps run in chunks because XLA's CPU fusion falls apart past ~60 taps in one expression; two
+    # chunks are a loop of one iteration, which XLA removes, fusing both chunks back into one (65 taps as two chunks
+    # of 33: 6x slower than in four of 17, 2026-12-03; the comment above ``_separable._TAPS_PER_FUSION``)
+    for taps in range(1, 200):
+        chunks, per = separable_module.tap_chunks(taps)
+        assert (chunks - 1) * per < taps <= chunks * per, taps  # spread evenly, no empty chunk
+        if chunks == 1:
+            assert per <= separable_module._TAPS_PER_FUSION
+        else:
+            assert chunks >= 3 and per <= separable_module._TAPS_PER_LOOP_CHUNK, (taps, chunks, per)
+    # in the compiled pass: no fusion of 65 taps reads as much as one of 33 (two chunks merged read more: 233-296
+    # slices against 131 before this round)
+    assert _largest_fusion_reads(65) < _largest_fusion_reads(33)
 
 
 @pytest.mark.parametrize("axis", [2, 1])

@@ -103,16 +103,27 @@ frame_truncation = spec.frame_truncation  # the spec's (the host check and the t
 
 
 def tap_chunks(taps: int) -> tuple[int, int]:
-    """(chunks, taps per chunk) of a separable pass: as few chunks as keep each at most ``_TAPS_PER_FUSION`` taps,
-    the taps spread evenly over them."""
-    chunks = -(-taps // _TAPS_PER_FUSION)
+    """(chunks, taps per chunk) of a separable pass, the taps spread evenly over the chunks: one chunk up to
+    ``_TAPS_PER_FUSION`` taps; beyond, chunks of at most ``_TAPS_PER_LOOP_CHUNK`` taps, never fewer than three. The
+    first chunk runs on its own and a loop runs the rest (``_separable_level``): with two chunks that loop would run
+    once, and XLA removes a loop of one iteration and fuses both chunks' taps into one expression again, the case
+    the chunks are there to avoid."""
+    if taps <= _TAPS_PER_FUSION:
+        return 1, taps
+    chunks = max(3, -(-taps // _TAPS_PER_LOOP_CHUNK))
     return chunks, -(-taps // chunks)
 
 
 # Taps fused into one loop over a band. Unrolling every tap of a wide kernel into one expression makes XLA's CPU
-# fusion fall apart (65 taps in one: 8x slower than 33 at 256x256, 14x at 1920x1080); chunks of at most this many
-# keep it whole (65 taps as two chunks of 33: 1.8x the time of 33 at 640x360).
-_TAPS_PER_FUSION = 33
+# fusion fall apart past ~60 taps (2026-12-03, 256x256, the demo frame, one chunk: 49 taps 6.1 ms, 57 taps 7.2 ms,
+# 65 taps 55 ms, against 33 taps 3.8 ms). Until this round 65 taps ran as two chunks of 33, which XLA fused back into
+# one (above): 64 ms at 256x256, 304 ms at 640x640 (33 taps: 36 ms). As chunks of at most 17 taps in a loop: 65 taps
+# 9.8-11.8 ms at 256x256 (compiled in 3.6-3.9 s, against 4.9-5.4 s), 30 ms at 360x640 (58 ms); 97 taps 15.6 ms,
+# 129 taps 20.5 ms (chunks of 33: 18.5 and 22.3 ms, compiled in 6.3-6.4 s against 3.6-4.3 s). Up to 49 taps one
+# chunk is the fastest (35 / 41 / 49 taps: 5.6 / 6.0 / 6.1 ms at 256x256, against 7.3 / 7.7 / 8.7-11.6 ms in three
+# chunks of 12-17; 49 taps at 360x640 23 ms against 29, at 1080x1920 191 ms against 202).
+_TAPS_PER_FUSION = 49
+_TAPS_PER_LOOP_CHUNK = 17
 
 
 def _band_rows(height: int, width: int) -> int:
