@@ -76,7 +76,8 @@ import sys
 import threading
 import time
 import warnings
-from typing import Any, Callable, ClassVar, Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
+from typing import Any, ClassVar
 
 import equinox as eqx
 import jax

@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import platform
 import time
-from typing import Any, Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
 
 import jax
 import jax.numpy as jnp

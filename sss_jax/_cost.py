@@ -15,7 +15,8 @@ a select or a transcendental each count one, a fused multiply-add two. ``fetches
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 

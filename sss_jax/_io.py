@@ -31,7 +31,8 @@ import socket
 import struct
 import tempfile
 import warnings
-from typing import Any, Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
+from typing import Any
 
 import numpy as np
 

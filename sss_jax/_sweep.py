@@ -5,7 +5,8 @@ runs are built by its command line)."""
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Mapping, Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 __all__ = ["as_counts", "changed_options", "run_label", "technique_runs"]
 

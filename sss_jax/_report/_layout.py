@@ -15,7 +15,8 @@ from numbers import Real
 import html
 import json
 import pathlib
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 

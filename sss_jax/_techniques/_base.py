@@ -27,7 +27,8 @@ import dataclasses
 import functools
 import inspect
 import threading
-from typing import Any, Callable, ClassVar
+from collections.abc import Callable
+from typing import Any, ClassVar
 
 import equinox as eqx
 import jax

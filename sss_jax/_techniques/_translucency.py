@@ -3,7 +3,7 @@ physically based transmission. These ADD light (they do not conserve energy)."""
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import equinox as eqx
 import jax

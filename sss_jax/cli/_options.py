@@ -7,7 +7,8 @@ import argparse
 import dataclasses
 import inspect
 import sys
-from typing import Any, Iterable
+from collections.abc import Iterable
+from typing import Any
 
 
 class WarningPrinter:
