@@ -287,7 +287,9 @@ def test_untruncated_frames_share_the_sample_radii():
     np.testing.assert_allclose(out_small, impl(small, True), rtol=1e-12, atol=1e-14)
     np.testing.assert_array_equal(out_small, impl(small, False))  # the shared radii are what ran
     out_large = np.asarray(sj.burley(b, large, CAM, **kw))
-    np.testing.assert_array_equal(out_large, impl(large, True))
+    # the truncated radii ran: the same pixels to float64 rounding (the call hands the host count's padded planes to
+    # the pass, which XLA then fuses differently), and far from the shared ones
+    np.testing.assert_allclose(out_large, impl(large, True), rtol=1e-12, atol=1e-14)
     assert np.abs(impl(large, False) - out_large).max() > 1e-3
 
 
