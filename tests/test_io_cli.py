@@ -390,6 +390,138 @@ def test_multipart_exr_with_a_uint32_id_part(tmp_path):
     assert frame.sss_pixels == h * (w - 2)
 
 
+def _read_both_ways(path, monkeypatch):
+    """``_io._read_image(path)`` as it reads (OpenEXR's binding for the pixels where it can), whether that fast
+    path decoded it, and the same file read by OpenImageIO alone (the binding hidden)."""
+    decoded = []
+    fast = _io._scanline_exr_pixels
+    monkeypatch.setattr(_io, "_scanline_exr_pixels", lambda *a: decoded.append(fast(*a)) or decoded[-1])
+    got = _io._read_image(path)
+    monkeypatch.setattr(_io, "_openexr", lambda: None)
+    alone = _io._read_image(path)
+    monkeypatch.undo()
+    return got, decoded[0] is not None, alone
+
+
+def assert_same_read(got, alone):
+    (floats, integers, header, shape), (floats0, integers0, header0, shape0) = got, alone
+    assert list(floats) == list(floats0) and list(integers) == list(integers0)  # the names, in OpenImageIO's order
+    for name in floats0:
+        assert floats[name].dtype == floats0[name].dtype == np.float32
+        np.testing.assert_array_equal(floats[name], floats0[name], err_msg=name)  # bit for bit, NaN and inf too
+    for name in integers0:
+        np.testing.assert_array_equal(integers[name], integers0[name], err_msg=name)
+    assert header == header0 and shape == shape0
+
+
+@pytest.mark.parametrize("compression", ["ZIP", "ZIPS", "PIZ", "RLE", "NO", "B44", "DWAA"])
+@pytest.mark.parametrize("line_order", ["INCREASING_Y", "DECREASING_Y"])
+def test_exr_pixels_decoded_by_openexr_equal_openimageio_s(tmp_path, monkeypatch, compression, line_order):
+    # the channels a renderer writes, each in its own type: half colour with inf and NaN, float depth with a
+    # background at 1e10 and inf, a uint32 id up to 2^32 - 1 (OpenImageIO's float view of it is v / (2^32 - 1)),
+    # Blender's layer names, a data window that does not start at the origin and a header of every kind
+    import OpenEXR
+
+    h, w = 37, 23  # not a multiple of any compression's chunk height
+    rng = np.random.default_rng(5)
+    colour = rng.uniform(0, 4, (h, w)).astype(np.float16)
+    colour[0, :3] = [np.inf, np.nan, -0.0]
+    depth = rng.uniform(1, 50, (h, w)).astype(np.float32)
+    depth[1, :2] = [1e10, np.inf]
+    ids = rng.integers(0, 4, (h, w)).astype(np.uint32)
+    ids[2, :4] = [2**24 + 1, 2**31, 2**32 - 1, 123456789]
+    channels = {"ViewLayer.DiffDir.R": colour, "ViewLayer.DiffDir.G": colour[::-1], "B": colour[:, ::-1], "ViewLayer.Depth.Z": depth,
+                "ViewLayer.IndexOB.X": ids, "A": np.ones((h, w), np.float16)}
+    header = {"compression": getattr(OpenEXR, f"{compression}_COMPRESSION"), "type": OpenEXR.scanlineimage,
+              "lineOrder": getattr(OpenEXR, line_order), "sss_jax:focal_px": 200.0, "sss_jax:mm_per_unit": 10,
+              "owner": "someone", "worldToCamera": np.eye(4, dtype=np.float32),
+              "dataWindow": (np.array([3, 2], np.int32), np.array([3 + w - 1, 2 + h - 1], np.int32)),
+              "displayWindow": (np.array([0, 0], np.int32), np.array([w + 9, h + 9], np.int32))}
+    path = tmp_path / "renderer.exr"
+    with OpenEXR.File(header, {k: np.ascontiguousarray(v) for k, v in channels.items()}) as f:
+        f.write(str(path))
+    got, fast, alone = _read_both_ways(path, monkeypatch)
+    assert fast == (line_order == "INCREASING_Y"), "OpenEXR decodes single-part scan lines whose chunks lie in order"
+    assert_same_read(got, alone)
+    assert list(got[1]) == ["ViewLayer.IndexOB.X"] and got[1]["ViewLayer.IndexOB.X"].max() == 2**32 - 1
+
+
+def test_a_blender_render_and_the_library_s_own_files_decode_through_openexr(tmp_path, monkeypatch, shared_dir):
+    for path in sorted((shared_dir / "reference" / "blender").glob("*.exr")):
+        got, fast, alone = _read_both_ways(path, monkeypatch)
+        assert fast, path
+        assert_same_read(got, alone)
+    own = tmp_path / "own.exr"
+    synthetic_frame(own, focal=150.0)  # OpenImageIO's writer
+    got, fast, alone = _read_both_ways(own, monkeypatch)
+    assert fast
+    assert_same_read(got, alone)
+
+
+def test_files_openexr_does_not_decode_go_to_openimageio_which_names_the_damage(tmp_path, monkeypatch, capfd):
+    # tiled files and damaged ones are OpenImageIO's: a truncated file is never handed to OpenEXR's decoder (which
+    # prints its own messages before it fails), and a damaged file's error is OpenImageIO's
+    tiled = tmp_path / "tiled.exr"
+    spec = oiio.ImageSpec(40, 40, 3, oiio.FLOAT)
+    spec.tile_width = spec.tile_height = 16
+    out = oiio.ImageOutput.create(str(tiled))
+    assert out.open(str(tiled), spec) and out.write_image(np.ones((40, 40, 3), np.float32)) and out.close()
+    got, fast, alone = _read_both_ways(tiled, monkeypatch)
+    assert not fast
+    assert_same_read(got, alone)
+    whole = tmp_path / "whole.exr"
+    synthetic_frame(whole, h=40, w=30)
+    data = whole.read_bytes()
+    for what, bad in {"cut in half": data[: len(data) // 2], "cut by a byte": data[:-1],
+                      "a chunk zeroed": data[:-200] + bytes(200)}.items():
+        path = tmp_path / "bad.exr"
+        path.write_bytes(bad)
+        capfd.readouterr()
+        with pytest.raises(_io.SSSInputError) as fast_error:
+            _io._read_image(path)
+        if what.startswith("cut"):  # what an interrupted copy or write leaves never reaches OpenEXR's decoder
+            assert capfd.readouterr() == ("", ""), what  # (whose own messages a damaged chunk's data still prints)
+        monkeypatch.setattr(_io, "_openexr", lambda: None)
+        with pytest.raises(_io.SSSInputError) as oiio_error:
+            _io._read_image(path)
+        monkeypatch.undo()
+        assert str(fast_error.value) == str(oiio_error.value), what
+
+
+@pytest.mark.parametrize("half", [False, True])
+def test_exr_written_through_openexr_is_the_file_openimageio_writes(tmp_path, monkeypatch, half):
+    # write_exr's pixels go through OpenEXR's binding when every attribute is namespaced: OpenImageIO reads back
+    # the same pixels, types and header (less the time of the write) as from OpenImageIO's own writer
+    image = np.random.default_rng(2).uniform(0, 8, (19, 13, 3)).astype(np.float32)
+    image[0, 0] = [np.inf, np.nan, 65504.0]
+    attrs = {"sss_jax:technique": "burley", "sss_jax:samples": 32, "sss_jax:focal_px": 281.6,
+             "sss_jax:seed": "4000000000", "sss_jax:flag": True, "sss_jax:ratio": np.float32(0.25)}
+    written = []
+    real = _io._write_scanline_exr
+    monkeypatch.setattr(_io, "_write_scanline_exr", lambda *a: written.append(a[0]) or real(*a))
+    _io.write_exr(tmp_path / "a.exr", image, half=half, attributes=attrs)
+    _io.write_exr(tmp_path / "c.exr", image, half=half, attributes={**attrs, "Copyright": "me"})  # a standard name
+    monkeypatch.setattr(_io, "_openexr", lambda: None)
+    _io.write_exr(tmp_path / "b.exr", image, half=half, attributes=attrs)
+    assert written == [tmp_path / "a.exr"]
+
+    def read(name):
+        inp = oiio.ImageInput.open(str(tmp_path / name))
+        spec = inp.spec()
+        pixels = inp.read_image(oiio.FLOAT)
+        inp.close()
+        header = {a.name: (str(a.type), a.value) for a in spec.extra_attribs if a.name != "DateTime"}
+        return pixels, spec.format, spec.channelnames, header, spec.getattribute("DateTime")
+
+    fast, oiio_only = read("a.exr"), read("b.exr")
+    np.testing.assert_array_equal(fast[0], oiio_only[0])
+    np.testing.assert_array_equal(fast[0], image.astype(np.float16).astype(np.float32) if half else image)
+    assert fast[1:4] == oiio_only[1:4]
+    assert fast[4] and oiio_only[4]  # both say when they were written
+    assert _io.exr_chunks_complete(tmp_path / "a.exr")
+    assert not list(tmp_path.glob(".*tmp*"))
+
+
 def test_uint16_channels_keep_their_values(tmp_path):
     """A 16-bit id (a TIFF, as some G-buffer dumps write it): the stored integers, not value / 65535."""
     ids = np.array([[0, 1, 2], [3, 65535, 1]], np.uint16)
