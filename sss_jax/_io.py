@@ -775,7 +775,7 @@ def write_exr(
     if len(channel_names) != data.shape[-1]:
         raise SSSInputError(f"{path}: {len(channel_names)} channel names for {data.shape[-1]} channels")
     pixels = np.ascontiguousarray(data.astype(np.float16 if half else np.float32, copy=False))
-    attributes = dict(attributes or {})
+    attributes = {key: _header_value(value) for key, value in (attributes or {}).items()}
     if _openexr() is not None and len(set(channel_names)) == len(channel_names) and \
             all(_exr_attribute(k, v) for k, v in attributes.items()):
         return _write_scanline_exr(path, pixels, channel_names, attributes, overwrite)
@@ -784,14 +784,7 @@ def write_exr(
     spec.channelnames = tuple(channel_names)
     spec.attribute("compression", "zip")
     for key, value in attributes.items():
-        if isinstance(value, (bool, np.bool_)):
-            value = int(value)
-        if isinstance(value, (int, np.integer)):
-            spec.attribute(key, int(value))
-        elif isinstance(value, (float, np.floating)):
-            spec.attribute(key, float(value))
-        else:
-            spec.attribute(key, str(value))
+        spec.attribute(key, value)
     # checked from the file's chunk table, not decoded: the write's own errors are caught (write_image, close), and
     # what a lost write leaves (a chunk missing, misplaced or cut short) shows in the table at a fraction of a decode
     with atomic_path(path, overwrite=overwrite, verify=exr_chunks_complete) as tmp:
@@ -808,32 +801,32 @@ def write_exr(
     return pathlib.Path(path)
 
 
-def _exr_attribute(key: str, value: Any) -> bool:
-    """Whether OpenEXR's binding writes this header attribute as OpenImageIO would: a namespaced name outside
-    OpenImageIO's own namespaces (OpenImageIO maps names such as ``DateTime`` or ``Copyright`` to the EXR standard
-    attributes) with a string, a float or an int that fits an EXR int."""
+def _header_value(value: Any) -> int | float | str:
+    """A header attribute's value as both writers store it: an int (a bool as 0 or 1), a float, or its text."""
+    if isinstance(value, (bool, np.bool_, int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return float(value)
+    return str(value)
+
+
+def _exr_attribute(key: str, value: int | float | str) -> bool:
+    """Whether OpenEXR's binding writes this header attribute (``_header_value``'s) as OpenImageIO would: a
+    namespaced name outside OpenImageIO's own namespaces (OpenImageIO maps names such as ``DateTime`` or
+    ``Copyright`` to the EXR standard attributes), an int only where it fits an EXR int."""
     prefix, colon, _ = key.partition(":")
     if not colon or prefix.lower() in ("oiio", "openexr", "exr"):
         return False
-    if isinstance(value, (bool, np.bool_, int, np.integer)):
-        return -2**31 <= int(value) < 2**31
-    return isinstance(value, (str, float, np.floating))
+    return not isinstance(value, int) or -2**31 <= value < 2**31
 
 
-def _write_scanline_exr(path, pixels: np.ndarray, channel_names: list[str], attributes: Mapping[str, Any],
-                        overwrite: bool) -> pathlib.Path:
+def _write_scanline_exr(path, pixels: np.ndarray, channel_names: list[str],
+                        attributes: Mapping[str, int | float | str], overwrite: bool) -> pathlib.Path:
     """``write_exr`` through OpenEXR's binding: the same file OpenImageIO writes (ZIP, scan lines, increasing y, the
     attributes with their types, the time of the write as ``capDate``, which OpenImageIO calls ``DateTime``)."""
     exr = _openexr()
     header: dict[str, Any] = {"compression": exr.ZIP_COMPRESSION, "type": exr.scanlineimage,
-                              "capDate": time.strftime("%Y:%m:%d %H:%M:%S")}
-    for key, value in attributes.items():
-        if isinstance(value, (bool, np.bool_, int, np.integer)):
-            header[key] = int(value)
-        elif isinstance(value, (float, np.floating)):
-            header[key] = float(value)
-        else:
-            header[key] = str(value)
+                              "capDate": time.strftime("%Y:%m:%d %H:%M:%S"), **attributes}
     planes = {name: np.ascontiguousarray(pixels[..., c]) for c, name in enumerate(channel_names)}
     with atomic_path(path, overwrite=overwrite, verify=exr_chunks_complete) as tmp:
         try:
