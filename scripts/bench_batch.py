@@ -19,7 +19,9 @@ each frame's buffers, already in memory: no reading, no writing) and then ``proc
 (reading, checks, writing, manifest included), each after one warm-up frame so compilation counts in neither, and
 the pass alone again after the batch; prints both frames/s and their ratio against the faster pass run (the goal:
 batch >= 0.75 x pass), and the machine's load; and, for what the files and the book-keeping cost, the pass with
-``COMPUTE_THREADS`` frames at a time (as the batch computes small frames) and the batch's share of that.
+``COMPUTE_THREADS`` frames at a time (as the batch computes small frames) and the batch's share of that; and the
+ceiling of the ratio on this machine: the CPU time a frame of the pass (as it runs alone), of reading a frame and of
+writing its output (each measured alone, one thread), packed perfectly onto the cores with the book-keeping free.
 
 ``--large N``: one NxN frame (written by a child process, so its generation does not count), processed in tiles;
 reports the wall time and the peak resident memory of the processing process, and checks the result is complete.
@@ -83,7 +85,8 @@ def make_frames(src: str, frames: int, size: int, corrupt: float) -> list[int]:
                 ch.pop("Z")
             _io.write_exr(path, ch, attributes=attrs)
             if kind == "truncated":
-                data = open(path, "rb").read()
+                with open(path, "rb") as f:
+                    data = f.read()
                 with open(path, "wb") as f:
                     f.write(data[: len(data) // 2])
             continue
@@ -132,17 +135,19 @@ def long_run(args) -> int:
                                         env=dict(os.environ, PYTHONPATH=ROOT)).stdout.strip().splitlines()[-1])
         marks = {}
         count = [0]
+        settled = min(100, args.frames)  # the memory after the first frames settle, against the last frame's
 
         def on_done(r):
             count[0] += 1
-            if count[0] in (1, 100, args.frames):
+            if count[0] in (1, settled, args.frames):
                 marks[count[0]] = rss_mib()
 
         t0 = time.perf_counter()
         r = process_frames(os.path.join(src, "*.exr"), args.technique, mat, out_dir=out, progress=False,
                            on_frame_done=on_done)
         wall = time.perf_counter() - t0
-        book = json.load(open(os.path.join(out, MANIFEST_NAME)))
+        with open(os.path.join(out, MANIFEST_NAME)) as f:
+            book = json.load(f)
         failed = {os.path.basename(f["input"]) for f in book["frames"] if f["status"] == "failed"}
         done = {os.path.basename(f["output"]) for f in book["frames"] if f["status"] == "done"}
         expect_bad = {f"frame{i:04d}.exr" for i in bad}
@@ -164,9 +169,10 @@ def long_run(args) -> int:
           f"{done == on_disk}")
     print(f"  throughput: {args.frames / wall:.2f} frames/s ({wall:.1f} s, read + compute + write + manifest; "
           f"{ok / wall:.2f} good frames/s)")
-    print(f"  resident memory: {marks.get(1, 0):.0f} MiB after frame 1, {marks.get(100, 0):.0f} MiB after frame 100, "
-          f"{marks.get(args.frames, 0):.0f} MiB after frame {args.frames}: growth 100 -> {args.frames} "
-          f"{marks.get(args.frames, 0) - marks.get(100, 0):+.0f} MiB; peak {peak_mib():.0f} MiB")
+    settled = min(100, args.frames)
+    print(f"  resident memory: {marks.get(1, 0):.0f} MiB after frame 1, {marks.get(settled, 0):.0f} MiB after frame "
+          f"{settled}, {marks.get(args.frames, 0):.0f} MiB after frame {args.frames}: growth {settled} -> "
+          f"{args.frames} {marks.get(args.frames, 0) - marks.get(settled, 0):+.0f} MiB; peak {peak_mib():.0f} MiB")
     print(f"  resume: {skipped} of {len(again.frames) - len(again.failed)} good frames skipped, outputs "
           f"byte-identical: {identical}, {wall_resume:.1f} s ({wall / max(wall_resume, 1e-9):.0f}x faster)")
     print("  all checks hold" if good else "  CHECK FAILED")
@@ -253,6 +259,18 @@ def vs_pass(args) -> int:
         # the pass again after the batch: the ratio takes the faster of the two (load that comes or goes during
         # the run never flatters the batch)
         pass_s.append(pass_alone())
+        # the files alone, one thread, nothing beside them: a frame read as the batch reads it (decoded, checked,
+        # buffers) and an output written as the batch writes it (ZIP float, atomic); CPU seconds a frame
+        some = paths[: min(20, len(paths))]
+        image = np.asarray(fn(*inputs[0]))
+        c0 = time.process_time()
+        for p in some:
+            _io.read_frame(p).to_buffers()
+        cpu["read"] = (time.process_time() - c0) / len(some)
+        c0 = time.process_time()
+        for k in range(len(some)):
+            _io.write_exr(os.path.join(tmp, f"alone{k}.exr"), image, attributes={"sss_jax:technique": args.technique})
+        cpu["write"] = (time.process_time() - c0) / len(some)
     ok = sum(f.status == "done" for f in r.frames)
     pass_fps, batch_fps = args.frames / min(pass_s), ok / batch_s
     count = f"{args.samples} samples" if args.technique == "burley" else f"{args.taps} taps"
@@ -272,6 +290,13 @@ def vs_pass(args) -> int:
         print(f"  CPU time a frame: pass {1e3 * cpu['pass'] / args.frames:.1f} ms, batch {1e3 * batch_cpu:.1f} ms "
               f"({cores} cores: the batch's floor is {1e3 * batch_cpu / cores:.1f} ms a frame, "
               f"{cores / batch_cpu:.0f} frames/s)")
+        # the ceiling of the ratio on this machine: the pass's CPU (as it runs alone, XLA's threads and all) and
+        # the files' CPU measured alone, packed perfectly onto the cores, book-keeping and hand-offs free
+        least = cpu["pass"] / args.frames + cpu["read"] + cpu["write"]
+        print(f"  files alone (one thread, CPU a frame): read {1e3 * cpu['read']:.1f} ms, write "
+              f"{1e3 * cpu['write']:.1f} ms; with the pass's {1e3 * cpu['pass'] / args.frames:.1f} ms that is "
+              f"{1e3 * least:.1f} ms a frame: packed perfectly on {cores} cores, book-keeping free, at most "
+              f"{cores / least:.0f} frames/s, {cores / least / pass_fps:.2f} of the pass alone")
     return 0 if ok == args.frames else 1
 
 
