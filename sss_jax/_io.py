@@ -37,6 +37,7 @@ import pathlib
 import socket
 import struct
 import tempfile
+import threading
 import time
 import warnings
 from collections.abc import Callable, Iterator, Mapping
@@ -653,6 +654,29 @@ def temporary_prefix(path: str | os.PathLike) -> str:
     return f".{pathlib.Path(path).name}.sss_jax-{socket.gethostname()}-{os.getpid()}."
 
 
+_UMASK_STATUS = "/proc/self/status"
+_UMASK_LOCK = threading.Lock()
+
+
+def process_umask() -> int:
+    """The process's umask, read without changing it where the system reports it (Linux 4.7+: the ``Umask:`` line of
+    ``/proc/self/status``). ``os.umask`` reads it only by setting it, and while it is set every file another thread
+    creates gets that mode: the batch's writer thread finishing a frame while its main thread opens the manifest, a
+    caller's thread saving its own files. Elsewhere it is set for that moment to 077, so that a file created meanwhile
+    is private rather than writable by everyone."""
+    try:
+        with open(_UMASK_STATUS, "rb") as f:
+            for line in f:
+                if line.startswith(b"Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    with _UMASK_LOCK:
+        mask = os.umask(0o077)
+        os.umask(mask)
+    return mask
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, *, overwrite: bool = True,
                 verify: Callable[[pathlib.Path], bool] | None = None) -> Iterator[pathlib.Path]:
@@ -679,9 +703,7 @@ def atomic_path(path: str | os.PathLike, *, overwrite: bool = True,
             raise OSError(errno.EIO, f"{path}: the written file does not decode (disk full or an I/O error while "
                                      "writing); nothing was placed")
         # mkstemp creates 0600; a finished output gets the permissions an ordinary file would (0666 less umask)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp_path, 0o666 & ~umask)
+        os.chmod(tmp_path, 0o666 & ~process_umask())
         if overwrite:
             os.replace(tmp_path, path)
         else:

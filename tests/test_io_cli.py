@@ -2,7 +2,9 @@
 
 import json
 import math
+import os
 import pathlib
+import stat
 
 import numpy as np
 import OpenImageIO as oiio
@@ -64,6 +66,78 @@ def test_atomic_write_keeps_the_old_file_on_failure(tmp_path):
         _io.write_json_atomic(p, {"a": object()})  # fails while serialising
     assert json.loads(p.read_text()) == {"a": 1}
     assert sorted(x.name for x in tmp_path.iterdir()) == ["keep.json"]
+
+
+def _atomic_outputs(folder):
+    """One file of each atomic writer: the EXR through OpenEXR's binding (namespaced attributes) and through
+    OpenImageIO (an attribute OpenImageIO maps to a standard one), the PNG preview, a JSON file."""
+    image = np.ones((4, 5, 3), np.float32)
+    return [_io.write_exr(folder / "a.exr", image, attributes={"sss_jax:technique": "burley"}),
+            _io.write_exr(folder / "b.exr", image, attributes={"DateTime": "2026:12:05 23:30:00"}),
+            _io.write_png_preview(folder / "c.png", image),
+            _io.write_json_atomic(folder / "d.json", {"a": 1})]
+
+
+@pytest.mark.parametrize("mask", [0o022, 0o077, 0o002])
+def test_atomic_outputs_get_the_permissions_of_an_ordinary_file(tmp_path, mask):
+    # mkstemp creates its temporaries 0600; a finished output gets what open() gives a new file: 0666 less the umask
+    old = os.umask(mask)
+    try:
+        ordinary = tmp_path / "ordinary"
+        ordinary.touch()
+        outputs = _atomic_outputs(tmp_path)
+    finally:
+        os.umask(old)
+    want = stat.S_IMODE(ordinary.stat().st_mode)
+    assert want == 0o666 & ~mask
+    assert [stat.S_IMODE(pathlib.Path(p).stat().st_mode) for p in outputs] == [want] * 4
+
+
+def _reports_umask() -> bool:
+    try:
+        with open("/proc/self/status") as f:
+            return any(line.startswith("Umask:") for line in f)
+    except OSError:
+        return False
+
+
+@pytest.mark.skipif(not _reports_umask(), reason="the system does not report the umask (Linux 4.7+ does)")
+def test_an_atomic_write_never_sets_the_umask(tmp_path, monkeypatch):
+    # os.umask reads the mask only by setting it, and while it is set every file another thread creates gets that
+    # mode (the batch's writer thread finishes a frame while the main thread opens the manifest): a write reads the
+    # mask where the system reports it and never sets it
+    old = os.umask(0o027)
+    try:
+        def refuse(mask):
+            raise AssertionError(f"os.umask({mask:#o}) called during a write")
+
+        monkeypatch.setattr(os, "umask", refuse)
+        outputs = _atomic_outputs(tmp_path)
+        assert _io.process_umask() == 0o027
+    finally:
+        monkeypatch.undo()
+        os.umask(old)
+    assert {stat.S_IMODE(pathlib.Path(p).stat().st_mode) for p in outputs} == {0o640}
+
+
+def test_where_the_umask_is_not_reported_it_is_private_while_read(tmp_path, monkeypatch):
+    # elsewhere it is set for the moment of reading it, to 077: a file another thread creates then is private, not
+    # writable by everyone (os.umask(0) would make it so)
+    monkeypatch.setattr(_io, "_UMASK_STATUS", str(tmp_path / "no such file"))
+    real, calls = os.umask, []
+
+    def spy(mask):
+        calls.append(mask)
+        return real(mask)
+
+    old = real(0o022)
+    try:
+        monkeypatch.setattr(os, "umask", spy)
+        assert _io.process_umask() == 0o022
+    finally:
+        monkeypatch.setattr(os, "umask", real)
+        real(old)
+    assert calls == [0o077, 0o022]
 
 
 @pytest.mark.parametrize("compression", ["none", "rle", "zips", "zip", "piz", "b44"])
