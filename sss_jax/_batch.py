@@ -66,6 +66,7 @@ import hashlib
 import inspect
 import json
 import math
+import numbers
 from numbers import Real
 import os
 import pathlib
@@ -785,6 +786,7 @@ def remove_stale_temporaries(outputs: Iterable[pathlib.Path]) -> list[pathlib.Pa
                 stale = m["name"] in names and m["host"] == host and not _alive(int(m["pid"]))
             else:
                 m = _OLD_TEMPORARY.match(entry.name)
+                stale = False  # a name that cannot be stat'ed (gone meanwhile, a dangling link) is left alone
                 with contextlib.suppress(OSError):
                     stale = (m is not None and m["name"] in names
                              and time.time() - entry.stat().st_mtime > _OLD_TEMPORARY_AGE_S)
@@ -1250,16 +1252,20 @@ class _Batch:
         return frame_seed(self.base_seed, job.number) if self.seeded else None
 
     def record(self, job: _Job, tech=None) -> tuple[dict[str, str], str]:
-        """The job's resume record; the last two are kept (resume decides one frame ahead, then the frame before
-        writes it: one record computed per frame, its input stamped before the frame is read)."""
+        """The job's resume record, computed when the run first looks at the frame (resume's decision, one frame
+        ahead of its read) and kept until its files are handed to the writer or the frame fails or is skipped
+        (``forget``): the input is stamped before it is read, so an input rewritten meanwhile (a re-render) does
+        not pass for the one the output was made from, however many frames compute or wait in between."""
         if job not in self.records:
             params = dict(self.parameters)
             if self.seeded:
                 params["frame_seed"] = self.seed_of(job)
             self.records[job] = _resume_record(job.src, params)
-            while len(self.records) > 2:
-                del self.records[next(iter(self.records))]
         return self.records[job]
+
+    def forget(self, job: _Job) -> None:
+        """The job's record dropped: the frame is written, failed or skipped."""
+        self.records.pop(job, None)
 
     # -- results
     def finish(self, r: FrameResult) -> None:
@@ -1289,6 +1295,7 @@ class _Batch:
             self.on_frame_done(r)
 
     def fail(self, job: _Job, exc: BaseException, path: pathlib.Path | None = None) -> None:
+        self.forget(job)
         self.finish(self.failure(job, exc, path))
 
     @staticmethod
@@ -1311,6 +1318,7 @@ class _Batch:
                 attrs[f"sss_jax:{name}"] = int(rules[name])
         if self.seeded:
             attrs["sss_jax:seed"] = str(self.seed_of(job))  # a uint32: past a header int
+        self.forget(job)
         done = FrameResult(str(job.src), str(job.dst), "done", "; ".join(notes + warned), seconds=seconds,
                            warnings=notes + warned)
         self.collect()
@@ -1484,6 +1492,7 @@ class _Batch:
             try:
                 image, warned, seconds = c.future.result()
             except (OSError, ValueError) as exc:
+                self.forget(c.job)
                 self.collect()
                 self.append(self.failure(c.job, exc))
                 continue
@@ -1546,8 +1555,8 @@ def process_frames(
     out_dir: str | pathlib.Path | None = None,
     outputs: Sequence[str | pathlib.Path] | None = None,
     png: bool = False,
-    focal_px: float | None = None,
-    mm_per_unit: float | None = None,
+    focal_px: numbers.Real | None = None,
+    mm_per_unit: numbers.Real | None = None,
     channel_map=None,
     depth_kind: str = "planar",
     use_albedo_pass: bool = True,
@@ -1609,6 +1618,8 @@ def process_frames(
     named = {k: v for k, v in dict(samples=samples, taps=taps, radius_px=radius_px, albedo=sta_albedo,
                                     thickness=sta_thickness).items() if v is not None}
     tech, material = _technique_object(technique, {**named, **dict(technique_options or {})}, material)
+    focal_px, mm_per_unit = (_positive_option(name, value) for name, value in (("focal_px", focal_px),
+                                                                             ("mm_per_unit", mm_per_unit)))
     if not (isinstance(tile_pixels, (int, np.integer)) and tile_pixels >= 1):
         raise ValueError(f"tile_pixels must be a positive integer, got {tile_pixels!r}")
     call_seconds()  # the work bound from the environment, checked before any frame
@@ -1653,7 +1664,8 @@ def process_frames(
     def skipped(k: int) -> bool:
         if k not in decided:
             job = jobs[k]
-            decided[k] = resume and _is_complete(job, png, existing.get(job.dst), run.record(job)[1])
+            digest = run.record(job)[1]  # also without resume: the record stamps the input before it is read
+            decided[k] = resume and _is_complete(job, png, existing.get(job.dst), digest)
         return decided[k]
 
     try:
@@ -1661,6 +1673,7 @@ def process_frames(
             try:
                 for k, job in enumerate(jobs):
                     if skipped(k):
+                        run.forget(job)
                         run.finish(FrameResult(str(job.src), str(job.dst), "skipped", "complete output of the same "
                                                "input and parameters"))
                         continue
@@ -1679,6 +1692,15 @@ def process_frames(
         run.warned.summary()
     return BatchResult(frames=run.results, compilations=_TRACES[0] - traces,
                        manifest=None if manifest is None else str(manifest))
+
+
+def _positive_option(name: str, value) -> float | None:
+    """A length option as a Python float (a NumPy scalar too: it goes into the resume record's JSON), or None."""
+    if value is None:
+        return None
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real) or not value > 0:
+        raise ValueError(f"{name} must be a positive number, got {value!r}")
+    return float(value)
 
 
 @functools.lru_cache(maxsize=1)

@@ -454,6 +454,22 @@ def _stack(channels: dict[str, np.ndarray], spec) -> np.ndarray:
     return arrays[0] if len(arrays) == 1 else np.stack(arrays, axis=-1)
 
 
+def _header_number(path: pathlib.Path, name: str, given, *sources: tuple[Any, str]) -> float | None:
+    """``given`` (the caller's) or the first source that is set (a falsy value counts as unset, as 0 is no focal
+    length or scale), as a float; ``SSSInputError`` naming where a value that is not a number came from."""
+    value, where = given, f"the {name} argument"
+    if value is None:
+        value, where = next(((v, w) for v, w in sources if v), (None, ""))
+    if value is None:
+        return None
+    if isinstance(value, (bool, np.bool_)):
+        raise SSSInputError(f"{path}: {name} from {where} is {value!r}, not a number")
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise SSSInputError(f"{path}: {name} from {where} is {value!r}, not a number") from None
+
+
 def _sidecar(path: pathlib.Path) -> dict[str, Any]:
     side = path.with_suffix(".json")
     if not side.exists():
@@ -554,12 +570,13 @@ def _frame_from_decoded(path: pathlib.Path, decoded, *, channel_map, depth_kind:
     buffers = {k: _stack(channels, v) for k, v in plan.items()}
 
     side = _sidecar(path)
-    if focal_px is None:
-        focal_px = metadata.get("sss_jax:focal_px") or (side.get("camera") or {}).get("focal_px")
-    if mm_per_unit is None:
-        mm_per_unit = metadata.get("sss_jax:mm_per_unit") or side.get("scene_unit_mm")
-    focal_px = None if focal_px is None else float(focal_px)
-    mm_per_unit = None if mm_per_unit is None else float(mm_per_unit)
+    camera_side = side.get("camera") if isinstance(side.get("camera"), dict) else {}  # an exporter may name it
+    sidecar = path.with_suffix(".json").name
+    focal_px = _header_number(path, "focal_px", focal_px, (metadata.get("sss_jax:focal_px"), "sss_jax:focal_px"),
+                              (camera_side.get("focal_px"), f"camera.focal_px of {sidecar}"))
+    mm_per_unit = _header_number(path, "mm_per_unit", mm_per_unit,
+                                 (metadata.get("sss_jax:mm_per_unit"), "sss_jax:mm_per_unit"),
+                                 (side.get("scene_unit_mm"), f"scene_unit_mm of {sidecar}"))
 
     depth = buffers["depth"].astype(np.float32)
     depth = np.where(np.isfinite(depth) & (depth > 0) & (depth < _BACKGROUND_DEPTH), depth, np.inf).astype(np.float32)

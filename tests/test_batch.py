@@ -2,6 +2,7 @@
 
 import json
 import math
+import os
 import pathlib
 import re
 import signal
@@ -323,6 +324,86 @@ def test_resume_skips_exactly_the_frames_made_the_same_way(frames, tmp_path):
     assert _io.exr_is_complete(out / "f2.exr")
     # resume=False computes everything
     assert [f.status for f in run(other, resume=False).frames] == ["done"] * 3
+
+
+@pytest.mark.parametrize("devices", [1, 4])
+def test_an_input_rewritten_after_its_read_is_recomputed_on_resume(frames, tmp_path, monkeypatch, devices):
+    # the output's record stamps its input (path, size, mtime) as it was when the frame was read; an input rewritten
+    # after that (a re-render landing while the batch runs) must not pass for the one the output was made from.
+    # Before, the run kept only the last two records, and a frame that waited in a compute thread (one device) or
+    # in a group (four) had its record computed again at its write, stamping the new file: resume then kept the
+    # output of the old pixels
+    import sss_jax._batch as batch
+
+    src = tmp_path / "src"
+    for i in range(4):
+        copy_frame(frames, f"f{i}.exr", src / f"f{i}.exr")
+    real_read, rewritten = batch._read_image, []
+
+    def read_then_rerender(path):
+        decoded = real_read(path)
+        path = pathlib.Path(path)
+        if path.name in ("f1.exr", "f2.exr") and path.name not in rewritten:
+            rewritten.append(path.name)
+            mtime = path.stat().st_mtime_ns
+            copy_frame(frames, "f4.exr", path)  # other pixels
+            os.utime(path, ns=(mtime + 10**9, mtime + 10**9))
+        return decoded
+
+    monkeypatch.setattr(batch, "_read_image", read_then_rerender)
+    out = tmp_path / "out"
+    run = lambda: process_frames(str(src / "*.exr"), "separable", MAT, out_dir=out, taps=9, progress=False,
+                                 devices=jax.devices()[:devices])
+    assert run().ok and sorted(rewritten) == ["f1.exr", "f2.exr"]
+    for name in ("f1.exr", "f2.exr"):  # each output records the input it was made from, not the one there now
+        recorded = int(_io.read_header(out / name)[0]["sss_jax:input_mtime_ns"])
+        assert recorded < (src / name).stat().st_mtime_ns
+    monkeypatch.setattr(batch, "_read_image", real_read)
+    statuses = {pathlib.Path(f.input).name: f.status for f in run().frames}  # several devices: groups' order
+    assert statuses == {"f0.exr": "skipped", "f1.exr": "done", "f2.exr": "done", "f3.exr": "skipped"}
+
+
+def test_lengths_given_as_numpy_scalars_run_and_bad_ones_are_refused(frames, tmp_path):
+    # a focal length computed from a camera array arrives as a NumPy scalar: the resume record's JSON takes it as a
+    # float (before, the batch died on its first frame with a TypeError, the manifest left "interrupted")
+    focal = _io.read_header(frames / "f0.exr")[0]["sss_jax:focal_px"]
+    run = lambda **kw: process_frames(str(frames / "f0.exr"), "separable", MAT, out_dir=tmp_path / "out", taps=9,
+                                      progress=False, devices=jax.devices()[:1], **kw)
+    assert run(focal_px=np.float32(focal), mm_per_unit=np.float64(10.0)).ok
+    for bad in (0.0, -3.0, True, float("nan")):
+        with pytest.raises(ValueError, match="focal_px must be a positive number"):
+            run(focal_px=bad, overwrite=True)
+
+
+def test_a_sidecar_whose_values_are_not_numbers_fails_its_frame(frames, tmp_path):
+    # an exporter may name the camera ("camera": "Camera.001") or write a scale as a list: that frame fails with
+    # the sidecar named, the others complete (before, an AttributeError or TypeError ended the whole batch)
+    src = tmp_path / "src"
+    src.mkdir()
+    b = sj.demo_scene(40, 48).buffers
+    channels = {"R": np.asarray(b.irradiance[..., 0]), "G": np.asarray(b.irradiance[..., 1]),
+                "B": np.asarray(b.irradiance[..., 2]), "Z": np.asarray(b.depth)}
+    for i in range(3):  # no focal length in the header: the sidecar's is the one
+        _io.write_exr(src / f"f{i}.exr", channels, attributes={"sss_jax:mm_per_unit": 10.0})
+    (src / "f0.json").write_text(json.dumps({"camera": {"focal_px": 60.0}}))
+    (src / "f1.json").write_text(json.dumps({"camera": "Camera.001"}))
+    (src / "f2.json").write_text(json.dumps({"camera": {"focal_px": "wide"}}))
+    r = process_frames(str(src / "*.exr"), "separable", MAT, out_dir=tmp_path / "out", taps=9, progress=False,
+                       devices=jax.devices()[:1])
+    assert [f.status for f in r.frames] == ["done", "failed", "failed"]
+    assert "no focal length" in r.frames[1].message
+    assert "camera.focal_px of f2.json is 'wide', not a number" in r.frames[2].message
+    with pytest.raises(_io.SSSInputError, match="f2.exr: focal_px from camera.focal_px of f2.json"):
+        _io.read_frame(src / "f2.exr")
+
+
+def test_a_temporary_that_cannot_be_stated_is_left_alone(tmp_path):
+    # an old-style temporary that is gone between the folder's listing and its stat (here a dangling link): before,
+    # the sweep read a verdict it had never set (UnboundLocalError) and the batch stopped before its first frame
+    from sss_jax._batch import remove_stale_temporaries
+
+    (tmp_path / ".f0.exr.abcd1234.tmp.exr").symlink_to(tmp_path / "gone")
+    assert remove_stale_temporaries([tmp_path / "f0.exr"]) == []
 
 
 def test_unwritable_output_folder_is_refused_before_any_frame(frames, tmp_path, readonly_dir):
