@@ -14,8 +14,12 @@ Reading understands three namings of the channels a screen-space pass needs:
   light divided by the diffuse colour), albedo = ``DiffCol``, depth = ``Depth.Z`` (background 1e10 -> inf),
   normal = ``Normal`` (world space in Blender: turned into camera space with the camera's orientation from the
   header's ``worldToCamera`` or the sidecar's camera, else not used, with a warning), material id = ``IndexOB`` (or
-  ``IndexMA``);
+  ``IndexMA``), every pass from one view layer (the first with the diffuse light passes and depth);
 - a user channel map (dict, or a JSON/TOML file) from our buffer names to channel names.
+
+In a multi-part EXR the channels of a later part of several channels carry the part's name (``N.X``, ``albedo.R``);
+a part of one channel keeps its bare name (``Z`` of a part ``depth``, ``id`` of a part ``objectid``) unless an
+earlier part has it.
 
 Depth is planar view depth in scene units; ``depth_kind="distance"`` converts distance-to-camera to planar with the
 focal length. Channels stored as integers (an id pass as uint32) keep their values (OpenImageIO's float conversion
@@ -185,7 +189,11 @@ def _read_image(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[st
             pixels = np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels)
             part = spec.getattribute("name") if sub > 0 else None
             for c, name in enumerate(spec.channelnames):
-                key = f"{part}.{name}" if part and name in channels else name
+                # a later part's channels carry its name ("N.X", "albedo.R"): a part's own names say nothing of
+                # what it holds (the Z of a normal part is not depth); a part of one channel keeps its bare name
+                # ("Z" of a part "depth", "id" of a part "objectid") unless an earlier part has it
+                qualify = part and (spec.nchannels > 1 or name in channels) and not name.startswith(f"{part}.")
+                key = f"{part}.{name}" if qualify else name
                 channels[key] = pixels[..., c]
                 stored = spec.channelformat(c)
                 if _is_integer(oiio, stored):
@@ -369,14 +377,23 @@ def load_channel_map(source: str | os.PathLike | Mapping[str, Any]) -> dict[str,
 
 
 def _blender_layers(names: list[str]) -> dict[str, str]:
-    """``{pass.channel: full name}`` of Blender's ``<layer>.<pass>.<channel>`` channels (first view layer)."""
-    out: dict[str, str] = {}
+    """``{pass.channel: full name}`` of one view layer of Blender's ``<layer>.<pass>.<channel>`` channels, every pass
+    taken from that layer (a frame is never put together from two layers' passes: each layer has its own Depth): the
+    first layer with the diffuse light passes and Depth, else the first with Combined and Depth, else the first with
+    Depth, else the first."""
+    layers: dict[str, dict[str, str]] = {}
     for n in names:
         parts = n.split(".")
         if len(parts) >= 3:
-            key = ".".join(parts[-2:])
-            out.setdefault(key, n)
-    return out
+            layers.setdefault(".".join(parts[:-2]), {}).setdefault(".".join(parts[-2:]), n)
+    has = lambda layer, name: all(f"{name}.{c}" in layer for c in "RGB")
+    for wanted in (lambda layer: has(layer, "DiffDir") and "Depth.Z" in layer,
+                   lambda layer: has(layer, "Combined") and "Depth.Z" in layer,
+                   lambda layer: "Depth.Z" in layer):
+        for layer in layers.values():
+            if wanted(layer):
+                return layer
+    return next(iter(layers.values()), {})
 
 
 def _first(channels: dict[str, np.ndarray], *candidates: str) -> str | None:

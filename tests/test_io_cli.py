@@ -464,6 +464,57 @@ def test_multipart_exr_with_a_uint32_id_part(tmp_path):
     assert frame.sss_pixels == h * (w - 2)
 
 
+def test_a_later_parts_channels_carry_its_name(tmp_path):
+    # parts rgba (R, G, B), N (X, Y, Z) and depth (Z): the normal part's Z is not depth. Before, a later part's
+    # channel got its part's name only when an earlier part had the name, so N's Z became "Z" and was read as
+    # depth (and, without a depth part, no depth was missing); now a part of several channels names them
+    # ("N.X": the normal found), and a one-channel part keeps its bare name ("Z" of the part "depth")
+    import OpenEXR
+
+    h, w = 4, 5
+    one = np.ones((h, w), np.float32)
+    head = {"type": OpenEXR.scanlineimage, "compression": OpenEXR.ZIP_COMPRESSION, "sss_jax:focal_px": 100.0}
+    rgb = OpenEXR.Part(dict(head), {c: one for c in "RGB"}, name="rgba")
+    normal = OpenEXR.Part(dict(head), {"X": 0 * one, "Y": 0 * one, "Z": -one}, name="N")
+    with OpenEXR.File([rgb, normal, OpenEXR.Part(dict(head), {"Z": 5 * one}, name="depth")]) as f:
+        f.write(str(tmp_path / "depth.exr"))
+    with OpenEXR.File([rgb, normal]) as f:
+        f.write(str(tmp_path / "no_depth.exr"))
+    frame = _io.read_frame(tmp_path / "depth.exr")
+    assert np.all(frame.depth == 5.0) and frame.normal is not None and np.all(frame.normal[..., 2] == -1.0)
+    with pytest.raises(_io.SSSInputError, match="missing depth channel.*N.X, N.Y, N.Z"):
+        _io.read_frame(tmp_path / "no_depth.exr")
+
+
+def test_blender_view_layers_are_never_mixed(tmp_path):
+    # two view layers in one file, each with its own Depth: the frame takes every pass from one layer (the first
+    # with the diffuse light passes). Before, each pass came from the first layer that had it: the Character's
+    # light over the Background's depth
+    import OpenEXR
+
+    h, w = 4, 6
+    one = np.ones((h, w), np.float32)
+    ch = {f"Background.Combined.{c}": 0.1 * one for c in "RGBA"}
+    ch["Background.Depth.Z"] = 100 * one
+    for name in ("DiffDir", "DiffInd", "DiffCol"):
+        ch.update({f"Character.{name}.{c}": 0.5 * one for c in "RGB"})
+    ch["Character.Depth.Z"] = 2 * one
+    head = {"type": OpenEXR.scanlineimage, "compression": OpenEXR.ZIP_COMPRESSION, "sss_jax:focal_px": 100.0}
+    with OpenEXR.File(head, ch) as f:
+        f.write(str(tmp_path / "layers.exr"))
+    frame = _io.read_frame(tmp_path / "layers.exr")
+    assert frame.layout == "blender"
+    assert np.all(frame.irradiance == 1.0) and np.all(frame.albedo == 0.5) and np.all(frame.depth == 2.0)
+    # a file whose first layer has it all keeps that layer
+    ch2 = {k.replace("Background", "A"): v for k, v in ch.items() if k.startswith("Background")}
+    ch2.update({f"A.DiffDir.{c}": 0.25 * one for c in "RGB"})
+    ch2.update({k.replace("Character", "B"): v for k, v in ch.items() if k.startswith("Character")})
+    with OpenEXR.File(head, ch2) as f:
+        f.write(str(tmp_path / "first.exr"))
+    first = _io.read_frame(tmp_path / "first.exr")
+    assert np.all(first.irradiance == 0.25) and np.all(first.depth == 100.0) and first.albedo is None
+
+
 def _read_both_ways(path, monkeypatch):
     """``_io._read_image(path)`` as it reads (OpenEXR's binding for the pixels where it can), whether that fast
     path decoded it, and the same file read by OpenImageIO alone (the binding hidden)."""
