@@ -19,7 +19,8 @@ Reading understands three namings of the channels a screen-space pass needs:
 
 In a multi-part EXR the channels of a later part of several channels carry the part's name (``N.X``, ``albedo.R``);
 a part of one channel keeps its bare name (``Z`` of a part ``depth``, ``id`` of a part ``objectid``) unless an
-earlier part has it.
+earlier part has it. A data window cropped inside the display window (an auto-cropped render) is read in place in the
+display window, zeros around it (no light, no surface); every part of a file must cover the same data window.
 
 Depth is planar view depth in scene units; ``depth_kind="distance"`` converts distance-to-camera to planar with the
 focal length. Channels stored as integers (an id pass as uint32) keep their values (OpenImageIO's float conversion
@@ -166,27 +167,29 @@ def _read_image(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[st
     channels: dict[str, np.ndarray] = {}
     integers: dict[str, np.ndarray] = {}
     metadata: dict[str, Any] = {}
-    shape = None
+    shape, window = None, None
     try:
         spec = inp.spec()
         fast = _scanline_exr_pixels(path, inp, spec)
         if fast is not None:
-            return (*fast, {attr.name: attr.value for attr in spec.extra_attribs}, (spec.height, spec.width))
+            floats, ints = ({name: _in_display_window(a, spec) for name, a in part.items()} for part in fast)
+            return floats, ints, {attr.name: attr.value for attr in spec.extra_attribs}, _frame_shape(spec)
         sub = 0
         while inp.seek_subimage(sub, 0):
             spec = inp.spec()
             if shape is None:
-                shape = (spec.height, spec.width)
+                shape, window = _frame_shape(spec), (spec.x, spec.y, spec.width, spec.height)
                 for attr in spec.extra_attribs:
                     metadata[attr.name] = attr.value
-            elif (spec.height, spec.width) != shape:
-                raise SSSInputError(
-                    f"{path}: subimage {sub} is {spec.width}x{spec.height}, the first is {shape[1]}x{shape[0]}"
-                )
+            elif (spec.x, spec.y, spec.width, spec.height) != window:
+                # parts of one frame cover the same pixels (a pass at another resolution is not a crop of it)
+                raise SSSInputError(f"{path}: subimage {sub} is {spec.width}x{spec.height} at ({spec.x}, {spec.y}), "
+                                    f"the first is {window[2]}x{window[3]} at ({window[0]}, {window[1]})")
             pixels = inp.read_image(sub, 0, 0, spec.nchannels, oiio.FLOAT)
             if pixels is None:
                 raise SSSInputError(f"{path}: could not read subimage {sub} (truncated or corrupted: {inp.geterror()})")
-            pixels = np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels)
+            pixels = _in_display_window(np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width,
+                                                                                     spec.nchannels), spec)
             part = spec.getattribute("name") if sub > 0 else None
             for c, name in enumerate(spec.channelnames):
                 # a later part's channels carry its name ("N.X", "albedo.R"): a part's own names say nothing of
@@ -201,13 +204,46 @@ def _read_image(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[st
                     if raw is None:
                         raise SSSInputError(f"{path}: could not read channel {name!r} of subimage {sub} "
                                             f"({inp.geterror()})")
-                    integers[key] = np.asarray(raw).reshape(spec.height, spec.width).astype(np.int64)
+                    integers[key] = _in_display_window(np.asarray(raw).reshape(spec.height, spec.width), spec
+                                                       ).astype(np.int64)
             sub += 1
     finally:
         inp.close()
     if not channels:
         raise SSSInputError(f"{path}: no channels")
     return channels, integers, metadata, shape
+
+
+def _crop_in_display_window(spec) -> tuple[int, int] | None:
+    """``(row, col)`` of the data window in the display window where the data window is a crop strictly inside
+    it (an auto-cropped render: Arnold, RenderMan, Nuke write only the pixels that hold something), else None (the
+    two windows equal, or a data window reaching past the display window: overscan, read as it is)."""
+    row, col = spec.y - spec.full_y, spec.x - spec.full_x
+    if (row, col, spec.height, spec.width) == (0, 0, spec.full_height, spec.full_width):
+        return None
+    if row < 0 or col < 0 or row + spec.height > spec.full_height or col + spec.width > spec.full_width:
+        return None
+    return row, col
+
+
+def _frame_shape(spec) -> tuple[int, int]:
+    """``(H, W)`` of the frame a file gives: its display window where the data window is a crop inside it."""
+    if _crop_in_display_window(spec) is None:
+        return spec.height, spec.width
+    return spec.full_height, spec.full_width
+
+
+def _in_display_window(a: np.ndarray, spec) -> np.ndarray:
+    """The data window's pixels ``a`` (H, W, ...) in place in the display window, zeros around them (no light, no
+    surface: a depth of 0 reads as background, an id of 0 as no SSS), where the data window is a crop inside it: the
+    techniques see the frame the renderer framed (its borders, its centre for ``depth_kind="distance"``) and the
+    output keeps each pixel's place."""
+    at = _crop_in_display_window(spec)
+    if at is None:
+        return a
+    out = np.zeros((spec.full_height, spec.full_width) + a.shape[2:], a.dtype)
+    out[at[0]:at[0] + spec.height, at[1]:at[1] + spec.width] = a
+    return out
 
 
 def _scanline_exr_pixels(path: pathlib.Path, inp, spec) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]] | None:
@@ -254,7 +290,7 @@ def read_header(path: str | os.PathLike) -> tuple[dict[str, Any], tuple[int, int
         raise SSSInputError(f"{path}: not a readable image ({oiio.geterror() or 'unknown format'})")
     try:
         spec = inp.spec()
-        return {a.name: a.value for a in spec.extra_attribs}, (spec.height, spec.width)
+        return {a.name: a.value for a in spec.extra_attribs}, _frame_shape(spec)
     finally:
         inp.close()
 

@@ -291,7 +291,7 @@ def _nan_r():
 
 
 @pytest.mark.parametrize("make, message", [
-    (lambda p: two_part_exr(p), r"subimage 1 is 3x2, the first is 7x6"),
+    (lambda p: two_part_exr(p), r"subimage 1 is 3x2 at \(0, 0\), the first is 7x6 at \(0, 0\)"),
     (lambda p: exr_with(p, R=_nan_r()), r"irradiance has 1 non-finite values"),
     (lambda p: exr_with(p, id=-np.ones((6, 7))), r"id channel has negative ids \(min -1\)"),
     (lambda p: exr_with(p, id=np.full((6, 7), np.inf)), r"id channel has non-finite values"),

@@ -515,6 +515,64 @@ def test_blender_view_layers_are_never_mixed(tmp_path):
     assert np.all(first.irradiance == 0.25) and np.all(first.depth == 100.0) and first.albedo is None
 
 
+def test_a_cropped_data_window_is_read_in_its_display_window(tmp_path, monkeypatch):
+    # auto-cropped renders (Arnold, RenderMan, Nuke) store only a data window inside the display window; the frame
+    # is the display window, the crop in its place, nothing around it (no light, no surface, id 0), whichever
+    # library decodes the pixels, and the batch's output is the frame the renderer framed. Before, the crop was
+    # read as the frame: the output lost its place and distance depth took the crop's centre for the frame's
+    import OpenEXR
+
+    from sss_jax._batch import process_frames
+
+    scene = sj.demo_scene(40, 48)
+    b = scene.buffers
+    ids = np.asarray(b.material_id).astype(np.uint32)
+    full = {"R": np.asarray(b.irradiance[..., 0]), "G": np.asarray(b.irradiance[..., 1]),
+            "B": np.asarray(b.irradiance[..., 2]), "Z": np.asarray(b.depth, np.float32)}
+    rows, cols = slice(8, 32), slice(16, 40)
+    crop = {k: np.ascontiguousarray(v[rows, cols]).astype(np.float32) for k, v in full.items()}
+    crop["id"] = np.ascontiguousarray(ids[rows, cols])
+    attrs = {"sss_jax:focal_px": float(scene.camera.focal_px), "sss_jax:mm_per_unit": 10.0}
+    head = {"type": OpenEXR.scanlineimage, "compression": OpenEXR.ZIP_COMPRESSION, **attrs,
+            "dataWindow": (np.array([16, 8], np.int32), np.array([39, 31], np.int32)),
+            "displayWindow": (np.array([0, 0], np.int32), np.array([47, 39], np.int32))}
+    (tmp_path / "crop").mkdir()
+    with OpenEXR.File(head, dict(crop)) as f:  # (the binding turns the dict's arrays into its channels)
+        f.write(str(tmp_path / "crop" / "shot.exr"))
+    # the same frame written whole: the crop in place, zeros around it (an independent NumPy placement)
+    placed = {k: np.zeros(v.shape, np.float32) for k, v in full.items()} | {"id": np.zeros((40, 48), np.float32)}
+    for k in placed:
+        placed[k][rows, cols] = crop[k]
+    _io.write_exr(tmp_path / "whole.exr", placed, attributes=attrs)
+    whole = _io.read_frame(tmp_path / "whole.exr")
+    assert _io.read_header(tmp_path / "crop" / "shot.exr")[1] == (40, 48)
+    for openexr in (True, False):  # OpenEXR's binding decodes the pixels, then OpenImageIO alone
+        if not openexr:
+            monkeypatch.setattr(_io, "_openexr", lambda: None)
+        frame = _io.read_frame(tmp_path / "crop" / "shot.exr")
+        assert frame.irradiance.shape == (40, 48, 3)
+        np.testing.assert_array_equal(frame.irradiance, whole.irradiance)
+        np.testing.assert_array_equal(frame.depth, whole.depth)
+        np.testing.assert_array_equal(frame.material_id, whole.material_id)
+        assert np.isinf(frame.depth[:8]).all() and (frame.material_id[:, :16] == 0).all()
+    monkeypatch.undo()
+    for name, src in (("crop", tmp_path / "crop" / "shot.exr"), ("whole", tmp_path / "whole.exr")):
+        assert process_frames(str(src), "burley", _demo_material(), out_dir=tmp_path / f"out_{name}", samples=8,
+                              progress=False).ok
+    inp = oiio.ImageInput.open(str(tmp_path / "out_crop" / "shot.exr"))
+    spec, got = inp.spec(), inp.read_image(oiio.FLOAT)
+    inp.close()
+    assert (spec.x, spec.y, spec.width, spec.height) == (0, 0, 48, 40)
+    want = oiio.ImageInput.open(str(tmp_path / "out_whole" / "whole.exr")).read_image(oiio.FLOAT)
+    np.testing.assert_array_equal(got, want)
+
+
+def _demo_material():
+    from sss_jax._demo import demo_burley_material
+
+    return demo_burley_material()
+
+
 def _read_both_ways(path, monkeypatch):
     """``_io._read_image(path)`` as it reads (OpenEXR's binding for the pixels where it can), whether that fast
     path decoded it, and the same file read by OpenImageIO alone (the binding hidden)."""
