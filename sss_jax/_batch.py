@@ -1334,16 +1334,21 @@ class _Batch:
         preview = job.dst.with_suffix(".png")
         fresh_png = self.png and not preview.exists()
         current = preview if self.png else job.dst
+        placed = None
         try:
             if self.png:
-                write_png_preview(preview, image, overwrite=True)
+                # a preview that was not there is placed only if it still is not (another run may place its own
+                # meanwhile, as it may the EXR): one there already is this frame's to replace
+                write_png_preview(preview, image, overwrite=overwrite or not fresh_png)
+                placed = preview.stat().st_ino
             current = job.dst
             write_exr(job.dst, image, channel_names=["R", "G", "B"], half=self.half, attributes=attrs,
                       overwrite=overwrite)
         except (OSError, ValueError) as exc:
-            if current == job.dst and fresh_png:  # no preview of a frame that has no output
+            if current == job.dst and fresh_png:  # no preview of a frame that has no output: this run's own only
                 with contextlib.suppress(OSError):
-                    preview.unlink()
+                    if preview.stat().st_ino == placed:
+                        preview.unlink()
             return exc, current
         return None
 

@@ -863,6 +863,34 @@ def test_a_real_full_file_system_names_the_file(frames, tmp_path):
         subprocess.run(["umount", str(small)], check=True)
 
 
+def test_a_preview_another_run_places_meanwhile_is_neither_replaced_nor_removed(frames, tmp_path, monkeypatch):
+    # two runs into one folder with previews: the other run places this frame's preview and EXR while this one
+    # writes its preview. Before, this run replaced the other's preview, lost the race for the EXR (refused, as it
+    # should) and then removed "its" fresh preview: the other run's, whose EXR was left without one
+    import sss_jax._batch as batch
+
+    out = tmp_path / "out"
+    out.mkdir()
+    real_png = batch.write_png_preview
+
+    def other_run_first(path, image, **kw):
+        path = pathlib.Path(path)
+        real_png(path, np.full_like(image, 0.25))
+        _io.write_exr(path.with_suffix(".exr"), np.full_like(image, 0.25), attributes={"sss_jax:input": "other"})
+        return real_png(path, image, **kw)
+
+    monkeypatch.setattr(batch, "write_png_preview", other_run_first)
+    r = process_frames(str(frames / "f0.exr"), "separable", MAT, out_dir=out, taps=9, png=True, progress=False,
+                       manifest=False, devices=jax.devices()[:1])
+    assert r.frames[0].status == "failed" and "f0.png: was created by another process" in r.frames[0].message
+    assert sorted(p.name for p in out.iterdir()) == ["f0.exr", "f0.png"]
+    assert _io.read_header(out / "f0.exr")[0]["sss_jax:input"] == "other"
+    np.testing.assert_allclose(_io.read_frame(out / "f0.png", channel_map={"irradiance": ["R", "G", "B"],
+                                                                           "depth": "R"}).irradiance,
+                               np.round(np.asarray(_io.display_transform(np.full((40, 48, 3), 0.25))) * 255) / 255,
+                               atol=1e-6)
+
+
 def test_two_runs_into_one_folder_leave_a_true_manifest(frames, tmp_path):
     # run B starts while run A is at its first frame and runs to the end; A then finds every other frame made by B
     # (not replaced: its writes fail); the manifest must still say every frame is complete, as the disk does
