@@ -634,8 +634,11 @@ class _Manifest:
         self.path = path
         self.run = dict(run, state="running")
         self.run_id = f"{socket.gethostname()}-{os.getpid()}-{time.time_ns()}"
-        self.mine = {str(j.dst): {"input": str(j.src), "output": str(j.dst), "status": "pending", "message": "",
-                                  "warnings": [], "seconds": 0.0, "run": self.run_id} for j in jobs}
+        # entries keyed by the output's absolute path: runs that spell the folder differently ("out", its absolute
+        # path) share one entry per file (before, the earlier run's "failed" stayed beside the later "done")
+        self.mine = {os.path.abspath(j.dst): {"input": os.path.abspath(j.src), "output": os.path.abspath(j.dst),
+                                              "status": "pending", "message": "", "warnings": [], "seconds": 0.0,
+                                              "run": self.run_id} for j in jobs}
         self.last: tuple[int, int] | None = None  # (inode, mtime_ns) of this run's last write: unchanged -> no merge
         self.data: dict[str, Any] = {}
         self.failed = False
@@ -647,9 +650,10 @@ class _Manifest:
         self.write(dead_journals=True)
 
     def record(self, r: "FrameResult") -> None:
-        entry = {"input": r.input, "output": r.output, "status": r.status, "message": r.message,
-                 "warnings": list(r.warnings), "seconds": round(r.seconds, 4), "run": self.run_id}
-        self.mine[r.output] = entry
+        entry = {"input": os.path.abspath(r.input), "output": os.path.abspath(r.output), "status": r.status,
+                 "message": r.message, "warnings": list(r.warnings), "seconds": round(r.seconds, 4),
+                 "run": self.run_id}
+        self.mine[entry["output"]] = entry
         if self.path is None:
             return
         self.records += 1

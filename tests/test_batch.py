@@ -891,6 +891,25 @@ def test_a_preview_another_run_places_meanwhile_is_neither_replaced_nor_removed(
                                atol=1e-6)
 
 
+def test_runs_that_spell_the_folder_differently_share_the_manifests_entries(frames, tmp_path, monkeypatch):
+    # a run into "out" (relative) whose frame failed, then a run into the same folder spelled absolutely that
+    # completes it: one entry per file, "done". Before, the entries were keyed by the path as spelled, and the
+    # first run's "failed" stayed beside the second's "done" (the manifest saying a complete frame failed)
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "in").mkdir()
+    copy_frame(frames, "f0.exr", tmp_path / "in" / "f0.exr")
+    (tmp_path / "in" / "f1.exr").write_bytes(b"not an exr")
+    run = lambda inputs, out: process_frames(inputs, "separable", MAT, out_dir=out, taps=9, progress=False,
+                                             devices=jax.devices()[:1])
+    assert [f.status for f in run(["in/f0.exr", "in/f1.exr"], "out").frames] == ["done", "failed"]
+    copy_frame(frames, "f1.exr", tmp_path / "in" / "f1.exr")
+    again = run([str(tmp_path / "in" / "f0.exr"), str(tmp_path / "in" / "f1.exr")], tmp_path / "out")
+    assert [f.status for f in again.frames] == ["skipped", "done"]
+    book = json.loads((tmp_path / "out" / MANIFEST_NAME).read_text())
+    assert sorted((f["output"], f["status"]) for f in book["frames"]) == [
+        (str(tmp_path / "out" / "f0.exr"), "skipped"), (str(tmp_path / "out" / "f1.exr"), "done")]
+
+
 def test_two_runs_into_one_folder_leave_a_true_manifest(frames, tmp_path):
     # run B starts while run A is at its first frame and runs to the end; A then finds every other frame made by B
     # (not replaced: its writes fail); the manifest must still say every frame is complete, as the disk does
