@@ -698,7 +698,7 @@ class _Manifest:
             for entry in os.scandir(self.path.parent):
                 m = _JOURNAL.match(entry.name)
                 if (m is not None and m["name"] == self.path.name and m["host"] == host
-                        and int(m["pid"]) != os.getpid() and not _alive(int(m["pid"]))):
+                        and _gone(int(m["pid"]), entry)):
                     out.append(pathlib.Path(entry.path))
         return out
 
@@ -760,6 +760,21 @@ _OLD_TEMPORARY = re.compile(r"^\.(?P<name>.+)\.[A-Za-z0-9_]{8}\.tmp(\.[^.]+)?$")
 _OLD_TEMPORARY_AGE_S = 600
 
 
+_LOADED_AT = time.time()  # before any file this process writes through sss_jax
+
+
+def _gone(pid: int, entry: os.DirEntry) -> bool:
+    """Whether the process of this host that left ``entry`` (named with its pid) is gone: another pid that is not
+    alive, or this process's own pid on a file older than this module, left by an earlier process that had the same
+    pid (a container restarted after a kill runs as pid 1 again)."""
+    if pid != os.getpid():
+        return not _alive(pid)
+    try:
+        return entry.stat(follow_symlinks=False).st_mtime < _LOADED_AT
+    except OSError:
+        return False
+
+
 def _alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)
@@ -787,7 +802,7 @@ def remove_stale_temporaries(outputs: Iterable[pathlib.Path]) -> list[pathlib.Pa
                 continue
             m = _TEMPORARY.match(entry.name)
             if m is not None:
-                stale = m["name"] in names and m["host"] == host and not _alive(int(m["pid"]))
+                stale = m["name"] in names and m["host"] == host and _gone(int(m["pid"]), entry)
             else:
                 m = _OLD_TEMPORARY.match(entry.name)
                 stale = False  # a name that cannot be stat'ed (gone meanwhile, a dangling link) is left alone

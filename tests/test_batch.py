@@ -910,6 +910,33 @@ def test_runs_that_spell_the_folder_differently_share_the_manifests_entries(fram
         (str(tmp_path / "out" / "f0.exr"), "skipped"), (str(tmp_path / "out" / "f1.exr"), "done")]
 
 
+def test_what_an_earlier_process_with_this_pid_left_is_cleaned_up_and_folded(frames, tmp_path):
+    # a container killed and restarted runs as pid 1 again: the files its killed run left carry this process's host
+    # and pid. Before, they counted as a live writer's: its temporary stayed for good, and its journal (the frames it
+    # finished after its last fold) was taken for this run's and emptied at the first fold without being folded
+    import socket
+
+    from sss_jax._io import temporary_prefix
+
+    out = tmp_path / "out"
+    out.mkdir()
+    left = out / (temporary_prefix(out / "f0.exr") + "abcd1234.tmp.exr")
+    left.write_bytes(b"half-written")
+    finished = out / "g9.exr"
+    finished.write_bytes(b"the killed run's output")
+    journal = out / f".{MANIFEST_NAME}.sss_jax-{socket.gethostname()}-{os.getpid()}.journal"
+    journal.write_text(json.dumps({"input": "/x/g9.exr", "output": str(finished), "status": "done", "message": "",
+                                   "warnings": [], "seconds": 1.0, "run": "killed"}) + "\n")
+    for path in (left, journal):  # written before this process started
+        os.utime(path, (1e9, 1e9))
+    assert process_frames(str(frames / "f0.exr"), "separable", MAT, out_dir=out, taps=9, progress=False,
+                          devices=jax.devices()[:1]).ok
+    assert not left.exists() and not journal.exists()
+    book = json.loads((out / MANIFEST_NAME).read_text())
+    assert {pathlib.Path(f["output"]).name: f["status"] for f in book["frames"]} == {"g9.exr": "done",
+                                                                                      "f0.exr": "done"}
+
+
 def test_two_runs_into_one_folder_leave_a_true_manifest(frames, tmp_path):
     # run B starts while run A is at its first frame and runs to the end; A then finds every other frame made by B
     # (not replaced: its writes fail); the manifest must still say every frame is complete, as the disk does
