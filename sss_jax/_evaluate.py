@@ -373,6 +373,9 @@ def evaluate_frames(
     if burley_options:
         info["burley_options"] = {k: str(v) for k, v in burley_options.items()}
     info.update(material_info or {})
+    if repeats == 0:  # the page's times are then no measure of the technique's cost: say so where they are read
+        notes.append("repeats=0: every time is the first run of its technique on a frame, compilation included, not "
+                     "a median after compilation; the times and the Pareto front by them do not compare techniques")
     return ReportData(frames=tuple(frame_images), runs=runs, inputs=inputs_info, material=info,
                       machine=machine_info(), title="sss_jax error report", reference_run=ref_run,
                       notes=tuple(notes))

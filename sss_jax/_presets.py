@@ -58,8 +58,11 @@ def list_presets() -> list[str]:
 
 
 def _resolve(name_or_path: str | os.PathLike) -> pathlib.Path:
+    """A preset file: a path (ending in ``.json``, naming a folder, or an existing file), else a name looked up in
+    ``preset_dirs()`` (a folder or file of that name in the working directory does not hide the shipped preset)."""
     p = pathlib.Path(name_or_path)
-    if p.suffix == ".json" or p.exists() or os.sep in str(name_or_path):
+    text = str(name_or_path)
+    if p.suffix == ".json" or p.is_file() or os.sep in text or (os.altsep and os.altsep in text):
         if not p.exists():
             raise SSSInputError(f"{p}: preset file not found")
         return p

@@ -181,8 +181,9 @@ def _transmission_section(rep: Report, presets: list[dict], fits: pathlib.Path) 
     sec = rep.section("Transmission", "Light through a slab of the preset's medium (normal incidence, normal view) "
                       "against the Monte Carlo slabs cached with the preset. <em>thin</em>: the profile's "
                       "closed form (e<sup>-t/d</sup> + 3 e<sup>-t/3d</sup>)/4 that HDRP and UE5 use; <em>slab</em>: "
-                      "<code>translucency(model=\"slab\")</code>, the Monte Carlo table of the index-matched medium "
-                      "behind (A, d); <em>STA</em>: the fitted STA term (an artist's model: it adds light and "
+                      "the total transmittance T of the Monte Carlo table of the index-matched medium behind (A, d) "
+                      "(of which <code>translucency(model=\"slab\")</code> adds the scattered part, spread over "
+                      "view directions as the slab lets it out); <em>STA</em>: the fitted STA term (an artist's model: it adds light and "
                       "is fitted to the thin model). Cells: relative L2 over the thicknesses t/d = 0.25 to 4, all "
                       "channels; presets measured with a dielectric boundary (eta 1.3) differ from the index-matched "
                       "slab table by construction.")

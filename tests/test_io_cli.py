@@ -573,6 +573,88 @@ def _demo_material():
     return demo_burley_material()
 
 
+def _tiny_frame(path):
+    irr = np.zeros((24, 24, 3), np.float32)
+    irr[8:16, 8:16] = 1.0
+    _io.write_exr(path, {"R": irr[..., 0], "G": irr[..., 1], "B": irr[..., 2], "Z": np.full((24, 24), 100.0)},
+                  attributes={"sss_jax:focal_px": 200.0, "sss_jax:mm_per_unit": 1.0})
+    return path
+
+
+def test_apply_slab_with_a_preset_takes_its_measured_medium(tmp_path):
+    # `apply --technique sta --model slab --preset skin1` renders what the library renders for that preset and
+    # model: the preset's measured medium (its boundaries and phase function). Before, the CLI rebuilt the
+    # index-matched Burley medium from (A, d): skin1's red back light 32% too dark, without a word
+    from sss_jax._presets import load_preset, material_for
+
+    src = _tiny_frame(tmp_path / "in.exr")
+    flags = ["--technique", "sta", "--model", "slab", "--preset", "skin1", "--light-dir", "0,0,1", "--thickness", "2"]
+    assert main(["apply", str(src), "-o", str(tmp_path / "out.exr"), *flags]) == 0
+    got = _io.read_frame(tmp_path / "out.exr", channel_map={"irradiance": ["R", "G", "B"], "depth": "R"}).irradiance
+    tech = sj.Translucency(light=sj.DirectionalLight([0.0, 0.0, 1.0]), model="slab", thickness=2.0)
+    medium = material_for(tech, load_preset("skin1"))
+    assert type(medium).__name__ == "MediumMaterial"
+    want = np.asarray(tech(_io.read_frame(src).to_buffers(), medium, sj.Camera(200.0, 1.0)))
+    np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-7)
+    # --albedo cannot apply to a measured medium: refused, not dropped
+    assert main(["apply", str(src), "-o", str(tmp_path / "o2.exr"), *flags, "--albedo", "0.5,0.5,0.5"]) == 2
+
+
+def test_sta_flags_override_a_preset_and_are_refused_where_no_sta_runs(tmp_path, capsys):
+    # --sta-* given with --preset override the preset's STA block (before: silently the preset's); given where no
+    # STA model runs (another technique, --model slab, a report without --light-dir) they are refused, as is
+    # --light-dir for another technique and --d-mm for the STA model (before: all silently dropped)
+    from sss_jax._presets import load_preset
+
+    src = _tiny_frame(tmp_path / "in.exr")
+    sta = ["--technique", "sta", "--light-dir", "0,0,1", "--thickness", "2"]
+    preset = load_preset("skin1").sta
+    assert main(["apply", str(src), "-o", str(tmp_path / "p.exr"), *sta, "--preset", "skin1"]) == 0
+    assert main(["apply", str(src), "-o", str(tmp_path / "q.exr"), *sta, "--preset", "skin1", "--sta-power", "12",
+                 "--sta-distortion", "0.9"]) == 0
+    tech = sj.Translucency(light=sj.DirectionalLight([0.0, 0.0, 1.0]), thickness=2.0)
+    buffers = _io.read_frame(src).to_buffers()
+    rgb = lambda name: _io.read_frame(tmp_path / name, channel_map={"irradiance": ["R", "G", "B"],
+                                                                    "depth": "R"}).irradiance
+    params = lambda **kw: sj.STAParams(**{f: getattr(preset, f) for f in ("distortion", "power", "scale", "ambient",
+                                                                          "thickness_mm")} | kw)
+    for name, p in (("p.exr", params()), ("q.exr", params(power=12.0, distortion=0.9))):
+        np.testing.assert_allclose(rgb(name), np.asarray(tech(buffers, p, sj.Camera(200.0, 1.0))), rtol=1e-6,
+                                   atol=1e-7)
+    capsys.readouterr()
+    for flags, message in (
+            (["--technique", "burley", "--d-mm", "1,1,1", "--sta-power", "12"], "--sta-power set the STA model"),
+            (["--technique", "burley", "--d-mm", "1,1,1", "--light-dir", "0,0,1"], "burley does not take it"),
+            ([*sta, "--model", "slab", "--d-mm", "1,1,1", "--sta-power", "12"], "--sta-power set the STA model"),
+            ([*sta, "--d-mm", "3,1,1"], "not --d-mm/--mfp-mm")):
+        assert main(["apply", str(src), "-o", str(tmp_path / "x.exr"), *flags]) == 2
+        assert message in capsys.readouterr().err
+    assert main(["report", str(src), "--out", str(tmp_path / "rep"), "--techniques", "separable", "--taps", "9",
+                 "--d-mm", "0.5,0.3,0.2", "--repeats", "0", "--sta-power", "12"]) == 2
+    assert "the report includes STA with --light-dir" in capsys.readouterr().err
+
+
+def test_a_preset_name_is_not_hidden_by_a_folder_of_that_name(tmp_path, monkeypatch):
+    # `--preset marble` run where a folder ./marble exists (a project's own assets) opened the folder ("cannot read
+    # preset (Is a directory)"): a name is looked up among the presets unless it reads as a file
+    from sss_jax._presets import load_preset
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "marble").mkdir()
+    assert load_preset("marble").name == "marble"
+    (tmp_path / "mine.json").write_text((pathlib.Path(load_preset("marble").path)).read_text())
+    assert pathlib.Path(load_preset("mine.json").path).resolve() == (tmp_path / "mine.json").resolve()
+
+
+def test_a_report_without_timed_runs_says_its_times_include_compilation(tmp_path):
+    # --repeats 0 (a quick look) times each technique's first, compiling run: the page says so where it says the
+    # times are medians after compilation (before, it said only that)
+    src = _tiny_frame(tmp_path / "in.exr")
+    assert main(["report", str(src), "--out", str(tmp_path / "rep"), "--techniques", "separable", "--taps", "9",
+                 "--d-mm", "0.5,0.3,0.2", "--repeats", "0", "--no-progress"]) == 0
+    assert "repeats=0: every time is the first run of its technique" in (tmp_path / "rep" / "report.html").read_text()
+
+
 def _read_both_ways(path, monkeypatch):
     """``_io._read_image(path)`` as it reads (OpenEXR's binding for the pixels where it can), whether that fast
     path decoded it, and the same file read by OpenImageIO alone (the binding hidden)."""

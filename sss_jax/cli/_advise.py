@@ -70,7 +70,7 @@ def register(subparsers) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     mat = p.add_argument_group("material (one of --material or --d-mm)")
-    mat.add_argument("--material", help="a demo material (skin, marble, wax) or a preset name or file")
+    mat.add_argument("--material", help="a demo material (demo_skin, demo_marble, demo_wax) or a preset name or file")
     mat.add_argument("--d-mm", type=rgb_triple, help="Burley scattering distance d per channel, mm (with --albedo)")
     mat.add_argument("--albedo", type=rgb_triple, help="surface albedo R,G,B in [0, 1] with --d-mm (default 1,1,1)")
     p.add_argument("--scene", default=None, choices=["demo"], help="the scene measured on (default: demo)")

@@ -8,7 +8,7 @@ import sys
 
 from . import rgb_triple
 from ._options import WarningPrinter, add_technique_flags, given_technique_options, sta_thickness_warning
-from ._options import technique_options
+from ._options import add_sta_flags, given_sta_flags, sta_params, technique_options
 
 EPILOG = """examples:
   sss-jax apply frame.exr -o out.exr --technique burley --albedo 0.8,0.6,0.5 --d-mm 3,1.4,0.8 --focal-px 1200 --mm-per-unit 10
@@ -69,12 +69,7 @@ def register(subparsers) -> None:
     sta = p.add_argument_group("STA")
     sta.add_argument("--light-dir", type=rgb_triple, help="direction towards the light, camera space (x right, y down, z forward)")
     sta.add_argument("--light-colour", type=rgb_triple, default=(1.0, 1.0, 1.0), help="light irradiance R,G,B (default 1)")
-    sta.add_argument("--sta-distortion", type=float, default=0.2)
-    sta.add_argument("--sta-power", type=float, default=4.0)
-    sta.add_argument("--sta-scale", type=rgb_triple, default=(1.0, 1.0, 1.0))
-    sta.add_argument("--sta-ambient", type=rgb_triple, default=(0.0, 0.0, 0.0))
-    sta.add_argument("--sta-thickness-mm", type=rgb_triple, default=(1.0, 1.0, 1.0),
-                     help="thickness falloff per channel, mm: t = exp(-thickness / this)")
+    add_sta_flags(sta, rgb_triple)
     sta.add_argument("--thickness", type=float, help="constant thickness in scene units where there is no thickness channel")
     # every other option of the techniques, with the techniques' own help (--border, --pattern, --frames, ...)
     add_technique_flags(p, exclude=OWN_FLAGS)
@@ -91,7 +86,7 @@ def register(subparsers) -> None:
 def _material(args):
     import jax.numpy as jnp
 
-    from .._materials import BurleyMaterial, DirectionalLight, STAParams
+    from .._materials import BurleyMaterial, DirectionalLight
     from .._presets import load_preset, material_for
 
     given = [n for n in ("d_mm", "mfp_mm", "preset") if getattr(args, n) is not None]
@@ -101,25 +96,39 @@ def _material(args):
         raise ValueError("give either --d-mm or --mfp-mm, not both")
     preset = load_preset(args.preset) if args.preset is not None else None
     albedo = args.albedo if args.albedo is not None else (1.0, 1.0, 1.0)
+    sta_given = [f"--sta-{n.replace('_', '-')}" for n in given_sta_flags(args)]
+    model = given_technique_options(args).get("model", "sta")
+    if sta_given and (args.technique != "sta" or model != "sta"):  # given, they would be dropped: say so
+        raise ValueError(f"{', '.join(sta_given)} set the STA model's parameters: give them with --technique sta "
+                         "(--model sta)")
+    if args.light_dir is not None and args.technique != "sta":
+        raise ValueError(f"--light-dir is the back light of --technique sta; {args.technique} does not take it")
     if args.technique == "sta":
         if args.light_dir is None:
             raise ValueError("--technique sta needs --light-dir X,Y,Z")
         light = DirectionalLight(jnp.asarray(args.light_dir, jnp.float32), args.light_colour)
-        model = given_technique_options(args).get("model", "sta")
         if model != "sta":  # the physically based back-light models take the medium's scattering distance
             if preset is not None:
-                return material_for("burley", preset, albedo=args.albedo), light
+                # what the library gives this model: the preset's measured medium for 'slab' where it has one (its
+                # boundaries and phase function), else its Burley material
+                from .._techniques import Translucency
+
+                material = material_for(Translucency(light=light, model=model), preset, albedo=args.albedo)
+                if args.albedo is not None and not isinstance(material, BurleyMaterial):
+                    raise ValueError(f"--albedo does not apply to {args.preset}'s measured medium (--model {model} "
+                                     "takes it whole); give --d-mm or --mfp-mm with --albedo instead")
+                return material, light
             if args.d_mm is not None:
                 return BurleyMaterial(albedo, args.d_mm), light
             if args.mfp_mm is not None:
                 return BurleyMaterial.from_mfp(albedo, args.mfp_mm), light
             raise ValueError(f"--technique sta --model {model} needs the medium: --d-mm R,G,B, --mfp-mm R,G,B or "
                              "--preset")
-        if preset is not None:
-            return material_for("sta", preset), light
-        params = STAParams(distortion=args.sta_distortion, power=args.sta_power, scale=args.sta_scale,
-                           ambient=args.sta_ambient, thickness_mm=args.sta_thickness_mm)
-        return params, light
+        if args.d_mm is not None or args.mfp_mm is not None:  # the STA model has no scattering distance
+            raise ValueError("--technique sta (--model sta) takes the STA parameters (--sta-*, or a --preset's), "
+                             "not --d-mm/--mfp-mm (the slab and thin models take those: --model slab)")
+        # a preset's STA block, each --sta-* given over it
+        return sta_params(args, material_for("sta", preset) if preset is not None else None), light
     if preset is not None:
         return material_for(args.technique, preset, albedo=args.albedo), None
     if args.d_mm is not None:

@@ -8,7 +8,8 @@ import pathlib
 import sys
 
 from . import rgb_triple
-from ._options import add_technique_flags, given_technique_options, option_arguments, technique_options
+from ._options import add_sta_flags, add_technique_flags, given_technique_options, option_arguments
+from ._options import technique_options
 
 # the techniques `fit --render` matches
 MATCHED = ("burley", "separable", "sta")
@@ -162,11 +163,7 @@ def _register_match(p) -> None:
     sta = p.add_argument_group("STA start (with --render --technique sta)")
     sta.add_argument("--light-dir", type=rgb_triple, help="direction towards the light, camera space")
     sta.add_argument("--light-colour", type=rgb_triple, default=(1.0, 1.0, 1.0))
-    sta.add_argument("--sta-distortion", type=float, default=0.2)
-    sta.add_argument("--sta-power", type=float, default=4.0)
-    sta.add_argument("--sta-scale", type=rgb_triple, default=(1.0, 1.0, 1.0))
-    sta.add_argument("--sta-ambient", type=rgb_triple, default=(0.0, 0.0, 0.0))
-    sta.add_argument("--sta-thickness-mm", type=rgb_triple, default=(1.0, 1.0, 1.0))
+    add_sta_flags(sta, rgb_triple)
     sta.add_argument("--thickness", type=float, help="constant thickness in scene units where frames carry none")
     # the matched technique's own options (--seed is the Monte Carlo's here: Burley's is --burley-seed)
     add_technique_flags(p, techniques=MATCHED, exclude=("samples", "taps", "radius_px", "albedo", "thickness"),

@@ -247,6 +247,36 @@ def technique_options(args: argparse.Namespace, technique: str, *, others: Itera
 
 # STA's back light through thickness t is exp(-t / thickness_mm) per channel: below this on every SSS pixel and
 # channel it adds nothing visible (an 8-bit display step is 1/255), above 1 - this the thickness changes nothing
+# the STA flags: (name, type, default), their defaults None in the parsers so that a given value can be told from one
+# left out (a given one overrides a preset's field; given where no STA runs, it is an error, not silently dropped)
+STA_FLAGS = (("distortion", float, 0.2), ("power", float, 4.0), ("scale", "rgb", (1.0, 1.0, 1.0)),
+             ("ambient", "rgb", (0.0, 0.0, 0.0)), ("thickness_mm", "rgb", (1.0, 1.0, 1.0)))
+_STA_HELP = {"thickness_mm": "thickness falloff per channel, mm: t = exp(-thickness / this)"}
+
+
+def add_sta_flags(group, rgb_type) -> None:
+    """``--sta-distortion``, ``--sta-power``, ``--sta-scale``, ``--sta-ambient``, ``--sta-thickness-mm``."""
+    for name, kind, default in STA_FLAGS:
+        shown = ",".join(f"{v:g}" for v in default) if isinstance(default, tuple) else f"{default:g}"
+        what = _STA_HELP.get(name, f"STA {name}")
+        group.add_argument(f"--sta-{name.replace('_', '-')}", type=rgb_type if kind == "rgb" else kind, default=None,
+                           help=f"{what} (default {shown}, or the preset's)")
+
+
+def given_sta_flags(args: argparse.Namespace) -> dict[str, Any]:
+    """The STA fields given on the command line (``STAParams`` field -> value)."""
+    return {name: getattr(args, f"sta_{name}") for name, _, _ in STA_FLAGS if getattr(args, f"sta_{name}", None)
+            is not None}
+
+
+def sta_params(args: argparse.Namespace, preset_sta=None):
+    """``STAParams`` from the flags given, over the preset's (where one is given) or the flags' defaults."""
+    from .._materials import STAParams
+
+    base = {name: (default if preset_sta is None else getattr(preset_sta, name)) for name, _, default in STA_FLAGS}
+    return STAParams(**{**base, **given_sta_flags(args)})
+
+
 _STA_FAINT = 1e-3
 
 

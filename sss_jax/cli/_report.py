@@ -11,7 +11,7 @@ import tempfile
 
 from . import rgb_triple
 from ._options import WarningPrinter, add_technique_flags, sta_thickness_warning, technique_entries
-from ._options import comma_separated_counts, technique_options
+from ._options import add_sta_flags, comma_separated_counts, given_sta_flags, sta_params, technique_options
 
 EPILOG = """examples:
   sss-jax report frame.exr --out rep --albedo 0.85,0.75,0.55 --d-mm 31.8,19.9,11.9
@@ -78,16 +78,12 @@ def register(subparsers) -> None:
     c.add_argument("--depth-kind", choices=("planar", "distance"), default="planar")
     c.add_argument("--channel-map", help="JSON/TOML file mapping buffers to channels")
     c.add_argument("--radius-px", type=int, help="reference window radius in px (default: 99.9%% of the energy)")
-    c.add_argument("--repeats", type=int, default=3, help="timed runs per frame after compilation (default 3)")
+    c.add_argument("--repeats", type=int, default=3, help="timed runs per frame after compilation (default 3; 0: no timed run, the times are "
+                   "the first, compiling run's and the report says so)")
     s = p.add_argument_group("STA (included with --light-dir)")
     s.add_argument("--light-dir", type=rgb_triple, help="direction towards the back light, camera space")
     s.add_argument("--light-colour", type=rgb_triple, default=(1.0, 1.0, 1.0))
-    s.add_argument("--sta-distortion", type=float, default=0.2)
-    s.add_argument("--sta-power", type=float, default=4.0)
-    s.add_argument("--sta-scale", type=rgb_triple, default=(1.0, 1.0, 1.0))
-    s.add_argument("--sta-ambient", type=rgb_triple, default=(0.0, 0.0, 0.0))
-    s.add_argument("--sta-thickness-mm", type=rgb_triple, default=(1.0, 1.0, 1.0),
-                   help="thickness falloff per channel, mm: t = exp(-thickness / this)")
+    add_sta_flags(s, rgb_triple)
     s.add_argument("--thickness", type=float, help="constant thickness in scene units where there is no thickness channel")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--no-images", action="store_true", help="do not write OUT/images/<frame>/<technique>.exr")
@@ -99,14 +95,14 @@ def materials(args):
     import jax.numpy as jnp
     import numpy as np
 
-    from .._materials import BurleyMaterial, DirectionalLight, STAParams, TwoGaussianMaterial
+    from .._materials import BurleyMaterial, DirectionalLight, TwoGaussianMaterial
     from .._presets import load_preset
 
     given = [n for n in ("d_mm", "mfp_mm", "preset") if getattr(args, n) is not None]
     if len(given) > 1:
         raise ValueError("give either --preset or --d-mm/--mfp-mm, not both" if "preset" in given
                          else "give either --d-mm or --mfp-mm, not both")
-    sta_params, info = None, {}
+    preset_sta, info = None, {}
     if args.preset is not None:
         presets = [load_preset(n.strip()) for n in args.preset.split(",") if n.strip()]
         if not presets:
@@ -120,7 +116,7 @@ def materials(args):
             field = lambda n: np.asarray([np.asarray(getattr(t, n)).reshape(3) for t in tgs], np.float32)
             sep = TwoGaussianMaterial(np.asarray(albedo, np.float32), field("w"), field("sigma_near_mm"),
                                       field("sigma_far_mm"))
-        sta_params = presets[0].sta
+        preset_sta = presets[0].sta
         info = {"source": "preset", "names": [pr.name for pr in presets], "preset_files": [pr.path for pr in presets]}
     else:
         albedo = args.albedo if args.albedo is not None else (1.0, 1.0, 1.0)
@@ -134,11 +130,13 @@ def materials(args):
             raise ValueError("the report needs the material: --preset NAME, --d-mm R,G,B or --mfp-mm R,G,B")
         sep = mat
     sta = None
+    given = [f"--sta-{n.replace('_', '-')}" for n in given_sta_flags(args)]
+    if given and args.light_dir is None:
+        raise ValueError(f"{', '.join(given)} set the STA row's parameters: the report includes STA with --light-dir")
     if args.light_dir is not None:
-        if sta_params is None:
-            sta_params = STAParams(distortion=args.sta_distortion, power=args.sta_power, scale=args.sta_scale,
-                                   ambient=args.sta_ambient, thickness_mm=args.sta_thickness_mm)
-        sta = (sta_params, DirectionalLight(jnp.asarray(args.light_dir, jnp.float32), args.light_colour))
+        # the preset's STA block (if any), each --sta-* given over it
+        sta = (sta_params(args, preset_sta), DirectionalLight(jnp.asarray(args.light_dir, jnp.float32),
+                                                              args.light_colour))
     return mat, sep, sta, info
 
 

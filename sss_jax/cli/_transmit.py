@@ -13,8 +13,10 @@ EPILOG = """examples:
 
 T is the total (unscattered and scattered) fraction of a normally incident back light that leaves the front face of
 a slab of the preset's medium (its transmittance table: Monte Carlo through slabs of its reduced coefficients with
-its eta on both faces, interpolated), per channel R, G, B. All of the medium's absorption is in T: what
-translucency(model="slab") adds to a pixel is light x T x cos, with no further albedo factor.
+its eta on both faces, interpolated), per channel R, G, B. All of the medium's absorption is in T, and no albedo
+multiplies it. translucency(model="slab") adds only T's scattered part: light x T_diffuse x cos x P(N.V), the
+unscattered beam reaching the camera only where it looks into the light (not drawn by a screen-space pass); P spreads
+the diffuse light over view directions as the slab lets it out.
 JSON: {"preset": NAME, "transmittance": [{"thickness_mm": t, "rgb": [R, G, B]}, ...]}.
 """
 
