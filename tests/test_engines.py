@@ -344,6 +344,9 @@ def test_cli_convert_json_and_table(tmp_path, capsys):
     (["--from", "hdrp", "--to", "blender", "--albedo", "1.5", "--scattering-color", "1"], "base_color must be <= 1"),
     (["--from", "sss_jax", "--to", "eevee", "--albedo", "0.5", "--d-mm", "1", "--mm-per-unit", "-1"],
      "--mm-per-unit must be a finite positive"),
+    # a flag neither engine reads is refused, not dropped (before: HDRP's table printed World Scale 1, exit 0)
+    (["--from", "sss_jax", "--to", "hdrp", "--albedo", "0.8", "--d-mm", "3", "--world-scale", "0.01"],
+     "--world-scale: not a parameter of sss_jax (--from) nor an option of hdrp (--to)"),
 ])
 def test_cli_convert_errors(argv, message, capsys):
     assert main(["convert", *argv]) == 2

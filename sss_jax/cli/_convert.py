@@ -104,7 +104,13 @@ def run(args) -> int:
             raise ValueError(f"--mm-per-unit must be a finite positive number, got {args.mm_per_unit}")
         if args.json is not None and not args.json.parent.is_dir():
             raise ValueError(f"--json: directory {args.json.parent} does not exist")
-        params = registry[args.source].params_from_flags(values)
+        source, target = registry[args.source], registry[args.target]
+        used = {f.dest for f in source.flags if f.key is not None} | {f.dest for f in target.flags if f.option}
+        ignored = [f.flag for f in _flags().values() if values.get(f.dest) is not None and f.dest not in used]
+        if ignored:  # a flag neither engine of this conversion reads would be dropped without a word
+            raise ValueError(f"{', '.join(ignored)}: not a parameter of {args.source} (--from) nor an option of "
+                             f"{args.target} (--to); `sss-jax convert --help` lists each engine's flags")
+        params = source.params_from_flags(values)
         result = convert(args.source, args.target, params, **registry[args.target].options_from_flags(values))
     except ValueError as exc:
         print(f"sss-jax convert: {exc}", file=sys.stderr)
