@@ -169,7 +169,6 @@ def long_run(args) -> int:
           f"{done == on_disk}")
     print(f"  throughput: {args.frames / wall:.2f} frames/s ({wall:.1f} s, read + compute + write + manifest; "
           f"{ok / wall:.2f} good frames/s)")
-    settled = min(100, args.frames)
     print(f"  resident memory: {marks.get(1, 0):.0f} MiB after frame 1, {marks.get(settled, 0):.0f} MiB after frame "
           f"{settled}, {marks.get(args.frames, 0):.0f} MiB after frame {args.frames}: growth {settled} -> "
           f"{args.frames} {marks.get(args.frames, 0) - marks.get(settled, 0):+.0f} MiB; peak {peak_mib():.0f} MiB")

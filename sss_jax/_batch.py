@@ -66,7 +66,6 @@ import hashlib
 import inspect
 import json
 import math
-import numbers
 from numbers import Real
 import os
 import pathlib
@@ -1579,8 +1578,8 @@ def process_frames(
     out_dir: str | pathlib.Path | None = None,
     outputs: Sequence[str | pathlib.Path] | None = None,
     png: bool = False,
-    focal_px: numbers.Real | None = None,
-    mm_per_unit: numbers.Real | None = None,
+    focal_px: Real | None = None,
+    mm_per_unit: Real | None = None,
     channel_map=None,
     depth_kind: str = "planar",
     use_albedo_pass: bool = True,
@@ -1722,7 +1721,7 @@ def _positive_option(name: str, value) -> float | None:
     """A length option as a Python float (a NumPy scalar too: it goes into the resume record's JSON), or None."""
     if value is None:
         return None
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real) or not value > 0:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, Real) or not value > 0:
         raise ValueError(f"{name} must be a positive number, got {value!r}")
     return float(value)
 

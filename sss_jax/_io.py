@@ -515,9 +515,9 @@ def _header_number(path: pathlib.Path, name: str, given, *sources: tuple[Any, st
         value, where = next(((v, w) for v, w in sources if v), (None, ""))
     if value is None:
         return None
-    if isinstance(value, (bool, np.bool_)):
-        raise SSSInputError(f"{path}: {name} from {where} is {value!r}, not a number")
     try:
+        if isinstance(value, (bool, np.bool_)):  # float(True) is 1.0: a flag, not a length
+            raise TypeError(name)
         return float(value)
     except (TypeError, ValueError):
         raise SSSInputError(f"{path}: {name} from {where} is {value!r}, not a number") from None

@@ -8,7 +8,7 @@ import sys
 
 from . import rgb_triple
 from ._options import WarningPrinter, add_technique_flags, given_technique_options, sta_thickness_warning
-from ._options import add_sta_flags, given_sta_flags, sta_params, technique_options
+from ._options import add_sta_flags, given_sta_flag_names, sta_params, technique_options
 
 EPILOG = """examples:
   sss-jax apply frame.exr -o out.exr --technique burley --albedo 0.8,0.6,0.5 --d-mm 3,1.4,0.8 --focal-px 1200 --mm-per-unit 10
@@ -96,7 +96,7 @@ def _material(args):
         raise ValueError("give either --d-mm or --mfp-mm, not both")
     preset = load_preset(args.preset) if args.preset is not None else None
     albedo = args.albedo if args.albedo is not None else (1.0, 1.0, 1.0)
-    sta_given = [f"--sta-{n.replace('_', '-')}" for n in given_sta_flags(args)]
+    sta_given = given_sta_flag_names(args)
     model = given_technique_options(args).get("model", "sta")
     if sta_given and (args.technique != "sta" or model != "sta"):  # given, they would be dropped: say so
         raise ValueError(f"{', '.join(sta_given)} set the STA model's parameters: give them with --technique sta "

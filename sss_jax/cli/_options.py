@@ -269,6 +269,11 @@ def given_sta_flags(args: argparse.Namespace) -> dict[str, Any]:
             is not None}
 
 
+def given_sta_flag_names(args: argparse.Namespace) -> list[str]:
+    """The STA flags given on the command line, as typed (``--sta-power``), for a message."""
+    return [f"--sta-{name.replace('_', '-')}" for name in given_sta_flags(args)]
+
+
 def sta_params(args: argparse.Namespace, preset_sta=None):
     """``STAParams`` from the flags given, over the preset's (where one is given) or the flags' defaults."""
     from .._materials import STAParams

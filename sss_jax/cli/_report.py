@@ -11,7 +11,7 @@ import tempfile
 
 from . import rgb_triple
 from ._options import WarningPrinter, add_technique_flags, sta_thickness_warning, technique_entries
-from ._options import add_sta_flags, comma_separated_counts, given_sta_flags, sta_params, technique_options
+from ._options import add_sta_flags, comma_separated_counts, given_sta_flag_names, sta_params, technique_options
 
 EPILOG = """examples:
   sss-jax report frame.exr --out rep --albedo 0.85,0.75,0.55 --d-mm 31.8,19.9,11.9
@@ -130,7 +130,7 @@ def materials(args):
             raise ValueError("the report needs the material: --preset NAME, --d-mm R,G,B or --mfp-mm R,G,B")
         sep = mat
     sta = None
-    given = [f"--sta-{n.replace('_', '-')}" for n in given_sta_flags(args)]
+    given = given_sta_flag_names(args)
     if given and args.light_dir is None:
         raise ValueError(f"{', '.join(given)} set the STA row's parameters: the report includes STA with --light-dir")
     if args.light_dir is not None:
