@@ -354,6 +354,39 @@ def test_cli_convert_errors(argv, message, capsys):
     assert message in err and "Traceback" not in err
 
 
+def test_cli_convert_to_flags_set_the_target_alone(tmp_path):
+    """--to-<flag> sets the target's option where the plain flag sets both sides (before, a Blender 2.93 material
+    could not be converted to 4.2: --blender-version was the source's and the target's). Cycles took Burley's radius
+    as d s(A) before 3.0 and as d from 3.0 (docs/engines.md), so 2.93 -> 4.2 divides the radius by s(A), Christensen &
+    Burley 2015's fit for diffuse transmission, s(A) = 1.9 - A + 3.5 (A - 0.8)^2 (written out here, not the code's)."""
+    albedo, radius = np.array([0.8, 0.6, 0.5]), np.array([1.0, 0.2, 0.1])
+    s = 1.9 - albedo + 3.5 * (albedo - 0.8) ** 2
+    common = ["convert", "--from", "blender", "--to", "blender", "--albedo", "0.8,0.6,0.5", "--radius", "1,0.2,0.1",
+              "--method", "burley", "--blender-version", "2.93"]
+    for extra, version, expected in (([], "2.93", radius), (["--to-blender-version", "4.2"], "4.2", radius / s)):
+        out = tmp_path / f"to{version}.json"
+        assert main([*common, *extra, "--json", str(out)]) == 0
+        target = json.loads(out.read_text())["blender"]
+        assert target["blender_version"] == version and target["Subsurface Method"] == "Christensen-Burley"
+        assert target["Subsurface Radius"] == pytest.approx(expected.tolist(), rel=1e-6)
+    # the method alone: the source stays Burley in 2.93, the target Random Walk
+    out = tmp_path / "rw.json"
+    assert main([*common, "--to-method", "random-walk", "--json", str(out)]) == 0
+    assert json.loads(out.read_text())["blender"]["method"] == "random-walk"
+
+
+def test_cli_convert_to_flag_the_target_does_not_read(capsys):
+    assert main(["convert", "--from", "blender", "--to", "sss_jax", "--albedo", "0.8", "--radius", "1",
+                 "--to-method", "burley"]) == 2
+    assert "--to-method: not an option of sss_jax (--to)" in capsys.readouterr().err
+    # a plain flag that set both sides and made the target fail: the message says how to set the target's alone
+    assert main(["convert", "--from", "eevee", "--to", "eevee-next", "--albedo", "0.8", "--radius", "1",
+                 "--blender-version", "4.1"]) == 2
+    assert "--to-blender-version sets the target's alone" in capsys.readouterr().err
+    assert main(["convert", "--from", "eevee", "--to", "eevee-next", "--albedo", "0.8", "--radius", "1",
+                 "--blender-version", "4.1", "--to-blender-version", "4.2"]) == 0
+
+
 def test_cli_convert_argparse_errors(capsys):
     with pytest.raises(SystemExit) as exc:
         main(["convert", "--from", "sss_jax", "--to", "maya"])

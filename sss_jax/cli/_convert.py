@@ -19,7 +19,12 @@ EPILOG = """examples:
 
 Parameters per engine (all lengths per channel as R,G,B; one number means all three):
 {engines}
---mm-per-unit is the scene unit in mm for both sides (default: each engine's usual unit). The JSON holds albedo,
+--mm-per-unit is the scene unit in mm for both sides (default: each engine's usual unit). A flag that is both a
+parameter of the source and an option of the target (--blender-version, --method, --scale, --mm-per-unit, ...)
+sets both; --to-<flag> sets the target's alone, e.g. a Blender 2.93 material in Blender 4.2:
+  sss-jax convert --from blender --to blender --albedo 0.8,0.6,0.5 --radius 1,0.2,0.1 --blender-version 2.93 \
+    --to-blender-version 4.2 --to-method random-walk
+ The JSON holds albedo,
 burley.d_mm, the target's parameters by their UI names, what is lossy or unverified, and the sources each
 conversion was read from; docs/engines.md has the formulas.
 """
@@ -45,6 +50,12 @@ def _flags() -> dict:
     return flags
 
 
+def _both_ways() -> list:
+    """The flags that are both a source's parameter and a target's option: each gets a ``--to-`` twin that sets the
+    target's option alone (the plain flag then sets the source's parameter alone)."""
+    return [f for f in _flags().values() if f.key is not None and f.option is not None]
+
+
 def _engine_lines() -> str:
     width = max(len(n) for n in _registry())
     return "\n".join(f"  {name:<{width}}  " + ", ".join(f.flag + (" (required)" if f.required else "")
@@ -66,6 +77,10 @@ def register(subparsers) -> None:
     p.add_argument("--to", dest="target", required=True, choices=names, help="engine to convert to")
     for f in _flags().values():
         p.add_argument(f.flag, dest=f.dest, type=_TYPES[f.kind], choices=f.choices, metavar=f.metavar, help=f.help)
+    for f in _both_ways():
+        p.add_argument("--to-" + f.flag[2:], dest="to_" + f.dest, type=_TYPES[f.kind], choices=f.choices,
+                       metavar=f.metavar, help=f"the target's {f.flag[2:]} where it differs from the source's "
+                       f"(default: {f.flag}'s value)")
     p.add_argument("--json", type=pathlib.Path, help="write the result as JSON here (default: print a table)")
     p.set_defaults(func=run)
 
@@ -110,10 +125,25 @@ def run(args) -> int:
         if ignored:  # a flag neither engine of this conversion reads would be dropped without a word
             raise ValueError(f"{', '.join(ignored)}: not a parameter of {args.source} (--from) nor an option of "
                              f"{args.target} (--to); `sss-jax convert --help` lists each engine's flags")
+        options = {f.dest for f in target.flags if f.option}
+        ignored = ["--to-" + f.flag[2:] for f in _both_ways()
+                   if values.get("to_" + f.dest) is not None and f.dest not in options]
+        if ignored:
+            raise ValueError(f"{', '.join(ignored)}: not an option of {args.target} (--to); "
+                             "`sss-jax convert --help` lists each engine's flags")
         params = source.params_from_flags(values)
-        result = convert(args.source, args.target, params, **registry[args.target].options_from_flags(values))
+        # the target's options: a --to- flag where given, else the plain flag's value (both sides alike)
+        targeted = {**values, **{f.dest: values["to_" + f.dest] for f in _both_ways()
+                                 if values.get("to_" + f.dest) is not None}}
+        result = convert(args.source, args.target, params, **target.options_from_flags(targeted))
     except ValueError as exc:
-        print(f"sss-jax convert: {exc}", file=sys.stderr)
+        # a plain flag the message names set both sides: say how to set the target's alone (e.g. a legacy EEVEE
+        # 4.1 material to EEVEE Next, which starts with 4.2)
+        both = [f.flag for f in _both_ways() if values.get(f.dest) is not None and values.get("to_" + f.dest) is None
+                and f.dest in str(exc) and f.dest in {g.dest for g in registry[args.source].flags if g.key is not None}
+                and f.dest in {g.dest for g in registry[args.target].flags if g.option is not None}]
+        hint = "".join(f" ({flag} set both --from and --to; --to-{flag[2:]} sets the target's alone)" for flag in both)
+        print(f"sss-jax convert: {exc}{hint}", file=sys.stderr)
         return 2
     if args.json is not None:
         from .._io import write_json_atomic
