@@ -85,7 +85,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from ._io import (Frame, SSSInputError, _frame_from_decoded, _read_image, check_writable, exr_is_complete,
+from ._io import (Frame, SSSInputError, Window, _frame_from_decoded, _read_image, check_writable, exr_is_complete,
                   read_header, write_exr, write_json_atomic, write_png_preview)
 from ._kernels import separable_kernel_from_profile, two_gaussian_kernel
 from ._materials import BurleyMaterial, DirectionalLight, ProfileMaterial, STAParams, TwoGaussianMaterial
@@ -1258,6 +1258,7 @@ class _Batch:
         self.computing: collections.deque[_Computing] = collections.deque()  # in the frames' order
         self.call_warnings = _CallWarnings()
         self.records: dict[_Job, tuple[dict[str, str], str]] = {}
+        self.windows: dict[_Job, Window | None] = {}  # each frame's windows from its read to its write
         self.seeded = _has_seed(tech)
         self.tiles_allowed = True
         self.base_seed = int(np.asarray(tech.seed)) if self.seeded else 0
@@ -1284,6 +1285,7 @@ class _Batch:
     def forget(self, job: _Job) -> None:
         """The job's record dropped: the frame is written, failed or skipped."""
         self.records.pop(job, None)
+        self.windows.pop(job, None)
 
     # -- results
     def finish(self, r: FrameResult) -> None:
@@ -1336,6 +1338,7 @@ class _Batch:
                 attrs[f"sss_jax:{name}"] = int(rules[name])
         if self.seeded:
             attrs["sss_jax:seed"] = str(self.seed_of(job))  # a uint32: past a header int
+        window = self.windows.get(job)
         self.forget(job)
         done = FrameResult(str(job.src), str(job.dst), "done", "; ".join(notes + warned), seconds=seconds,
                            warnings=notes + warned)
@@ -1343,9 +1346,9 @@ class _Batch:
         if self.writer is None:
             self.writer = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="sss_jax-write")
         self.in_flight = (job, done, self.writer.submit(self.write_files, job, image, attrs,
-                                                        job.dst in self.existing))
+                                                        job.dst in self.existing, window))
 
-    def write_files(self, job: _Job, image: np.ndarray, attrs: dict, overwrite: bool):
+    def write_files(self, job: _Job, image: np.ndarray, attrs: dict, overwrite: bool, window: Window | None = None):
         """(In the writer thread.) The frame's files, atomically: the PNG preview first, then the EXR (an EXR with
         its resume record means the frame is complete). Returns None, or ``(error, file)`` of a failed write (a
         fresh preview of a frame that has no EXR removed)."""
@@ -1361,7 +1364,7 @@ class _Batch:
                 placed = preview.stat().st_ino
             current = job.dst
             write_exr(job.dst, image, channel_names=["R", "G", "B"], half=self.half, attributes=attrs,
-                      overwrite=overwrite)
+                      overwrite=overwrite, window=window)
         except (OSError, ValueError) as exc:
             if current == job.dst and fresh_png:  # no preview of a frame that has no output: this run's own only
                 with contextlib.suppress(OSError):
@@ -1437,6 +1440,7 @@ class _Batch:
         t0 = time.perf_counter()
         try:
             frame, buffers, camera = self.read(job, read_options, use_albedo)
+            self.windows[job] = frame.window  # the output lies where the input does (an overscan margin kept)
             if following is not None and frame.shape[0] * frame.shape[1] <= tile_pixels:
                 # a sequence of frames that fit one call: the next one read meanwhile (larger frames, in tiles,
                 # gain nothing from it and would hold two frames in memory)

@@ -20,7 +20,10 @@ Reading understands three namings of the channels a screen-space pass needs:
 In a multi-part EXR the channels of a later part of several channels carry the part's name (``N.X``, ``albedo.R``);
 a part of one channel keeps its bare name (``Z`` of a part ``depth``, ``id`` of a part ``objectid``) unless an
 earlier part has it. A data window cropped inside the display window (an auto-cropped render) is read in place in the
-display window, zeros around it (no light, no surface); every part of a file must cover the same data window.
+display window, zeros around it (no light, no surface); every part of a file must cover the same data window. A data
+window reaching past the display window (overscan: Arnold, Karma, RenderMan and Nuke render a margin for the effects
+that read neighbours) is read whole, so the margin's pixels feed the pass, and the frame keeps both windows
+(``Frame.window``): the batch writes its output with them, so it lies over the input in a compositor.
 
 Depth is planar view depth in scene units; ``depth_kind="distance"`` converts distance-to-camera to planar with the
 focal length. Channels stored as integers (an id pass as uint32) keep their values (OpenImageIO's float conversion
@@ -46,7 +49,7 @@ import threading
 import time
 import warnings
 from collections.abc import Callable, Iterator, Mapping
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -79,6 +82,26 @@ def _openexr():
     return OpenEXR
 
 
+class Window(NamedTuple):
+    """Where a frame's pixels lie on the image plane, as an EXR header says: ``x, y``, the top-left pixel of the
+    frame's array (OpenEXR's data window origin), and ``display``, the display window ``(x, y, width, height)``."""
+
+    x: int
+    y: int
+    display: tuple[int, int, int, int]
+
+    def plain(self, shape: tuple[int, int]) -> bool:
+        """Whether an ``(H, W)`` array at this window is what a header without windows means: both windows the
+        array's, at (0, 0)."""
+        return (self.x, self.y) == (0, 0) and self.display == (0, 0, shape[1], shape[0])
+
+    def principal_point(self) -> tuple[float, float]:
+        """The display window's centre in the array's pixel coordinates ``(cx, cy)``: the image centre of the
+        frame the camera framed, where the array holds an overscan margin."""
+        dx, dy, dw, dh = self.display
+        return dx - self.x + dw / 2, dy - self.y + dh / 2
+
+
 @dataclasses.dataclass(frozen=True)
 class Frame:
     """One frame's buffers as NumPy arrays (see ``sss_jax.Buffers`` for the conventions)."""
@@ -94,6 +117,7 @@ class Frame:
     path: str | None = None
     layout: str = "generic"
     metadata: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    window: Window | None = None  # the file's data and display windows (None: both the array's, at (0, 0))
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -134,7 +158,7 @@ def read_channels(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[
 
     Channels stored as integers come through OpenImageIO's normalising conversion here (a uint8 PNG's 255 -> 1.0);
     ``read_frame`` reads an id channel's integers themselves (``_read_image``)."""
-    channels, _, metadata, shape = _read_image(path)
+    channels, _, metadata, shape, _ = _read_image(path)
     return channels, metadata, shape
 
 
@@ -148,8 +172,8 @@ def _is_integer(oiio, typedesc) -> bool:
 
 
 def _read_image(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, Any],
-                                                  tuple[int, int]]:
-    """``(floats, integers, header, (H, W))``: every channel as float32, and the channels stored as integers (an
+                                                  tuple[int, int], Window]:
+    """``(floats, integers, header, (H, W), window)``: every channel as float32, and the channels stored as integers (an
     EXR's ``uint`` id channel, a 16-bit TIFF's) a second time with their stored values, as int64. OpenImageIO's
     float conversion normalises integers by the type's maximum (uint32 1 -> 2.3e-10): right for an 8-bit colour,
     wrong for an object or material id, which must keep its value."""
@@ -167,18 +191,20 @@ def _read_image(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[st
     channels: dict[str, np.ndarray] = {}
     integers: dict[str, np.ndarray] = {}
     metadata: dict[str, Any] = {}
-    shape, window = None, None
+    shape, window, placed = None, None, None
     try:
         spec = inp.spec()
         fast = _scanline_exr_pixels(path, inp, spec)
         if fast is not None:
             floats, ints = ({name: _in_display_window(a, spec) for name, a in part.items()} for part in fast)
-            return floats, ints, {attr.name: attr.value for attr in spec.extra_attribs}, _frame_shape(spec)
+            return (floats, ints, {attr.name: attr.value for attr in spec.extra_attribs}, _frame_shape(spec),
+                    _frame_window(spec))
         sub = 0
         while inp.seek_subimage(sub, 0):
             spec = inp.spec()
             if shape is None:
                 shape, window = _frame_shape(spec), (spec.x, spec.y, spec.width, spec.height)
+                placed = _frame_window(spec)
                 for attr in spec.extra_attribs:
                     metadata[attr.name] = attr.value
             elif (spec.x, spec.y, spec.width, spec.height) != window:
@@ -211,7 +237,7 @@ def _read_image(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[st
         inp.close()
     if not channels:
         raise SSSInputError(f"{path}: no channels")
-    return channels, integers, metadata, shape
+    return channels, integers, metadata, shape, placed
 
 
 def _crop_in_display_window(spec) -> tuple[int, int] | None:
@@ -224,6 +250,15 @@ def _crop_in_display_window(spec) -> tuple[int, int] | None:
     if row < 0 or col < 0 or row + spec.height > spec.full_height or col + spec.width > spec.full_width:
         return None
     return row, col
+
+
+def _frame_window(spec) -> Window:
+    """The windows of the frame a file gives (``_frame_shape``): an auto-crop is placed in its display window,
+    so the frame's array starts at the display window's corner; otherwise at the data window's."""
+    display = (spec.full_x, spec.full_y, spec.full_width, spec.full_height)
+    if _crop_in_display_window(spec) is not None:
+        return Window(spec.full_x, spec.full_y, display)
+    return Window(spec.x, spec.y, display)
 
 
 def _frame_shape(spec) -> tuple[int, int]:
@@ -609,7 +644,9 @@ def _frame_from_decoded(path: pathlib.Path, decoded, *, channel_map, depth_kind:
         warn = lambda message, category: warnings.warn(message, category, stacklevel=4)
     if depth_kind not in ("planar", "distance"):
         raise SSSInputError(f"depth_kind={depth_kind!r} is not one of ('planar', 'distance')")
-    channels, integers, metadata, shape = decoded
+    channels, integers, metadata, shape, window = decoded
+    if principal_point is None and window is not None and not window.plain(shape):
+        principal_point = window.principal_point()  # an overscan margin: the framed image's centre
     cmap = load_channel_map(channel_map) if channel_map is not None else None
     if depth_path is not None:
         d_channels, _, d_shape = read_channels(depth_path)
@@ -679,7 +716,7 @@ def _frame_from_decoded(path: pathlib.Path, decoded, *, channel_map, depth_kind:
         thickness = np.maximum(np.nan_to_num(thickness.astype(np.float32), nan=0.0, posinf=np.inf), 0.0)
     frame = Frame(irradiance=irradiance, depth=depth, albedo=albedo, normal=normal, thickness=thickness,
                   material_id=ids, focal_px=focal_px, mm_per_unit=mm_per_unit, path=str(path), layout=layout,
-                  metadata=metadata)
+                  metadata=metadata, window=window)
     if frame.sss_pixels == 0:
         if not np.any(np.isfinite(depth)):
             why = f"depth channel {plan['depth'][0]!r} has no surface (every value is inf, 0 or background)"
@@ -837,10 +874,13 @@ def write_exr(
     half: bool = False,
     attributes: Mapping[str, Any] | None = None,
     overwrite: bool = True,
+    window: Window | None = None,
 ) -> pathlib.Path:
     """Write an ``(H, W, C)`` image (or a dict of named ``(H, W)`` channels) as a ZIP-compressed EXR, float32 or
     half, with ``attributes`` (str, int, float) in the header. Atomic; ``overwrite=False`` never replaces a file
-    that exists when the write completes (see ``atomic_path``).
+    that exists when the write completes (see ``atomic_path``). ``window``: the data window's corner and the display
+    window (``Frame.window`` of the frame the image came from: an overscan margin or a display window away from
+    (0, 0) kept); None, both the image's at (0, 0).
 
     The path must end in ``.exr``: the values are linear scene-referred floats, and another extension would make
     OpenImageIO write them into a format that means something else (an 8-bit PNG labelled sRGB holding linear
@@ -868,11 +908,18 @@ def write_exr(
         raise SSSInputError(f"{path}: {len(channel_names)} channel names for {data.shape[-1]} channels")
     pixels = np.ascontiguousarray(data.astype(np.float16 if half else np.float32, copy=False))
     attributes = {key: _header_value(value) for key, value in (attributes or {}).items()}
+    h, w, c = data.shape
+    if window is not None and window.plain((h, w)):
+        window = None
+    if window is not None and (window.display[2] < 1 or window.display[3] < 1):
+        raise SSSInputError(f"{path}: display window {window.display[2]}x{window.display[3]} is empty")
     if _openexr() is not None and len(set(channel_names)) == len(channel_names) and \
             all(_exr_attribute(k, v) for k, v in attributes.items()):
-        return _write_scanline_exr(path, pixels, channel_names, attributes, overwrite)
-    h, w, c = data.shape
+        return _write_scanline_exr(path, pixels, channel_names, attributes, overwrite, window)
     spec = oiio.ImageSpec(w, h, c, oiio.HALF if half else oiio.FLOAT)
+    if window is not None:
+        spec.x, spec.y = window.x, window.y
+        spec.full_x, spec.full_y, spec.full_width, spec.full_height = window.display
     spec.channelnames = tuple(channel_names)
     spec.attribute("compression", "zip")
     for key, value in attributes.items():
@@ -913,12 +960,20 @@ def _exr_attribute(key: str, value: int | float | str) -> bool:
 
 
 def _write_scanline_exr(path, pixels: np.ndarray, channel_names: list[str],
-                        attributes: Mapping[str, int | float | str], overwrite: bool) -> pathlib.Path:
+                        attributes: Mapping[str, int | float | str], overwrite: bool,
+                        window: Window | None = None) -> pathlib.Path:
     """``write_exr`` through OpenEXR's binding: the same file OpenImageIO writes (ZIP, scan lines, increasing y, the
-    attributes with their types, the time of the write as ``capDate``, which OpenImageIO calls ``DateTime``)."""
+    attributes with their types, the time of the write as ``capDate``, which OpenImageIO calls ``DateTime``, the
+    windows)."""
     exr = _openexr()
     header: dict[str, Any] = {"compression": exr.ZIP_COMPRESSION, "type": exr.scanlineimage,
                               "capDate": time.strftime("%Y:%m:%d %H:%M:%S"), **attributes}
+    if window is not None:  # OpenEXR's boxes: (min, max) corners, both inclusive
+        h, w = pixels.shape[:2]
+        dx, dy, dw, dh = window.display
+        header["dataWindow"] = (np.array([window.x, window.y], np.int32),
+                                np.array([window.x + w - 1, window.y + h - 1], np.int32))
+        header["displayWindow"] = (np.array([dx, dy], np.int32), np.array([dx + dw - 1, dy + dh - 1], np.int32))
     planes = {name: np.ascontiguousarray(pixels[..., c]) for c, name in enumerate(channel_names)}
     with atomic_path(path, overwrite=overwrite, verify=exr_chunks_complete) as tmp:
         try:

@@ -567,6 +567,67 @@ def test_a_cropped_data_window_is_read_in_its_display_window(tmp_path, monkeypat
     np.testing.assert_array_equal(got, want)
 
 
+def test_an_overscan_data_window_is_read_whole_and_the_output_keeps_both_windows(tmp_path, monkeypatch):
+    # a render with an overscan margin (Arnold, Karma, RenderMan, Nuke: a data window reaching past the display
+    # window, here unevenly: 10 px left, 2 px right, 2 above, 6 below) as a renderer writes it (half colour, float
+    # depth, uint ids): the margin feeds the pass, the output lies over the input (same data and display windows),
+    # and distance depth is measured from the framed image's centre. Before, the output was written at (0, 0) with
+    # a display window of the data window's size (shifted by the margin in a compositor), and distance depth took
+    # the array's centre
+    import OpenEXR
+
+    from sss_jax._batch import process_frames
+    from sss_jax._io import Window
+
+    scene = sj.demo_scene(48, 60)
+    b, f = scene.buffers, float(scene.camera.focal_px)
+    planar = np.asarray(b.depth, np.float32)
+    chans = {"R": np.asarray(b.irradiance[..., 0]).astype(np.float16),
+             "G": np.asarray(b.irradiance[..., 1]).astype(np.float16),
+             "B": np.asarray(b.irradiance[..., 2]).astype(np.float16), "Z": planar,
+             "id": np.asarray(b.material_id).astype(np.uint32)}
+    head = {"type": OpenEXR.scanlineimage, "compression": OpenEXR.ZIP_COMPRESSION, "sss_jax:focal_px": f,
+            "sss_jax:mm_per_unit": 10.0,
+            "dataWindow": (np.array([-10, -2], np.int32), np.array([49, 45], np.int32)),
+            "displayWindow": (np.array([0, 0], np.int32), np.array([47, 39], np.int32))}
+    (tmp_path / "in").mkdir()
+    with OpenEXR.File(head, dict(chans)) as exr:  # (the binding turns the dict's arrays into its channels)
+        exr.write(str(tmp_path / "in" / "shot.exr"))
+    # the same pixels with no windows, to compare the pass's output with
+    _io.write_exr(tmp_path / "plain.exr", {k: v.astype(np.float32) for k, v in chans.items()},
+                  attributes={"sss_jax:focal_px": f, "sss_jax:mm_per_unit": 10.0})
+    for openexr in (True, False):  # OpenEXR's binding decodes the pixels, then OpenImageIO alone
+        if not openexr:
+            monkeypatch.setattr(_io, "_openexr", lambda: None)
+        frame = _io.read_frame(tmp_path / "in" / "shot.exr")
+        assert frame.depth.shape == (48, 60) and frame.window == Window(-10, -2, (0, 0, 48, 40))
+        # distance depth: the framed image's centre is pixel (10 + 24, 2 + 20) of the array, not its centre
+        # (30, 24); z = dist / sqrt(1 + ((x + 0.5 - cx)^2 + (y + 0.5 - cy)^2) / f^2), written out here
+        dist = _io.read_frame(tmp_path / "in" / "shot.exr", depth_kind="distance").depth
+        ys, xs = np.mgrid[0:48, 0:60] + 0.5
+        want = planar / np.sqrt(1 + ((xs - 34) ** 2 + (ys - 22) ** 2) / f**2)
+        np.testing.assert_allclose(dist[np.isfinite(planar)], want[np.isfinite(planar)], rtol=1e-6)
+    monkeypatch.undo()
+    for name, src in (("overscan", tmp_path / "in" / "shot.exr"), ("plain", tmp_path / "plain.exr")):
+        assert process_frames(str(src), "burley", _demo_material(), out_dir=tmp_path / f"out_{name}", samples=8,
+                              progress=False).ok
+    inp = oiio.ImageInput.open(str(tmp_path / "out_overscan" / "shot.exr"))
+    spec, got = inp.spec(), inp.read_image(oiio.FLOAT)
+    inp.close()
+    assert (spec.x, spec.y, spec.width, spec.height) == (-10, -2, 60, 48)
+    assert (spec.full_x, spec.full_y, spec.full_width, spec.full_height) == (0, 0, 48, 40)
+    want = oiio.ImageInput.open(str(tmp_path / "out_plain" / "plain.exr")).read_image(oiio.FLOAT)
+    np.testing.assert_array_equal(got, want)
+    # write_exr keeps the windows through either writer (OpenImageIO's where a header value is not namespaced)
+    image = np.ones((48, 60, 3), np.float32)
+    for attrs, name in (({"sss_jax:x": 1}, "openexr.exr"), ({"plain": 1}, "oiio.exr")):
+        _io.write_exr(tmp_path / name, image, attributes=attrs, window=frame.window)
+        spec = oiio.ImageInput.open(str(tmp_path / name)).spec()
+        assert (spec.x, spec.y, spec.full_x, spec.full_y, spec.full_width, spec.full_height) == (-10, -2, 0, 0, 48, 40)
+        assert _io.read_frame(tmp_path / name, channel_map={"irradiance": ["R", "G", "B"], "depth": "R"}
+                              ).window == frame.window
+
+
 def _demo_material():
     from sss_jax._demo import demo_burley_material
 
@@ -669,14 +730,14 @@ def _read_both_ways(path, monkeypatch):
 
 
 def assert_same_read(got, alone):
-    (floats, integers, header, shape), (floats0, integers0, header0, shape0) = got, alone
+    (floats, integers, header, shape, window), (floats0, integers0, header0, shape0, window0) = got, alone
     assert list(floats) == list(floats0) and list(integers) == list(integers0)  # the names, in OpenImageIO's order
     for name in floats0:
         assert floats[name].dtype == floats0[name].dtype == np.float32
         np.testing.assert_array_equal(floats[name], floats0[name], err_msg=name)  # bit for bit, NaN and inf too
     for name in integers0:
         np.testing.assert_array_equal(integers[name], integers0[name], err_msg=name)
-    assert header == header0 and shape == shape0
+    assert header == header0 and shape == shape0 and window == window0
 
 
 @pytest.mark.parametrize("compression", ["ZIP", "ZIPS", "PIZ", "RLE", "NO", "B44", "DWAA"])
@@ -796,7 +857,7 @@ def test_uint16_channels_keep_their_values(tmp_path):
     out = oiio.ImageOutput.create(str(path))
     assert out.open(str(path), spec) and out.write_image(ids[..., None])
     out.close()
-    floats, integers, _, _ = _io._read_image(path)
+    floats, integers, _, _, _ = _io._read_image(path)
     (name,) = floats  # TIFF names its one channel itself
     np.testing.assert_array_equal(integers[name], ids.astype(np.int64))
     np.testing.assert_allclose(floats[name], ids / 65535.0, rtol=1e-6)  # OpenImageIO's normalised view, for colour
