@@ -522,8 +522,6 @@ def test_a_cropped_data_window_is_read_in_its_display_window(tmp_path, monkeypat
     # read as the frame: the output lost its place and distance depth took the crop's centre for the frame's
     import OpenEXR
 
-    from sss_jax._batch import process_frames
-
     scene = sj.demo_scene(40, 48)
     b = scene.buffers
     ids = np.asarray(b.material_id).astype(np.uint32)
@@ -556,14 +554,8 @@ def test_a_cropped_data_window_is_read_in_its_display_window(tmp_path, monkeypat
         np.testing.assert_array_equal(frame.material_id, whole.material_id)
         assert np.isinf(frame.depth[:8]).all() and (frame.material_id[:, :16] == 0).all()
     monkeypatch.undo()
-    for name, src in (("crop", tmp_path / "crop" / "shot.exr"), ("whole", tmp_path / "whole.exr")):
-        assert process_frames(str(src), "burley", _demo_material(), out_dir=tmp_path / f"out_{name}", samples=8,
-                              progress=False).ok
-    inp = oiio.ImageInput.open(str(tmp_path / "out_crop" / "shot.exr"))
-    spec, got = inp.spec(), inp.read_image(oiio.FLOAT)
-    inp.close()
+    spec, got, want = _batch_outputs(tmp_path, tmp_path / "crop" / "shot.exr", tmp_path / "whole.exr")
     assert (spec.x, spec.y, spec.width, spec.height) == (0, 0, 48, 40)
-    want = oiio.ImageInput.open(str(tmp_path / "out_whole" / "whole.exr")).read_image(oiio.FLOAT)
     np.testing.assert_array_equal(got, want)
 
 
@@ -576,7 +568,6 @@ def test_an_overscan_data_window_is_read_whole_and_the_output_keeps_both_windows
     # the array's centre
     import OpenEXR
 
-    from sss_jax._batch import process_frames
     from sss_jax._io import Window
 
     scene = sj.demo_scene(48, 60)
@@ -608,15 +599,9 @@ def test_an_overscan_data_window_is_read_whole_and_the_output_keeps_both_windows
         want = planar / np.sqrt(1 + ((xs - 34) ** 2 + (ys - 22) ** 2) / f**2)
         np.testing.assert_allclose(dist[np.isfinite(planar)], want[np.isfinite(planar)], rtol=1e-6)
     monkeypatch.undo()
-    for name, src in (("overscan", tmp_path / "in" / "shot.exr"), ("plain", tmp_path / "plain.exr")):
-        assert process_frames(str(src), "burley", _demo_material(), out_dir=tmp_path / f"out_{name}", samples=8,
-                              progress=False).ok
-    inp = oiio.ImageInput.open(str(tmp_path / "out_overscan" / "shot.exr"))
-    spec, got = inp.spec(), inp.read_image(oiio.FLOAT)
-    inp.close()
+    spec, got, want = _batch_outputs(tmp_path, tmp_path / "in" / "shot.exr", tmp_path / "plain.exr")
     assert (spec.x, spec.y, spec.width, spec.height) == (-10, -2, 60, 48)
     assert (spec.full_x, spec.full_y, spec.full_width, spec.full_height) == (0, 0, 48, 40)
-    want = oiio.ImageInput.open(str(tmp_path / "out_plain" / "plain.exr")).read_image(oiio.FLOAT)
     np.testing.assert_array_equal(got, want)
     # write_exr keeps the windows through either writer (OpenImageIO's where a header value is not namespaced)
     image = np.ones((48, 60, 3), np.float32)
@@ -626,6 +611,21 @@ def test_an_overscan_data_window_is_read_whole_and_the_output_keeps_both_windows
         assert (spec.x, spec.y, spec.full_x, spec.full_y, spec.full_width, spec.full_height) == (-10, -2, 0, 0, 48, 40)
         assert _io.read_frame(tmp_path / name, channel_map={"irradiance": ["R", "G", "B"], "depth": "R"}
                               ).window == frame.window
+
+
+def _batch_outputs(tmp_path, src, reference):
+    """Burley 8 over ``src`` and over ``reference`` (the same pixels written plain) by the batch: the spec of
+    ``src``'s output, its pixels and the reference output's."""
+    from sss_jax._batch import process_frames
+
+    outs = []
+    for k, path in enumerate((src, reference)):
+        assert process_frames(str(path), "burley", _demo_material(), out_dir=tmp_path / f"out{k}", samples=8,
+                              progress=False).ok
+        inp = oiio.ImageInput.open(str(tmp_path / f"out{k}" / pathlib.Path(path).name))
+        outs.append((inp.spec(), inp.read_image(oiio.FLOAT)))
+        inp.close()
+    return outs[0][0], outs[0][1], outs[1][1]
 
 
 def _demo_material():
