@@ -639,6 +639,7 @@ class _Manifest:
                                               "status": "pending", "message": "", "warnings": [], "seconds": 0.0,
                                               "run": self.run_id} for j in jobs}
         self.last: tuple[int, int] | None = None  # (inode, mtime_ns) of this run's last write: unchanged -> no merge
+        self.by_name: dict[str, list[str]] | None = None  # this run's outputs by file name (``_absolute``)
         self.data: dict[str, Any] = {}
         self.failed = False
         self.journal = None if path is None else _journal_path(path)
@@ -718,13 +719,32 @@ class _Manifest:
         runs = {r.get("run"): r for r in theirs.get("runs", []) if isinstance(r, dict)} if theirs else {
             r["run"]: r for r in self.data.get("runs", [])}
         runs[self.run_id] = dict(self.run, run=self.run_id)
-        frames = {f.get("output"): f for f in (theirs or self.data).get("frames", []) if isinstance(f, dict)}
+        frames = {}
+        for f in (theirs or self.data).get("frames", []):
+            if isinstance(f, dict):
+                f = self._absolute(f)
+                frames[f.get("output")] = f
         for journal in dead:  # a killed run's last entries, then this run's
             for entry in _journal_entries(journal):
-                _merge_entry(frames, entry)
+                _merge_entry(frames, self._absolute(entry))
         for entry in self.mine.values():
             _merge_entry(frames, entry)
         return dict(self.run, runs=list(runs.values()), frames=list(frames.values()))
+
+    def _absolute(self, entry: dict[str, Any]) -> dict[str, Any]:
+        """An entry of a manifest written before entries held absolute paths (its output as the run spelled it,
+        relative to a folder it did not record) under this run's output that ends with that path, where exactly one
+        does: one entry per file, not an old "done" beside a new "failed". Other entries as they are."""
+        out = entry.get("output")
+        if not isinstance(out, str) or not out or os.path.isabs(out):
+            return entry
+        if self.by_name is None:
+            self.by_name = {}
+            for key in self.mine:
+                self.by_name.setdefault(os.path.basename(key), []).append(key)
+        tail = os.sep + os.path.normpath(out)
+        match = [key for key in self.by_name.get(os.path.basename(out), []) if key.endswith(tail)]
+        return dict(entry, output=match[0]) if len(match) == 1 else entry
 
     def write(self, *, dead_journals: bool = False) -> None:
         """Fold: the manifest rewritten atomically with every entry so far, then this run's journal emptied (and

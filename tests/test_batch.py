@@ -910,6 +910,28 @@ def test_runs_that_spell_the_folder_differently_share_the_manifests_entries(fram
         (str(tmp_path / "out" / "f0.exr"), "skipped"), (str(tmp_path / "out" / "f1.exr"), "done")]
 
 
+def test_a_manifest_of_relative_entries_from_before_is_folded_into_one_entry_per_file(frames, tmp_path,
+                                                                                      monkeypatch):
+    # a manifest written before entries held absolute paths (outputs as the run spelled them, "out/f1.exr", relative
+    # to a folder it did not record): a new run completing the failed frame leaves one entry per file, not the old
+    # "failed" beside the new "done"; an entry of no output of this run stays as it was
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "in").mkdir()
+    for name in ("f0.exr", "f1.exr"):
+        copy_frame(frames, name, tmp_path / "in" / name)
+    (tmp_path / "out").mkdir()
+    old = {"state": "done", "runs": [{"run": "old", "state": "done"}], "frames": [
+        {"input": "in/f1.exr", "output": "out/f1.exr", "status": "failed", "message": "x", "run": "old"},
+        {"input": "in/g.exr", "output": "out/g.exr", "status": "done", "message": "", "run": "old"}]}
+    (tmp_path / "out" / MANIFEST_NAME).write_text(json.dumps(old))
+    r = process_frames([str(tmp_path / "in" / "f0.exr"), str(tmp_path / "in" / "f1.exr")], "separable", MAT,
+                       out_dir=tmp_path / "out", taps=9, progress=False, devices=jax.devices()[:1])
+    assert [f.status for f in r.frames] == ["done", "done"]
+    book = json.loads((tmp_path / "out" / MANIFEST_NAME).read_text())
+    assert sorted((f["output"], f["status"]) for f in book["frames"]) == [
+        (str(tmp_path / "out" / "f0.exr"), "done"), (str(tmp_path / "out" / "f1.exr"), "done"), ("out/g.exr", "done")]
+
+
 def test_what_an_earlier_process_with_this_pid_left_is_cleaned_up_and_folded(frames, tmp_path):
     # a container killed and restarted runs as pid 1 again: the files its killed run left carry this process's host
     # and pid. Before, they counted as a live writer's: its temporary stayed for good, and its journal (the frames it
