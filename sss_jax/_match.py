@@ -617,6 +617,18 @@ def _table(p: Mapping[str, Any], ids: Sequence[int]) -> dict[str, dict[str, Any]
     return {f"id{k}": {name: np.asarray(v)[k - 1].tolist() for name, v in p.items()} for k in ids}
 
 
+def _pass_albedo(frames: Sequence[MatchFrame], ids: Sequence[int], albedo: np.ndarray) -> np.ndarray:
+    """``albedo`` (one row per id 1..M) with each fitted id's row the mean of the frames' albedo passes (clipped
+    to [0, 1], as the techniques read it) over that id's pixels."""
+    out = np.array(albedo, np.float64, copy=True).reshape(-1, 3)
+    for k in ids:
+        pixels = np.concatenate([np.clip(np.asarray(f.buffers.albedo, np.float64), 0, 1)[np.asarray(f.material_id) == k]
+                                 for f in frames])
+        if pixels.size and out.shape[0] >= k:
+            out[k - 1] = pixels.mean(axis=0)
+    return out
+
+
 def match_render(
     frames: MatchFrame | Sequence[MatchFrame],
     material,
@@ -695,6 +707,11 @@ def match_render(
             raise ValueError(f"held-back frame {f.name} has material id(s) {extra} that no fitted frame has: "
                              "nothing is fitted for them")
     y0, albedo = fit.start(material, count)
+    with_pass = [f.name for f in frames + holdout if f.buffers.albedo is not None]
+    if fit_albedo and with_pass:
+        raise ValueError(f"fit_albedo: {', '.join(with_pass)} carry an albedo pass, which decides the albedo wherever "
+                         "it is given, so the material's albedo cannot be fitted; load the frames with "
+                         "use_albedo_pass=False (what `sss-jax fit --fit-albedo` does)")
     if fit_albedo:
         y0["logit_albedo"] = _logit(albedo)
     # the kernel whose reach decides the scored pixels: the start's (separable from Burley: its two-Gaussian)
@@ -746,10 +763,17 @@ def match_render(
     host = lambda yy: {k: np.asarray(v, np.float64) for k, v in yy.items()}
     p_start = _natural(fit, host(y0), np.asarray(albedo))
     p_fit = _natural(fit, host(y), np.asarray(albedo))
+    albedo_from = "material"
+    if len(with_pass) == len(frames + holdout):
+        # the albedo pass rendered every frame, not the material's albedo: the albedo reported (and the engines'
+        # blocks converted with) is the pass's mean over each id's pixels of the fitted frames
+        p_start["albedo"] = p_fit["albedo"] = _pass_albedo(frames, ids, np.asarray(p_fit["albedo"]))
+        albedo_from = "albedo pass (mean over each id's pixels of the fitted frames)"
     fitted = fit.material({k: jnp.asarray(v, dtype) for k, v in p_fit.items()})
     options, engines = fit.record(technique, p_fit, ids)
     options.update({k: v if isinstance(v, (str, int, float, bool, type(None))) else str(v) for k, v in given.items()})
     options["fit_albedo"] = bool(fit_albedo)
+    options["albedo_from"] = albedo_from
     if getattr(technique, "border", None) is not None:
         options["border"] = technique.border
     held_rule = f"SSS pixels holding >= {held_fraction:g} of the starting kernel's energy inside the frame"

@@ -224,6 +224,31 @@ def test_separable_and_sta_fits_recover_their_own_render():
     print("separable/sta self-fit:", res.errors["fitted"]["before"]["pooled"], res.errors["fitted"]["after"]["pooled"])
 
 
+def test_with_an_albedo_pass_the_fit_reports_the_pass_s_albedo_not_the_unused_start_s():
+    """Frames that carry an albedo pass render with it, not with the material's albedo: the fit reports (and the
+    engines' blocks convert with) the pass's mean over each id's pixels, computed here with NumPy, and says so.
+    Before, `fit --render --preset skin1` printed the preset's albedo, which no frame had rendered with (apply with
+    it gave rel_l2 0.279 where the fit claimed 0.156). Fitting the albedo while the pass decides it is refused."""
+    scene = sj.demo_scene(24, 32)
+    b, cam = scene.buffers, scene.camera
+    ids = np.asarray(b.material_id)
+    rows = int(ids.max())
+    rng = np.random.default_rng(3)
+    albedo = rng.uniform(0.2, 0.9, ids.shape + (3,)).astype(np.float32)
+    b = sj.Buffers(irradiance=b.irradiance, depth=b.depth, albedo=jnp.asarray(albedo), material_id=b.material_id)
+    truth = np.asarray(sj.burley(b, sj.BurleyMaterial(np.full((rows, 3), 0.5), np.full((rows, 3), 2.0)), cam,
+                                 samples=8))
+    start = sj.BurleyMaterial(np.full((rows, 3), 0.11), np.full((rows, 3), 3.0))  # an albedo no pixel renders with
+    res = sj.match_render(sj.match_frame(b, cam, truth), start, samples=8, max_steps=2)
+    assert res.options["albedo_from"].startswith("albedo pass")
+    for k in res.ids:
+        want = albedo[ids == k].astype(np.float64).mean(axis=0)
+        np.testing.assert_allclose(res.parameters[f"id{k}"]["albedo"], want, rtol=1e-6)
+        np.testing.assert_allclose(res.start[f"id{k}"]["albedo"], want, rtol=1e-6)
+    with pytest.raises(ValueError, match="carry an albedo pass"):
+        sj.match_render(sj.match_frame(b, cam, truth), start, samples=8, max_steps=2, fit_albedo=True)
+
+
 @pytest.mark.parametrize("extra, message", [
     (["--truth", "{t}"], "one --truth per --render"),
     (["--technique", "burley"], "needs the material"),

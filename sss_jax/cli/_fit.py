@@ -246,6 +246,9 @@ def _run_match(args) -> int:
     for k, params in result.parameters.items():
         print(f"  {k}: " + "; ".join(f"{n} = {', '.join(f'{v:.4g}' for v in (x if isinstance(x, list) else [x]))}"
                                      for n, x in params.items()))
+    if result.options.get("albedo_from", "material") != "material":
+        print("  (albedo: the frames' albedo pass rendered them, and `apply` without --albedo uses it the same way; "
+              "the albedo shown is its mean over each id's pixels)")
     return 0
 
 
