@@ -97,6 +97,12 @@ def load_preset(name_or_path: str | os.PathLike) -> Preset:
         raise SSSInputError(f"{path}: cannot read preset ({exc.strerror})") from None
     except ValueError as exc:
         raise SSSInputError(f"{path}: preset is not valid JSON ({exc})") from None
+    return preset_from_data(data, path)
+
+
+def preset_from_data(data: Any, path: pathlib.Path) -> Preset:
+    """``load_preset`` of the JSON ``data`` of the file ``path`` (errors name it): what a fit checks its preset
+    with before writing it."""
     if not isinstance(data, dict):
         raise SSSInputError(f"{path}: a preset must be a JSON object")
     albedo = _triple(data, ["albedo"], path)
@@ -127,8 +133,8 @@ def load_preset(name_or_path: str | os.PathLike) -> Preset:
             medium = MediumMaterial.from_tables(burley, [table])
     except SSSInputError:
         raise
-    except (ValueError, TypeError) as exc:
-        raise SSSInputError(f"{path}: invalid preset: {exc}") from None
+    except (ValueError, TypeError, IndexError, KeyError) as exc:
+        raise SSSInputError(f"{path}: invalid preset: {exc!s}") from None
     return Preset(name=str(data.get("name", path.stem)), path=str(path), burley=burley, two_gaussian=tg, sta=sta,
                   raw=data, medium=medium)
 

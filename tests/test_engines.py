@@ -532,3 +532,39 @@ def test_eevee_next_weights_follow_blenders_sample_loop_one_frame_at_a_time():
             pdf = math.exp(-x) + math.exp(-x / 3)  # the sampling pdf up to a constant, which the renormalising cancels
             w_ref.append((np.exp(-r / d_shader) + np.exp(-r / (3 * d_shader))) / (4 * d_shader) / pdf)
         np.testing.assert_allclose(w_got, np.array(w_ref) / np.sum(w_ref, axis=0), rtol=1e-9)
+
+
+def test_the_jimenez_comb_is_computed_on_the_pixels_its_taps_touch():
+    """The comb's pixel masses from the pixels its taps touch equal the dense loop over every pixel it spans (the
+    code before, written out here), and a comb as wide as a huge d costs no memory (the dense array was 28 GiB at
+    d ~ 6e6 mm, a MemoryError after `fit --render` had solved)."""
+    from sss_jax.engines._common import bins, piecewise_masses
+    from sss_jax.engines._jimenez import _world_mm, jimenez_comb_masses, jimenez_kernel
+
+    strength, falloff, width, unit, n, ppm = [0.9, 0.7, 0.5], [1.0, 0.5, 0.3], 0.02, 1000.0, 17, 3.0
+    edges = bins(np.array([3.0, 1.4, 0.8]))
+    offsets, weights = jimenez_kernel(strength, falloff, n_samples=n)
+    t = offsets * _world_mm(width, unit) * ppm
+    lo_px = int(math.floor(t.min())) - 1
+    dense = np.zeros((int(math.floor(t.max())) + 3 - lo_px, 3))
+    for i in range(len(t)):
+        p0 = int(math.floor(t[i]))
+        dense[p0 - lo_px] += (1 - (t[i] - p0)) * weights[i]
+        dense[p0 + 1 - lo_px] += (t[i] - p0) * weights[i]
+    centres = (np.arange(len(dense)) + lo_px) / ppm
+    want = piecewise_masses(centres - 0.5 / ppm, centres + 0.5 / ppm, dense, edges)
+    np.testing.assert_allclose(jimenez_comb_masses(strength, falloff, width, unit, n, edges, ppm), want,
+                               rtol=1e-12, atol=1e-15)
+    huge = jimenez_comb_masses(strength, falloff, 1e7, unit, n, edges, ppm)  # spans ~3e13 px
+    assert np.all(np.isfinite(huge))
+
+
+@pytest.mark.parametrize("d", [50.0, 64.0])
+def test_engine_blocks_convert_wide_materials(d):
+    # the Jimenez fit stepped its unbounded log width to exp overflow at d ~50-64 mm (OverflowError through
+    # `sss-jax fit`, which lost the batch of presets); its width now stays within 1e-3..1e3 of the widest d's
+    jimenez = sj.engine_blocks(albedo=[0.85, 0.75, 0.55], d_mm=[d, d / 2, d / 4])["jimenez"]
+    assert np.isfinite(jimenez["sssWidth"]) and np.all(np.isfinite(jimenez["fit"]["error_relative_l2"]))
+    # the fit is as good as at a narrow material of the same shape (the error of a scaled kernel does not scale)
+    narrow = sj.engine_blocks(albedo=[0.85, 0.75, 0.55], d_mm=[3.0, 1.5, 0.75])["jimenez"]
+    np.testing.assert_allclose(jimenez["fit"]["error_relative_l2"], narrow["fit"]["error_relative_l2"], atol=0.02)

@@ -310,6 +310,14 @@ def test_fit_command_writes_a_new_artist_preset(tmp_path, capsys):
     (["--name", "x", "--albedo", "0.5,0.5,0.5", "--d-mm", "1,0,1", "--photons", "10"], "x: d_mm must be 3 finite values > 0"),
     (["--material", "skin", "--photons", "0"], "--photons must be a positive integer"),
     (["--material", "skin", "--taps", "0"], "--taps must be a positive integer"),
+    # checked before any work (before: --taps 4 failed each material after its Monte Carlo, --photons 5 said
+    # "got 0", a preset named schema was overwritten by the schema, a/b failed after its Monte Carlo was written)
+    (["--material", "skin", "--taps", "4"], "--taps must be odd"),
+    (["--material", "skin", "--photons", "5"], "--photons must be at least 10"),
+    (["--name", "schema", "--albedo", "0.5,0.5,0.5", "--d-mm", "1,1,1"], "'schema' is reserved"),
+    (["--name", "a/b", "--albedo", "0.5,0.5,0.5", "--d-mm", "1,1,1"], "preset name 'a/b': use letters"),
+    (["--name", "../x", "--albedo", "0.5,0.5,0.5", "--d-mm", "1,1,1"], r"preset name '\.\./x'"),
+    (["--name", ".hidden", "--albedo", "0.5,0.5,0.5", "--d-mm", "1,1,1"], "preset name '.hidden'"),
 ])
 def test_fit_command_rejects_bad_input(tmp_path, capsys, argv, message):
     import re
@@ -318,6 +326,29 @@ def test_fit_command_rejects_bad_input(tmp_path, capsys, argv, message):
     err = capsys.readouterr().err
     assert rc != 0 and re.search(message, err), err
     assert not list((tmp_path / "o").glob("*.json")) or rc == 1  # nothing half-written as a preset
+
+
+def test_a_fitted_preset_that_would_not_load_is_not_written(tmp_path, monkeypatch):
+    # a fit whose preset load_preset refuses (too few photons left the medium's transmission unresolved) fails that
+    # material and leaves the preset already there; before, it was written and then broke the folder's README and
+    # every load
+    from sss_jax._fit_presets import _pipeline
+
+    out = tmp_path / "fits"
+    out.mkdir()
+    good = json.loads(_presets._resolve("skin1").read_text())
+    (out / "wax.json").write_text(json.dumps(good))
+    tr = good["transmittance"]
+    broken = dict(good, transmittance=dict(tr, resolved=[[True] + [False] * (len(row) - 1) for row in tr["resolved"]]))
+    monkeypatch.setattr(_pipeline, "fit_preset", lambda name, **kw: broken)
+    result = FP.fit_presets([], out_dir=out, photons=100, artist={"wax": {"albedo": [0.5] * 3, "d_mm": [1.0] * 3}},
+                            plots=False, readme=False, log=lambda s: None)
+    assert result["written"] == [] and "wax" in result["failed"] and "with 100 photons" in result["failed"]["wax"]
+    assert json.loads((out / "wax.json").read_text()) == good
+    # a table of the wrong shape is refused with the file named, not an IndexError
+    (out / "odd.json").write_text(json.dumps(dict(good, transmittance=dict(tr, thickness_mm=[0.5, 1.0]))))
+    with pytest.raises(_io.SSSInputError, match="odd.json: invalid preset"):
+        _presets.load_preset(out / "odd.json")
 
 
 def test_measured_csv_errors_name_the_file_and_row(tmp_path):

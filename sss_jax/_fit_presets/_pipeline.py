@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import pathlib
+import re
 import sys
 import time
 from collections.abc import Callable, Iterable
@@ -23,13 +24,21 @@ from .._fitting import (
     fit_two_gaussian_to_burley,
 )
 from .._io import SSSInputError, write_bytes_atomic
+from .._presets import preset_from_data
 from .._kernels import two_gaussian_kernel
 from .._montecarlo import to_tabulated_profile
 from .._profiles import scaling_searchlight
 from ._errors import _burley_vs_mc, engine_errors, image_errors, kernel_errors, profile_errors, sta_errors
 from ._files import plot_preset, write_presets_readme
 from ._references import fit_burley_d, montecarlo_medium_slabs, montecarlo_profiles, montecarlo_slabs
-from ._sources import ARTIST_MATERIALS, DEFAULT_PHOTONS, material_source, measured_materials
+from ._sources import (
+    ARTIST_MATERIALS,
+    DEFAULT_PHOTONS,
+    MEDIUM_SLAB_PHOTONS_FRACTION,
+    SLAB_PHOTONS_FRACTION,
+    material_source,
+    measured_materials,
+)
 
 # ------------------------------------------------------------------------------------------------------------------
 # engine export
@@ -158,6 +167,22 @@ def _json_bytes(data: Any) -> bytes:
     return (json.dumps(data, indent=2) + "\n").encode()
 
 
+_PRESET_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
+RESERVED_NAMES = ("schema",)  # files of a presets folder that are not presets (schema.json)
+
+
+def check_preset_name(name: str) -> str:
+    """``name`` if it can name a preset file ``<out_dir>/<name>.json``: letters, digits, ``_``, ``.`` and ``-``,
+    starting with a letter or digit (no folder, no hidden file), and not a file the folder holds besides the
+    presets (``schema``); else ``ValueError`` saying why."""
+    if not isinstance(name, str) or not _PRESET_NAME.fullmatch(name) or ".." in name:
+        raise ValueError(f"preset name {name!r}: use letters, digits, '_', '.' and '-', starting with a letter or "
+                         "digit (it names the file <out>/<name>.json)")
+    if name.lower() in RESERVED_NAMES:
+        raise ValueError(f"preset name {name!r} is reserved: <out>/{name}.json is the presets' JSON schema")
+    return name
+
+
 def fit_presets(names: Iterable[str] | None = None, *, out_dir: str | os.PathLike = "fits",
                 photons: int = DEFAULT_PHOTONS, seed: int = 0, solver: str = "optimistix", taps: int = 25,
                 plots: bool = True, readme: bool = True, measured_csv=None,
@@ -166,9 +191,17 @@ def fit_presets(names: Iterable[str] | None = None, *, out_dir: str | os.PathLik
     schema, plots and README; a material that fails is reported and the others go on. Returns
     ``{"written": [paths], "failed": {name: message}}``."""
     log = log or (lambda s: print(s, file=sys.stderr, flush=True))
+    artist = dict(artist or {})
+    for name in artist:  # before any work: the name is a file of out_dir (and of its Monte Carlo cache)
+        check_preset_name(name)
+    least = max(SLAB_PHOTONS_FRACTION, MEDIUM_SLAB_PHOTONS_FRACTION)
+    if not isinstance(photons, (int, np.integer)) or photons < least:
+        raise ValueError(f"photons must be an integer >= {least} (the medium's slabs run photons / "
+                         f"{MEDIUM_SLAB_PHOTONS_FRACTION} each), got {photons!r}")
+    if not isinstance(taps, (int, np.integer)) or taps < 1 or taps % 2 == 0:
+        raise ValueError(f"taps must be an odd positive integer (the exported kernel has a centre tap), got {taps!r}")
     out = pathlib.Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    artist = dict(artist or {})
     todo = list(names) if names is not None else (sorted(measured_materials(measured_csv)) + sorted(ARTIST_MATERIALS))
     todo += [n for n in artist if n not in todo]
     known = set(measured_materials(measured_csv)) | set(ARTIST_MATERIALS) | set(artist)
@@ -183,12 +216,18 @@ def fit_presets(names: Iterable[str] | None = None, *, out_dir: str | os.PathLik
             preset = fit_preset(name, photons=photons, seed=seed, solver=solver, taps=taps,
                                 cache_dir=out / "montecarlo", measured_csv=measured_csv, artist=artist.get(name),
                                 log=log)
-        except (SSSInputError, ValueError, FloatingPointError, RuntimeError) as exc:
+            # what it writes must load: a fit that gives a preset load_preset refuses fails (a Monte Carlo of too
+            # few photons leaves the medium's transmission unresolved) instead of replacing a good one
+            path = out / f"{name}.json"
+            data = _json_bytes(preset)
+            preset_from_data(json.loads(data), path)
+        except (SSSInputError, ValueError, ArithmeticError, RuntimeError) as exc:
             failed[name] = f"{type(exc).__name__}: {exc}"
+            if photons < DEFAULT_PHOTONS:
+                failed[name] += f" (with {photons} photons; the default is {DEFAULT_PHOTONS})"
             log(f"  failed: {failed[name]}")
             continue
-        path = out / f"{name}.json"
-        write_bytes_atomic(path, _json_bytes(preset))
+        write_bytes_atomic(path, data)
         written.append(str(path))
         log(f"  wrote {path} ({preset['fit']['seconds']:.1f} s)")
         if plots:

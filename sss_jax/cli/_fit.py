@@ -78,6 +78,7 @@ def run(args) -> int:
     from .._fit_presets import (
         ARTIST_MATERIALS,
         DEFAULT_PHOTONS,
+        check_preset_name,
         fit_presets,
         measured_materials,
     )
@@ -92,8 +93,12 @@ def run(args) -> int:
         photons = DEFAULT_PHOTONS if args.photons is None else args.photons
         if photons < 1:
             raise ValueError(f"--photons must be a positive integer, got {photons}")
+        if photons < 10:
+            raise ValueError(f"--photons must be at least 10 (the medium's slabs run a tenth each), got {photons}")
         if args.taps < 1:
             raise ValueError(f"--taps must be a positive integer, got {args.taps}")
+        if args.taps % 2 == 0:
+            raise ValueError(f"--taps must be odd (the exported kernel has a centre tap), got {args.taps}")
         custom = [args.name, args.albedo, args.d_mm]
         artist = None
         if any(v is not None for v in custom):
@@ -101,6 +106,7 @@ def run(args) -> int:
                 raise ValueError("a new artist material needs all of --name, --albedo R,G,B and --d-mm R,G,B")
             if args.name in measured or args.name in ARTIST_MATERIALS:
                 raise ValueError(f"--name {args.name!r} is a built-in material; choose another name")
+            check_preset_name(args.name)
             artist = {args.name: {"albedo": list(args.albedo), "d_mm": list(args.d_mm)}}
         names = args.material if args.material else ([] if artist and not args.all else None)
         if args.out.exists() and not args.out.is_dir():

@@ -87,15 +87,14 @@ def jimenez_comb_masses(strength, falloff, sss_width: float, mm_per_unit: float,
     pixels' footprints; ``sss_width`` is the effective width (sssWidth times alpha)."""
     offsets, weights = jimenez_kernel(strength, falloff, n_samples=n_samples)
     t = offsets * _world_mm(sss_width, mm_per_unit) * px_per_mm  # px
-    lo_px = int(math.floor(t.min())) - 1
-    n_px = int(math.floor(t.max())) + 2 - lo_px + 1
-    pixel = np.zeros((n_px, 3))
     p0 = np.floor(t)
-    f = t - p0
-    for i in range(len(t)):
-        pixel[int(p0[i]) - lo_px] += (1 - f[i]) * weights[i]
-        pixel[int(p0[i]) + 1 - lo_px] += f[i] * weights[i]
-    centres = (np.arange(n_px) + lo_px) / px_per_mm
+    f = (t - p0)[:, None]
+    # the pixels the taps touch (two each), not every pixel the comb spans: a comb as wide as a huge d would
+    # allocate one row per pixel it spans (28 GiB at d ~ 6e6 mm); pixels no tap touches hold no mass
+    touched, slot = np.unique(np.r_[p0, p0 + 1], return_inverse=True)
+    pixel = np.zeros((len(touched), 3))
+    np.add.at(pixel, slot, np.r_[(1 - f) * weights, f * weights])
+    centres = touched / px_per_mm
     return piecewise_masses(centres - 0.5 / px_per_mm, centres + 0.5 / px_per_mm, pixel, edges)
 
 
@@ -115,12 +114,13 @@ def _fit(albedo, d, unit, n_samples, masses=jimenez_masses):
 
     best = None
     dmax = float(np.max(d))
+    base = dmax / _world_mm(1.0, unit)
     for scale in (1.0, 2.0, 4.0, 8.0):
         # a kernel unit covers 2/3 sssWidth; start with the widest channel's falloff 1 reaching ~scale d
-        width0 = scale * dmax / _world_mm(1.0, unit)
-        x0 = np.r_[math.log(width0), np.clip(d / dmax, 0.05, 1.0), np.full(3, 0.6)]
-        lo = np.r_[-np.inf, np.zeros(6)]
-        hi = np.r_[np.inf, np.ones(6)]
+        x0 = np.r_[math.log(scale * base), np.clip(d / dmax, 0.05, 1.0), np.full(3, 0.6)]
+        # the width within 1e-3..1e3 of the widest d's (an unbounded log width stepped to exp overflow at d ~50 mm)
+        lo = np.r_[math.log(1e-3 * base), np.zeros(6)]
+        hi = np.r_[math.log(1e3 * base), np.ones(6)]
         sol = least_squares(residuals, x0, bounds=(lo, hi), method="trf", x_scale="jac", max_nfev=400)
         if best is None or sol.cost < best.cost:
             best = sol
