@@ -387,3 +387,24 @@ def test_engine_table_covers_every_preset_and_engine():
     readme = (FITS / "README.md").read_text()
     for line in _markdown_table(rows):
         assert line in readme
+
+
+def test_the_plot_draws_the_monte_carlo_at_the_preset_s_mean_free_path(tmp_path, monkeypatch):
+    # the cached profiles are per mean free path and serve every material of their albedo: a re-fit of a material
+    # with another d reused them while the cache kept the first run's mean free path, and the plot drew the Monte
+    # Carlo curve at that length (2x compressed against Burley d = 6 after a fit at d = 3)
+    import matplotlib.axes
+
+    drawn = []
+    real = matplotlib.axes.Axes.errorbar
+    monkeypatch.setattr(matplotlib.axes.Axes, "errorbar",
+                        lambda self, x, y, **kw: drawn.append(np.asarray(x)) or real(self, x, y, **kw))
+    preset = json.loads((FITS / "ketchup.json").read_text())
+    (tmp_path / "montecarlo").mkdir()
+    shutil.copy(FITS / "montecarlo" / "ketchup.json", tmp_path / "montecarlo" / "ketchup.json")
+    FP.plot_preset(preset, tmp_path)
+    wider = json.loads(json.dumps(preset))
+    wider["burley"]["mean_free_path_mm"] = [2 * v for v in preset["burley"]["mean_free_path_mm"]]
+    FP.plot_preset(wider, tmp_path)
+    for c in range(3):
+        np.testing.assert_allclose(drawn[3 + c], 2 * drawn[c], rtol=1e-12)

@@ -25,7 +25,9 @@ def plot_preset(preset: dict, out_dir: pathlib.Path) -> pathlib.Path:
 
     name = preset["name"]
     cache = json.loads((out_dir / preset["montecarlo"]["cache"]).read_text())
-    mfp = np.asarray(cache["mean_free_path_mm"])
+    # the preset's own mean free path: the cached profiles are per mean free path and serve every material of
+    # that albedo, so the cache's length is the run's that simulated them, not necessarily this preset's
+    mfp = np.asarray(preset["burley"].get("mean_free_path_mm", cache["mean_free_path_mm"]))
     d = np.asarray(preset["burley"]["d_mm"])
     fig = Figure(figsize=(12, 3.6), layout="constrained")  # a Figure of its own: no global matplotlib state
     axes = fig.subplots(1, 3)
