@@ -473,3 +473,25 @@ def test_nan_parameter_inside_jit_is_an_error_not_a_nan_image():
     assert np.all(np.isfinite(np.asarray(run(jnp.ones(3)))))
     with pytest.raises(eqx.EquinoxRuntimeError, match="d_mm must be finite and >= 0"):
         run(jnp.asarray([1.0, jnp.nan, 1.0])).block_until_ready()
+
+
+MITSUBA = pathlib.Path(__file__).parent / "data" / "mitsuba"
+
+
+@pytest.mark.parametrize("argv", [
+    ["transmit", "--preset", "skin1", "--thickness-mm", "1"],
+    ["advise", "--material", "skin1", "--max-delta-e", "1"],
+    ["stability", "--quick"],
+    ["fit", "--render", str(MITSUBA / "skin_closeup_buffers.exr"), "--truth", str(MITSUBA / "skin_closeup_truth.exr"),
+     "--technique", "burley", "--preset", "skin1", "--max-steps", "1"],
+])
+@pytest.mark.parametrize("where", ["a folder", "under a file"])
+def test_a_json_output_that_cannot_be_a_file_is_refused_before_the_work(tmp_path, capsys, argv, where):
+    # before, these commands checked only that the folder existed: a folder given as --json, or a path under a
+    # regular file, ended in a traceback after the work (stability: after its whole sweep, minutes)
+    blocker = tmp_path / "file"
+    blocker.write_text("a file")
+    target = tmp_path if where == "a folder" else blocker / "out.json"
+    assert main([*argv, "--json", str(target)]) == 2
+    err = capsys.readouterr().err
+    assert ("output path is a directory" in err if where == "a folder" else "file" in err) and "Traceback" not in err

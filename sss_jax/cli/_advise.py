@@ -164,7 +164,7 @@ def _counts(args, options: dict, running) -> None:
 
 def run(args) -> int:
     from .._advise import advise
-    from .._io import SSSInputError
+    from .._io import SSSInputError, check_writable
 
     try:
         if not (args.max_delta_e >= 0):
@@ -173,8 +173,8 @@ def run(args) -> int:
             raise ValueError(f"--scene-scale must be a finite positive number, got {args.scene_scale}")
         if args.repeats < 1:
             raise ValueError(f"--repeats must be >= 1, got {args.repeats}")
-        if args.json is not None and not args.json.parent.exists():
-            raise ValueError(f"--json {args.json}: directory {args.json.parent} does not exist")
+        if args.json is not None:
+            check_writable(args.json, create_dirs=False)
         material = _material(args)
         frame = _frame(args, material)
         names = args.technique or ADVISED

@@ -177,7 +177,7 @@ def _register_match(p) -> None:
 
 
 def _run_match(args) -> int:
-    from .._io import SSSInputError, write_json_atomic
+    from .._io import SSSInputError, check_writable, write_json_atomic
     from .._match import load_match_frame, match_render, write_match_html
     from ._apply import _material
 
@@ -210,9 +210,11 @@ def _run_match(args) -> int:
                                              depth_kind=args.depth_kind, use_albedo_pass=use_albedo_pass)
         frames = [read(r, t) for r, t in zip(renders, truths)]
         holdout = [read(r, t) for r, t in (args.holdout or [])]
-        for out in (args.json, args.html):
-            if out is not None and out.parent.exists() and not out.parent.is_dir():
-                raise ValueError(f"{out}: its folder {out.parent} is not a directory")
+        for out in (args.json, args.html):  # before the fit: a folder, a path under a file, a read-only folder
+            if out is not None:
+                check_writable(out)
+        if args.report is not None and args.report.exists() and not args.report.is_dir():
+            raise ValueError(f"--report {args.report}: exists and is not a directory")
         if args.report is not None and args.technique == "sta":
             raise ValueError("--report needs --technique burley or separable (the report's reference is a profile)")
         result = match_render(frames, material, technique=args.technique, holdout=holdout, samples=args.samples,

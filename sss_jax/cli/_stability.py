@@ -28,11 +28,13 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from .._io import write_json_atomic
+    from .._io import SSSInputError, check_writable, write_json_atomic
     from .._stability import run_sweep
 
-    if not args.json.parent.exists():
-        print(f"sss-jax stability: output directory {args.json.parent} does not exist", file=sys.stderr)
+    try:  # before the sweep (minutes): a folder, a missing or read-only directory
+        check_writable(args.json, create_dirs=False)
+    except SSSInputError as exc:
+        print(f"sss-jax stability: --json {exc}", file=sys.stderr)
         return 2
     summary = run_sweep(quick=args.quick, progress=True)
     write_json_atomic(args.json, summary)

@@ -50,7 +50,7 @@ def register(subparsers) -> None:
 def run(args) -> int:
     import numpy as np
 
-    from .._io import SSSInputError, write_json_atomic
+    from .._io import SSSInputError, check_writable, write_json_atomic
     from .._presets import load_preset
 
     try:
@@ -58,8 +58,8 @@ def run(args) -> int:
         if preset.medium is None:
             raise SSSInputError(f"{preset.path}: preset carries no medium transmittance (a 'transmittance' block); "
                                 "fit it again with sss-jax fit")
-        if args.json is not None and not args.json.parent.is_dir():
-            raise SSSInputError(f"--json: directory {args.json.parent} does not exist")
+        if args.json is not None:
+            check_writable(args.json, create_dirs=False)
     except SSSInputError as exc:
         print(f"sss-jax transmit: {exc}", file=sys.stderr)
         return 2
