@@ -57,3 +57,17 @@ def test_stability_cli_writes_json(tmp_path, monkeypatch, quick_sweep):
     for key in ("cases", "handled_errors", "nonfinite_outputs", "nonfinite_gradients", "case_list"):
         assert key in data
     assert main(["stability", "--json", str(tmp_path / "missing" / "s.json")]) == 2
+
+
+def test_stability_cli_prints_every_count_that_fails_it(tmp_path, monkeypatch, capsys, quick_sweep):
+    # before, a violated limit made the exit status 1 while every count printed read 0 (limits were not printed)
+    import sss_jax._stability as stability
+
+    cases = [dict(c) for c in quick_sweep["case_list"]]
+    bad = next(i for i, c in enumerate(cases) if c["component"] == "limit_identity")
+    cases[bad] = dict(cases[bad], outcome="limit_violated", message="d -> 0 is not the identity (fake)")
+    summary = dict(quick_sweep, ok=quick_sweep["ok"] - 1, limit_violations=1, case_list=cases)
+    monkeypatch.setattr(stability, "run_sweep", lambda quick, progress: summary)
+    assert main(["stability", "--quick", "--json", str(tmp_path / "s.json")]) == 1
+    out = capsys.readouterr().out
+    assert "limits violated:      1" in out and "limit_violated: limit_identity" in out and "(fake)" in out

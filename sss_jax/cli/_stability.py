@@ -38,12 +38,19 @@ def run(args) -> int:
         return 2
     summary = run_sweep(quick=args.quick, progress=True)
     write_json_atomic(args.json, summary)
-    print(f"cases tried:          {summary['cases']}")
-    print(f"ok:                   {summary['ok']}")
-    print(f"handled errors:       {summary['handled_errors']}")
-    print(f"non-finite outputs:   {summary['nonfinite_outputs']}")
-    print(f"non-finite gradients: {summary['nonfinite_gradients']}")
-    print(f"energy unbounded:     {summary['energy_unbounded']}")
-    print(f"unexpected errors:    {summary['unexpected_errors']}")
+    for key, label in _ROWS:
+        print(f"{label + ':':<22}{summary.get(key, 0)}")
+    failed = [c for c in summary.get("case_list", []) if c["outcome"] not in ("ok", "handled_error")]
+    for c in failed[:10]:  # the cases that failed, by name: the exit status is 1 because of them
+        print(f"  {c['outcome']}: {c['component']} {c['params']}: {c['message'][:160]}")
+    if len(failed) > 10:
+        print(f"  ... and {len(failed) - 10} more in {args.json}")
     bad = summary["cases"] - summary["ok"] - summary["handled_errors"]
     return 0 if bad == 0 else 1
+
+
+# every outcome the sweep counts, in the order printed (a count left out here would fail the run unseen)
+_ROWS = (("cases", "cases tried"), ("ok", "ok"), ("handled_errors", "handled errors"),
+         ("nonfinite_outputs", "non-finite outputs"), ("nonfinite_gradients", "non-finite gradients"),
+         ("energy_unbounded", "energy unbounded"), ("limit_violations", "limits violated"),
+         ("unexpected_errors", "unexpected errors"))
