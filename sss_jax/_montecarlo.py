@@ -469,8 +469,11 @@ def simulate(
         raise ValueError(f"slab thickness must be a finite positive length, got {slab_mfp}")
     if incidence not in ("pencil", "diffuse"):
         raise ValueError(f"incidence must be 'pencil' or 'diffuse', got {incidence!r}")
-    if not isinstance(max_events, (int, np.integer)) or max_events < 1:
-        raise ValueError(f"max_events must be a positive integer, got {max_events!r}")
+    if not isinstance(max_events, (int, np.integer)) or not (1 <= max_events <= 2**31 - 2):
+        raise ValueError(f"max_events must be an integer from 1 to 2^31 - 2, got {max_events!r}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not (0 <= seed < 2**32):
+        # PRNGKey keeps a seed's low 32 bits: 2^32 would silently give seed 0's photons, -1 seed 2^32 - 1's
+        raise ValueError(f"seed must be an integer in [0, 2^32), got {seed!r}")
     if max_events_hard is None:
         max_events_hard = min(1000 * int(max_events), 2**31 - 2)
     if not isinstance(max_events_hard, (int, np.integer)) or not (max_events <= max_events_hard <= 2**31 - 2):

@@ -124,6 +124,19 @@ def test_reproducible_from_a_seed():
     assert a.total_reflectance == b.total_reflectance != c.total_reflectance
 
 
+@pytest.mark.parametrize("kw, message", [
+    # PRNGKey keeps a seed's low 32 bits: before, 2^32 gave seed 0's photons (and -1 seed 2^32 - 1's) while the
+    # result recorded the seed as given; a seed past 64 bits was an OverflowError traceback
+    ({"seed": 2**32}, "seed must be an integer in"), ({"seed": -1}, "seed must be an integer in"),
+    ({"seed": 10**23}, "seed must be an integer in"),
+    # the cap was named after an internal argument (max_events_hard), not the flag a user gave
+    ({"max_events": 3_000_000_000}, "max_events must be an integer from 1 to 2"),
+])
+def test_out_of_range_seeds_and_caps_are_refused(kw, message):
+    with pytest.raises(ValueError, match=message):
+        simulate(0.8, photons=10, **kw)
+
+
 def test_batches_stream_with_bounded_lanes():
     # 3 calls of 4096 photons each through 1024 lanes: the same physics as one big call, to the statistical error
     small = simulate(0.7, photons=12_288, seed=9, lanes=1024, batch_photons=4096, bins=50, r_max_mfp=10.0)
