@@ -156,7 +156,11 @@ def _solve(residual_fn: Callable, x0: np.ndarray, lower: np.ndarray, upper: np.n
         _WRAPPED[key] = eqx.filter_jit(opt.run)  # non-array data (tap counts) static
     res = _WRAPPED[key](jnp.asarray(x0), (jnp.asarray(lower), jnp.asarray(upper)), args)
     it = int(res.state.iter_num)
-    outcome = "successful" if it < max_steps else "max_steps_reached"
+    # L-BFGS-B stops when its projected gradient's norm is within tol or at maxiter; a NaN norm stops it at once,
+    # and the loop's own test then reads as converged: say what happened, as optimistix's result codes do
+    finite = bool(np.all(np.isfinite(np.asarray(res.params)))) and bool(np.isfinite(float(res.state.value))) and \
+        bool(np.isfinite(float(res.state.error)))
+    outcome = ("nonfinite" if not finite else "max_steps_reached" if it >= max_steps else "successful")
     return np.asarray(res.params), outcome, it
 
 
@@ -239,6 +243,8 @@ def fit_two_gaussian_profile(profile: AbstractProfile, *, pixel_mm=None, half: i
     t0 = time.perf_counter()
     r999 = np.asarray(profile.radius_for_energy(0.999), np.float64)
     pixels = None if pixel_mm is None else np.broadcast_to(np.asarray(pixel_mm, np.float64), (profile.num_channels,))
+    if pixels is not None and not np.all(np.isfinite(pixels) & (pixels > 0)):
+        raise ValueError(f"pixel_mm must be finite and > 0 (one value or one per channel), got {pixel_mm!r}")
     for c in range(profile.num_channels):
         pix = float(pixels[c]) if pixels is not None else float(r999[c]) / half
         x, err, outcome, it = fit_two_gaussian_grid(profile_pixel_mass(profile, pix, half, sub=8)[..., c], pix,
@@ -404,8 +410,14 @@ def fit_sta(d_mm, *, solver: str = "jaxopt", transmittance: Callable | None = No
 
     Target: ``T(t) cos(theta_L)`` (diffuse light through the slab, Lambertian at the back face), T from the Burley
     profile or ``transmittance(t_mm) -> (N, 3)`` (e.g. a Monte Carlo slab). The STA term is evaluated with the back
-    face's normal opposite the view plane's, the light behind at theta_L, the view at theta_V.
+    face's normal opposite the view plane's, the light behind at theta_L, the view at theta_V. Solved in float64
+    (as the two-Gaussian fits are): in float32 L-BFGS-B cannot meet its 1e-9 tolerance and ran to its step limit.
     """
+    with jax.enable_x64(True):
+        return _fit_sta(d_mm, solver, transmittance, thickness_range)
+
+
+def _fit_sta(d_mm, solver: str, transmittance: Callable | None, thickness_range) -> dict[str, Any]:
     _check_solver(solver)
     d = _check_d(d_mm)
     lo, hi = thickness_range or (0.05 * d.min(), 6.0 * d.max())

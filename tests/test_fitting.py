@@ -93,6 +93,25 @@ def test_sta_fit_reduces_the_error_against_slab_transmission():
                                (np.exp(-1) + 3 * np.exp(-1 / 3)) / 4)
 
 
+def test_the_default_sta_fit_converges_outside_x64():
+    # sj.fit_sta as a user calls it (x64 off, the default L-BFGS-B): before, it ran in float32, could not meet its
+    # 1e-9 tolerance and returned max_steps_reached after 1000 iterations; both solvers reach one optimum
+    fits = {solver: F.fit_sta(np.array([3.0, 1.4, 0.8]), solver=solver) for solver in ("jaxopt", "optimistix")}
+    assert all(f["fit"]["outcome"] == "successful" for f in fits.values()), {k: f["fit"] for k, f in fits.items()}
+    np.testing.assert_allclose(fits["jaxopt"]["fit"]["error_relative_l2"],
+                               fits["optimistix"]["fit"]["error_relative_l2"], rtol=1e-4)
+
+
+def test_jaxopt_reports_a_nonfinite_solve():
+    # a NaN loss stopped L-BFGS-B at its first step, which read as converged ("successful" with NaN parameters);
+    # optimistix says "nonfinite" for the same residual
+    nan_residual = lambda x, args: x * jnp.nan
+    x, outcome, _ = F._solve(nan_residual, np.array([0.5]), np.array([0.0]), np.array([1.0]), "jaxopt")
+    assert outcome == "nonfinite"
+    with pytest.raises(ValueError, match="pixel_mm must be finite and > 0"):
+        F.fit_two_gaussian_profile(sj.BurleyProfile(jnp.asarray([3.0, 1.4, 0.8])), pixel_mm=0.0)
+
+
 @pytest.mark.parametrize("solver", ["optimistix", "jaxopt"])
 def test_a_second_fit_of_the_same_shape_reuses_the_compiled_solver(solver):
     # a fresh closure per fit used to recompile the solver every call (7-10 s each): count XLA compilations
