@@ -495,3 +495,22 @@ def test_a_json_output_that_cannot_be_a_file_is_refused_before_the_work(tmp_path
     assert main([*argv, "--json", str(target)]) == 2
     err = capsys.readouterr().err
     assert ("output path is a directory" in err if where == "a folder" else "file" in err) and "Traceback" not in err
+
+
+@pytest.mark.parametrize("argv, message", [
+    # flags of the other mode of `fit` did nothing: a preset fit with --json/--preset wrote neither and used none;
+    # a render match with --seed/--solver/--photons/--out ran optimistix, recorded no seed and wrote nothing there
+    (["fit", "--list", "--json", "x.json", "--max-steps", "3", "--preset", "skin", "--fit-albedo"],
+     "--preset, --fit-albedo, --max-steps, --json: for matching a render"),
+    (["fit", "--material", "skin", "--light-dir", "0,0,1", "--sta-power", "2", "--technique", "burley"],
+     "--technique, --light-dir, --sta-power: for matching a render"),
+    (["fit", "--render", str(MITSUBA / "skin_closeup_buffers.exr"), "--truth", str(MITSUBA / "skin_closeup_truth.exr"),
+      "--technique", "burley", "--preset", "skin1", "--seed", "5", "--solver", "jaxopt", "--photons", "3"],
+     "--photons, --seed, --solver: for making presets"),
+    (["advise", "--material", "skin1", "--max-delta-e", "1", "--depth-kind", "distance"],
+     "--depth-kind distance reads --frame"),
+])
+def test_flags_a_mode_does_not_read_are_refused(argv, message, capsys):
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err

@@ -133,6 +133,8 @@ def _frame(args, material):
         for flag in ("focal_px", "mm_per_unit", "channel_map", "truth_channels"):
             if getattr(args, flag) is not None:
                 raise ValueError(f"--{flag.replace('_', '-')} reads --frame: give --frame IN.exr too")
+        if args.depth_kind != "planar":
+            raise ValueError(f"--depth-kind {args.depth_kind} reads --frame: give --frame IN.exr too")
         return {}
     for flag, value in (("--scene", args.scene), ("--scene-scale", args.scene_scale), ("--size", args.size)):
         if value is not None:

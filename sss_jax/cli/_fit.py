@@ -8,8 +8,8 @@ import pathlib
 import sys
 
 from . import rgb_triple
-from ._options import add_sta_flags, add_technique_flags, given_technique_options, option_arguments
-from ._options import technique_options
+from ._options import add_sta_flags, add_technique_flags, given_sta_flag_names, given_technique_options
+from ._options import option_arguments, technique_options
 
 # the techniques `fit --render` matches
 MATCHED = ("burley", "separable", "sta")
@@ -64,6 +64,21 @@ def register(subparsers) -> None:
     p.add_argument("--no-plots", action="store_true", help="skip the per-preset plots")
     _register_match(p)
     p.set_defaults(func=run)
+    p.set_defaults(fit_defaults=vars(p.parse_args([])))  # what each flag is when not given (_given)
+
+
+# the flags of one mode only: making presets, or matching a render (--render); given in the other they would do
+# nothing (the technique options and the STA flags are checked on their own)
+PRESET_ONLY = ("out", "photons", "seed", "solver", "measured_csv", "no_plots")
+MATCH_ONLY = ("samples", "mfp_mm", "preset", "fit_albedo", "loss", "huber_delta", "max_steps", "score",
+              "held_fraction", "focal_px", "mm_per_unit", "depth_kind", "channel_map", "truth_channels", "json", "html",
+              "report", "radius_px", "light_dir", "light_colour", "thickness")
+
+
+def _given(args, dests) -> list[str]:
+    """The flags among ``dests`` given with a value other than their default, as typed."""
+    defaults = args.fit_defaults
+    return ["--" + d.replace("_", "-") for d in dests if getattr(args, d) != defaults.get(d)]
 
 
 def run(args) -> int:
@@ -74,6 +89,13 @@ def run(args) -> int:
                           for k in given_technique_options(args))
         print(f"sss-jax fit: {flags}: technique options are for matching a render (--render); presets are fitted "
               "to profiles", file=sys.stderr)
+        return 2
+    match_only = _given(args, MATCH_ONLY) + given_sta_flag_names(args)
+    if args.technique is not None:
+        match_only.insert(0, "--technique")
+    if match_only:
+        print(f"sss-jax fit: {', '.join(match_only)}: for matching a render (--render IN.exr --truth TRUTH.exr); "
+              "making presets does not read them", file=sys.stderr)
         return 2
     from .._fit_presets import (
         ARTIST_MATERIALS,
@@ -185,6 +207,11 @@ def _run_match(args) -> int:
         if args.all or args.material or args.list or args.name is not None:
             raise ValueError("--render matches a render; --all, --material, --list and --name make presets: "
                              "give one or the other")
+        preset_only = _given(args, PRESET_ONLY)
+        if preset_only:
+            raise ValueError(f"{', '.join(preset_only)}: for making presets; matching a render (--render) does not "
+                             "read them (its solver is optimistix's Levenberg-Marquardt; Burley's seed is "
+                             "--burley-seed; --json/--html/--report name its outputs)")
         renders, truths = args.render or [], args.truth or []
         if not renders or len(renders) != len(truths):
             raise ValueError(f"give one --truth per --render: got {len(renders)} --render and {len(truths)} --truth")
