@@ -507,6 +507,11 @@ def test_a_json_output_that_cannot_be_a_file_is_refused_before_the_work(tmp_path
     (["fit", "--render", str(MITSUBA / "skin_closeup_buffers.exr"), "--truth", str(MITSUBA / "skin_closeup_truth.exr"),
       "--technique", "burley", "--preset", "skin1", "--seed", "5", "--solver", "jaxopt", "--photons", "3"],
      "--photons, --seed, --solver: for making presets"),
+    # the STA match fits the STA model's parameters; the thin and slab models have none (before: "technique 'sta'
+    # starts from STAParams", which did not say why)
+    (["fit", "--render", str(MITSUBA / "skin_backlit_buffers.exr"), "--truth", str(MITSUBA / "skin_backlit_truth.exr"),
+      "--technique", "sta", "--model", "slab", "--preset", "skin1", "--light-dir", "0,0,1"],
+     "--model slab: the match fits the STA parameters of --model sta"),
     (["advise", "--material", "skin1", "--max-delta-e", "1", "--depth-kind", "distance"],
      "--depth-kind distance reads --frame"),
 ])
