@@ -470,7 +470,7 @@ def fit_burley_from_image(buffers: Buffers, target_image, camera: Camera, *, alb
 
     data = (buffers, target, jnp.asarray(norm), alb, camera, int(samples))
     residual = lambda x: _burley_image_residual(x, data)
-    d0 = np.asarray(d0_mm, np.float64)
+    d0 = _check_d(d0_mm)  # the search spans d0 / 20 .. 20 d0: each channel's start must be finite and > 0
     t0 = time.perf_counter()
     x, outcome, it = _solve(_burley_image_residual, d0, d0 / 20, d0 * 20, solver, max_steps=200, args=data)
     return {"d_mm": x.tolist(), "fit": {"solver": solver, "outcome": outcome, "iterations": it,

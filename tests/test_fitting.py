@@ -102,6 +102,14 @@ def test_the_default_sta_fit_converges_outside_x64():
                                fits["optimistix"]["fit"]["error_relative_l2"], rtol=1e-4)
 
 
+def test_the_image_fit_checks_its_start():
+    # d0 = 0 gave "d_mm ... got [nan]" from deep inside, a negative d0 an EquinoxRuntimeError
+    scene = sj.demo_scene(16, 16)
+    for d0 in ([0.0, 1.0, 1.0], [-1.0, 1.0, 1.0]):
+        with pytest.raises(ValueError, match="d_mm must be 3 finite values > 0"):
+            F.fit_burley_from_image(scene.buffers, np.zeros((16, 16, 3)), scene.camera, albedo=[0.5] * 3, d0_mm=d0)
+
+
 def test_jaxopt_reports_a_nonfinite_solve():
     # a NaN loss stopped L-BFGS-B at its first step, which read as converged ("successful" with NaN parameters);
     # optimistix says "nonfinite" for the same residual

@@ -361,6 +361,10 @@ def test_measured_csv_errors_name_the_file_and_row(tmp_path):
                    "goo,1,1,1,0.1,-0.1,0.1\n")
     with pytest.raises(_io.SSSInputError, match=r"row 2 \(goo\): coefficients must be finite, >= 0"):
         FP.measured_materials(bad)
+    # a header and no rows: an error, not an empty list of materials (`fit --list` printed "measured:", exit 0)
+    bad.write_text("name,sigma_s_prime_r,sigma_s_prime_g,sigma_s_prime_b,sigma_a_r,sigma_a_g,sigma_a_b\n")
+    with pytest.raises(_io.SSSInputError, match=r"m.csv: no materials"):
+        FP.measured_materials(bad)
 
 
 def test_engine_table_covers_every_preset_and_engine():

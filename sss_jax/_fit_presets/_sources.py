@@ -74,6 +74,9 @@ def measured_materials(path: str | os.PathLike | None = None) -> dict[str, dict[
             raise SSSInputError(f"{where}: row {i} ({row['name']}): coefficients must be finite, >= 0, "
                                 f"with sigma_s' + sigma_a > 0 per channel; got sigma_s'={s}, sigma_a={a}")
         out[row["name"]] = {"sigma_s_prime": s, "sigma_a": a}
+    if not out:
+        raise SSSInputError(f"{where}: no materials (a header and one row per material: name, sigma_s_prime_r/g/b, "
+                            "sigma_a_r/g/b)")
     return out
 
 
