@@ -58,7 +58,6 @@ __all__ = ["Frame", "SSSInputError", "NoSSSPixelsWarning", "read_frame", "read_c
            "write_bytes_atomic", "atomic_path", "check_writable", "display_transform", "load_channel_map"]
 
 BUFFER_NAMES = ("irradiance", "depth", "albedo", "normal", "thickness", "id")
-_BACKGROUND_DEPTH = 1e9  # Blender writes 1e10 where there is no surface
 
 
 from ._errors import NoSSSPixelsWarning as NoSSSPixelsWarning  # noqa: E402
@@ -669,7 +668,9 @@ def _frame_from_decoded(path: pathlib.Path, decoded, *, channel_map, depth_kind:
                                  (side.get("scene_unit_mm"), f"scene_unit_mm of {sidecar}"))
 
     depth = buffers["depth"].astype(np.float32)
-    depth = np.where(np.isfinite(depth) & (depth > 0) & (depth < _BACKGROUND_DEPTH), depth, np.inf).astype(np.float32)
+    from ._scene import BACKGROUND_DEPTH  # (here: _io itself imports no JAX)
+
+    depth = np.where((depth > 0) & (depth < BACKGROUND_DEPTH), depth, np.inf).astype(np.float32)  # as surface_mask
     if depth_kind == "distance":
         if focal_px is None:
             raise SSSInputError(f"{path}: depth_kind='distance' needs the focal length (focal_px) to convert to planar")

@@ -50,7 +50,8 @@ class Buffers(eqx.Module):
     """What a screen-space pass reads for one frame (a batch adds a leading axis and is vmapped).
 
     - ``irradiance (H, W, 3)``: linear RGB irradiance (diffuse light before albedo).
-    - ``depth (H, W)``: planar view depth in scene units; ``inf`` where there is no surface.
+    - ``depth (H, W)``: planar view depth in scene units; ``inf`` (or anything from ``BACKGROUND_DEPTH``, 1e9, on:
+      Blender's 1e10) where there is no surface.
     - ``albedo (H, W, 3)`` optional: surface colour in [0, 1]; when absent the material's albedo is used.
     - ``normal (H, W, 3)`` optional: unit normals in camera space (STA); derived from depth when absent.
     - ``thickness (H, W)`` optional: object thickness along the light in scene units (STA, transmission).
@@ -115,9 +116,16 @@ def validate_buffers(buffers: Buffers, *, materials: int | None = None) -> None:
             )
 
 
+# Depths from here on are background, not a surface: Blender writes 1e10 where there is none, other renderers
+# FLT_MAX or 1e20; as surfaces, their squared distances overflow float32 and the gradients turn NaN. (1e9 scene
+# units is 1000 km in metres.) The file reader maps them to inf.
+BACKGROUND_DEPTH = 1e9
+
+
 def surface_mask(depth: Array) -> Array:
-    """Pixels with a surface: finite, positive depth."""
-    return jnp.isfinite(depth) & (depth > 0)
+    """Pixels with a surface: positive depth below ``BACKGROUND_DEPTH`` (inf, NaN, 0 and a background's huge
+    finite depth are none)."""
+    return (depth > 0) & (depth < BACKGROUND_DEPTH)
 
 
 def _principal_point(camera: Camera, shape: tuple[int, int]) -> tuple[float, float]:
@@ -162,7 +170,7 @@ def normals_from_depth(depth: Array, camera: Camera) -> Array:
     dx, dy = diff(1), diff(0)
     n = jnp.cross(dy, dx)  # x right, y down, z forward: dy x dx points towards the camera (-z)
     norm = jnp.linalg.norm(n, axis=-1, keepdims=True)
-    ok = norm > 0
+    ok = (norm > 0) & jnp.isfinite(norm)  # an overflowing cross product (absurd focal lengths) faces the camera
     facing = jnp.zeros_like(n).at[..., 2].set(-1.0)
     return jnp.where(ok, n / jnp.where(ok, norm, 1.0), facing)
 

@@ -325,3 +325,57 @@ def test_burley_and_separable_agree_with_reference(scene_and_reference):
     # more samples converge towards the reference
     err_burley_8 = _rel_l2(np.asarray(sj.burley(b, mat, scene.camera, samples=8)), ref, mask)
     assert err_burley < err_burley_8
+
+
+@pytest.mark.parametrize("name, technique", [
+    ("burley", lambda: sj.Burley()), ("reference", lambda: sj.Reference(radius_px=4)), ("hdrp", lambda: sj.HdrpPass()),
+    ("eevee-next", lambda: sj.EeveeNextPass(frames=1)), ("separable", lambda: sj.Separable()),
+    ("thin", lambda: sj.Translucency(light=sj.DirectionalLight((0.3, -0.4, 0.9)), model="thin", thickness=0.5)),
+])
+def test_a_background_written_as_a_huge_depth_is_no_surface(name, technique):
+    # renderers write the background as 1e10 (Blender), 1e20 or FLT_MAX rather than inf; taken as a surface, its
+    # squared distances overflowed float32: NaN gradients (burley, reference, the engine passes) and NaN output
+    # (thin/slab normals). From BACKGROUND_DEPTH on it is no surface, as inf is (the file reader already said so)
+    t = technique()
+    h, w = 8, 8
+    irr0 = jnp.asarray(np.random.default_rng(0).uniform(0.2, 1.0, (h, w, 3)).astype(np.float32))
+    cam = sj.Camera(50.0, 10.0)
+    a0, d0 = jnp.asarray([0.8, 0.55, 0.45]), jnp.asarray([3.0, 1.4, 0.8])
+    weights = jnp.linspace(0.5, 1.5, h * w * 3).reshape(h, w, 3)
+    outs = []
+    for far in (np.inf, 1e10, 1e20, np.finfo(np.float32).max):
+        z = np.full((h, w), 20.0, np.float32)
+        z[:, 4:] = far
+        f = lambda irr, d, a, z=jnp.asarray(z): t(sj.Buffers(irradiance=irr, depth=z), sj.BurleyMaterial(a, d), cam)
+        outs.append(np.asarray(f(irr0, d0, a0)))
+        grads = jax.grad(lambda *x: jnp.sum(f(*x) * weights), argnums=(0, 1, 2))(irr0, d0, a0)
+        assert all(bool(jnp.all(jnp.isfinite(g))) for g in grads), (name, far)
+    for out in outs[1:]:
+        np.testing.assert_array_equal(out, outs[0])
+
+
+def test_sta_reads_a_negative_thickness_buffer_as_zero():
+    # as thin and slab do: before, exp(-t / s) of a negative t grew without bound (inf at t = -10)
+    scene = sj.demo_scene(8, 8)
+    b = scene.buffers
+    light = sj.DirectionalLight((0.3, -0.4, 0.9))
+    run = lambda t: np.asarray(sj.translucency(sj.Buffers(irradiance=b.irradiance, depth=b.depth,
+                                                          thickness=jnp.full((8, 8), t, jnp.float32)),
+                                               sj.STAParams(), scene.camera, light))
+    np.testing.assert_array_equal(run(-10.0), run(0.0))
+
+
+@pytest.mark.parametrize("call", [
+    lambda b, m, c: sj.burley(b, m, c), lambda b, m, c: sj.separable(b, m, c),
+    lambda b, m, c: sj.reference(b, m, c, radius_px=2),
+    lambda b, m, c: sj.translucency(b, sj.STAParams(), c, sj.DirectionalLight((0.0, 0.0, 1.0))),
+])
+def test_a_batch_or_an_empty_image_is_named(call):
+    # before: "too many values to unpack" or a broadcasting error from deep inside, where the engine passes said
+    # what was wrong; an empty image failed in a reduction or divided by zero
+    m, c = sj.BurleyMaterial([0.8] * 3, [1.0] * 3), sj.Camera(50.0, 10.0)
+    batch = sj.Buffers(irradiance=jnp.ones((2, 6, 6, 3)), depth=jnp.full((2, 6, 6), 20.0))
+    with pytest.raises(ValueError, match=r"takes one image \(H, W, 3\); vmap for a batch"):
+        call(batch, m, c)
+    with pytest.raises(ValueError, match="the image is empty"):
+        call(sj.Buffers(irradiance=jnp.ones((0, 5, 3)), depth=jnp.ones((0, 5))), m, c)

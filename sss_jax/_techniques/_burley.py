@@ -24,6 +24,7 @@ from ._burley_spec import (
 )
 from ._burley_spec import spiral_rotation as spiral_rotation
 from ._common import (
+    check_one_image,
     MIN_FOOTPRINT_PX,
     SamplingWarning,
     _as_seed,
@@ -176,6 +177,7 @@ def burley(
     and fill the compacted buffer, and d to check the sampling.
     """
     _check_albedo_mode(albedo_mode)
+    check_one_image("burley", buffers)
     if interpolation not in ("bilinear", "nearest"):
         raise ValueError(f"interpolation={interpolation!r} is not one of ('bilinear', 'nearest')")
     if not isinstance(material, BurleyMaterial):

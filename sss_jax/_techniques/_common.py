@@ -32,6 +32,14 @@ def _check_albedo_mode(mode: str) -> None:
         raise ValueError(f"albedo_mode={mode!r} is not one of {ALBEDO_MODES}")
 
 
+def check_one_image(name: str, buffers: Buffers) -> None:
+    """What every technique checks before tracing: one image (a batch is vmapped), not an empty one."""
+    if buffers.irradiance.ndim != 3:
+        raise ValueError(f"{name} takes one image (H, W, 3); vmap for a batch, got {buffers.irradiance.shape}")
+    if 0 in buffers.depth.shape:
+        raise ValueError(f"{name}: the image is empty ({buffers.depth.shape[1]}x{buffers.depth.shape[0]} pixels)")
+
+
 def _sss_mask(buffers: Buffers) -> Array:
     mask = surface_mask(buffers.depth)
     if buffers.material_id is not None:

@@ -13,7 +13,7 @@ import jax.numpy as jnp
 from jaxtyping import Array
 
 from .._scene import Buffers, Camera
-from ._common import _check_albedo_mode
+from ._common import _check_albedo_mode, check_one_image
 from ._dispatch import check_tile
 
 
@@ -51,6 +51,5 @@ def pass_arguments(name: str, albedo_mode: str, buffers: Buffers, origin,
     """What an engine pass checks before tracing (the albedo mode, one image, not a batch) and its tile arguments
     as the hashable tuples its jitted implementation takes as static arguments."""
     _check_albedo_mode(albedo_mode)
-    if buffers.irradiance.ndim != 3:
-        raise ValueError(f"{name} takes one image (H, W, 3); vmap for a batch, got {buffers.irradiance.shape}")
+    check_one_image(name, buffers)
     return tuple(int(o) for o in origin), None if frame_shape is None else tuple(frame_shape)

@@ -32,7 +32,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._materials import BurleyMaterial
-from .._scene import Buffers, Camera
+from .._scene import Buffers, Camera, surface_mask
 from ._base import AbstractTechnique, option
 from ._common import ALBEDO_MODES, _check_albedo_mode, _finish, _prepare, _work_dtype
 from ._engine_frame import frame_geometry
@@ -146,7 +146,7 @@ def _jimenez_impl(buffers: Buffers, params: JimenezParams, camera: Camera, taps:
     _, _, fh, fw, _, _ = frame_geometry(buffers, camera, origin, frame_shape)
     focal = camera.focal_px.astype(dtype)
     inv_tan = 2.0 * focal / fh  # 1 / tan(fovy / 2)
-    surface = jnp.isfinite(buffers.depth) & (buffers.depth > 0)
+    surface = surface_mask(buffers.depth)
     depth = jnp.where(surface, buffers.depth.astype(dtype), _FAR)
     # what the colour target holds: the scattered light on SSS pixels, anything else as it is (finite)
     raw = buffers.irradiance.astype(dtype)

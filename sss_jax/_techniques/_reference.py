@@ -15,6 +15,7 @@ from .._materials import BurleyMaterial, ProfileMaterial
 from .._scene import Buffers, Camera
 from .._units import px_per_mm
 from ._common import (
+    check_one_image,
     _check_albedo_mode,
     _check_border,
     _finish,
@@ -186,6 +187,7 @@ def reference(
     """
     _check_border(border)
     _check_albedo_mode(albedo_mode)
+    check_one_image("reference", buffers)
     if not isinstance(material, (BurleyMaterial, ProfileMaterial)):
         raise TypeError(f"reference needs a BurleyMaterial or ProfileMaterial, got {type(material).__name__}")
     h, w = buffers.depth.shape[-2:]

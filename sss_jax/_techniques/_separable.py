@@ -18,9 +18,10 @@ from .._materials import (
     ProfileMaterial,
     TwoGaussianMaterial,
 )
-from .._scene import Buffers, Camera
+from .._scene import BACKGROUND_DEPTH, Buffers, Camera
 from .._units import px_per_mm
 from ._common import (
+    check_one_image,
     MIN_FOOTPRINT_PX,
     SAMPLING_ERROR_LIMIT,
     SamplingWarning,
@@ -457,6 +458,7 @@ def separable(
     """
     _check_border(border)
     _check_albedo_mode(albedo_mode)
+    check_one_image("separable", buffers)
     if not isinstance(material, AbstractMaterial):
         raise TypeError("separable needs a TwoGaussianMaterial, BurleyMaterial or ProfileMaterial, got "
                         + type(material).__name__)
@@ -502,7 +504,7 @@ def separable_edge_error(buffers: Buffers, material, camera: Camera, taps: int,
     ``frame_truncation``), is the bound. NumPy throughout; the bound is kept per kernels, frame shape and nearest
     depth (an eager call of the same material on the next frame reads its depth and ids, nothing more)."""
     depth = np.asarray(buffers.depth)  # the buffer's own type: its least valid depth is one of its values
-    valid = np.isfinite(depth) & (depth > 0)
+    valid = (depth > 0) & (depth < BACKGROUND_DEPTH)  # surface_mask, in NumPy (host side: no dispatch)
     if buffers.material_id is not None:
         valid &= np.asarray(buffers.material_id) > 0
     nearest = float(np.min(depth, where=valid, initial=np.inf))

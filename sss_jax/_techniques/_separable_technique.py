@@ -78,7 +78,7 @@ class Separable(AbstractTechnique):
         reach_mm = np.max(np.abs(np.asarray(kernels.offsets_mm, np.float64)), axis=-1)  # (M,)
         rows = np.asarray(_material_rows(buffers, reach_mm.shape[0]))
         depth = np.asarray(buffers.depth, np.float64)
-        safe = np.where(valid & np.isfinite(depth) & (depth > 0), depth, np.inf)
+        safe = np.where(valid, depth, np.inf)  # (valid: a surface, _sss_mask)
         px = reach_mm[rows] * float(camera.focal_px) / (safe * float(camera.mm_per_unit))
         active = valid & (px >= float(self.min_footprint_px)) & (px > 0)
         widest = float(np.max(px, where=active, initial=0.0))

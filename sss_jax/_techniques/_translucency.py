@@ -17,7 +17,7 @@ from .._materials import BurleyMaterial, DirectionalLight, STAParams
 from .._profiles import burley_cdf
 from .._scene import Buffers, Camera, camera_positions, normals_from_depth
 from .._slab import MediumMaterial, slab_diffuse_transmittance, slab_exit_lookup, slab_exit_table, slab_optical
-from ._common import _is_concrete, _prepare, _work_dtype
+from ._common import _is_concrete, _prepare, _work_dtype, check_one_image
 
 
 def _safe_pow(x: Array, p: Array) -> Array:
@@ -48,9 +48,10 @@ def sta_term(normal: Array, view: Array, light: DirectionalLight, params: STAPar
 
 
 def _thickness_mm(buffers: Buffers, thickness: ParamLike | None, camera: Camera, shape: tuple[int, ...], dtype) -> Array:
-    """Per-pixel thickness in mm: the thickness buffer, else the constant ``thickness`` (scene units), else 0."""
+    """Per-pixel thickness in mm: the thickness buffer (a negative value as 0, as every model reads it: the STA
+    term's exp(-t / s) would grow without bound), else the constant ``thickness`` (scene units), else 0."""
     if buffers.thickness is not None:
-        thick_units = buffers.thickness.astype(dtype)
+        thick_units = jnp.maximum(buffers.thickness.astype(dtype), 0.0)
     elif thickness is not None:
         thick_units = jnp.broadcast_to(jnp.asarray(thickness, dtype), shape)
     else:
@@ -185,6 +186,7 @@ def translucency(
     """
     if model not in TRANSLUCENCY_MODELS:
         raise ValueError(f"model={model!r} is not one of {TRANSLUCENCY_MODELS}")
+    check_one_image("translucency", buffers)
     # the same ranges the batch and the CLI check: out of range, the added light explodes (7e16 from albedo 40)
     if albedo is not None and _is_concrete(albedo):
         a = np.asarray(albedo, np.float64)
