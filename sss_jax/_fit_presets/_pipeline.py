@@ -24,9 +24,9 @@ from .._fitting import (
     fit_two_gaussian_to_burley,
 )
 from .._io import SSSInputError, write_bytes_atomic
-from .._presets import preset_from_data
 from .._kernels import two_gaussian_kernel
 from .._montecarlo import to_tabulated_profile
+from .._presets import preset_from_data
 from .._profiles import scaling_searchlight
 from ._errors import _burley_vs_mc, engine_errors, image_errors, kernel_errors, profile_errors, sta_errors
 from ._files import plot_preset, write_presets_readme

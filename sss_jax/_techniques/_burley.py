@@ -24,7 +24,6 @@ from ._burley_spec import (
 )
 from ._burley_spec import spiral_rotation as spiral_rotation
 from ._common import (
-    check_one_image,
     MIN_FOOTPRINT_PX,
     SamplingWarning,
     _as_seed,
@@ -35,6 +34,7 @@ from ._common import (
     _prepare,
     _sss_mask,
     _work_dtype,
+    check_one_image,
 )
 from ._dispatch import check_tile, resolve_impl
 from ._pallas import burley_pallas_impl

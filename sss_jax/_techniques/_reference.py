@@ -15,7 +15,6 @@ from .._materials import BurleyMaterial, ProfileMaterial
 from .._scene import Buffers, Camera
 from .._units import px_per_mm
 from ._common import (
-    check_one_image,
     _check_albedo_mode,
     _check_border,
     _finish,
@@ -24,6 +23,7 @@ from ._common import (
     _safe_sqrt,
     _sss_mask,
     _work_dtype,
+    check_one_image,
     frame_energy_fraction,
 )
 from ._dispatch import check_tile

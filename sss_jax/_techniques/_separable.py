@@ -21,7 +21,6 @@ from .._materials import (
 from .._scene import BACKGROUND_DEPTH, Buffers, Camera
 from .._units import px_per_mm
 from ._common import (
-    check_one_image,
     MIN_FOOTPRINT_PX,
     SAMPLING_ERROR_LIMIT,
     SamplingWarning,
@@ -32,6 +31,7 @@ from ._common import (
     _prepare,
     _safe_log,
     _work_dtype,
+    check_one_image,
 )
 from . import _separable_spec as spec
 from ._dispatch import check_tile, resolve_impl
