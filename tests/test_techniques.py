@@ -379,3 +379,14 @@ def test_a_batch_or_an_empty_image_is_named(call):
         call(batch, m, c)
     with pytest.raises(ValueError, match="the image is empty"):
         call(sj.Buffers(irradiance=jnp.ones((0, 5, 3)), depth=jnp.ones((0, 5))), m, c)
+
+
+def test_reference_under_jit_without_a_window_says_so():
+    # the window's size is read from the data; under jit that was a raw TracerArrayConversionError
+    s = sj.demo_scene(16, 16)
+    m = sj.BurleyMaterial([0.8] * 3, [1.0] * 3)
+    with pytest.raises(ValueError, match="reference under jit/vmap/grad needs radius_px"):
+        jax.jit(lambda b: sj.reference(b, m, s.camera))(s.buffers)
+    r = sj.Reference().reach_px(s.buffers, m, s.camera)
+    np.testing.assert_allclose(jax.jit(lambda b: sj.reference(b, m, s.camera, radius_px=r))(s.buffers),
+                               sj.reference(s.buffers, m, s.camera), rtol=1e-5, atol=1e-6)

@@ -198,6 +198,10 @@ def reference(
                          "Reference().reach_px(<the whole frame's buffers>, material, camera)); the default would "
                          "be this tile's own window: other pixels")
     if radius_px is None:
+        if not _is_concrete(buffers, material, camera):  # the window's size is a shape: it cannot follow traced data
+            raise ValueError("reference under jit/vmap/grad needs radius_px (the window's size is read from the "
+                             "buffers and the material, traced here): e.g. Reference().reach_px(buffers, material, "
+                             "camera) outside the transformation")
         radius_px = reference_radius_px(buffers, material, camera)
     if not isinstance(radius_px, (int, np.integer)) or radius_px < 0:
         raise ValueError(f"radius_px must be a non-negative integer, got {radius_px!r}")
