@@ -412,3 +412,12 @@ def test_the_plot_draws_the_monte_carlo_at_the_preset_s_mean_free_path(tmp_path,
     FP.plot_preset(wider, tmp_path)
     for c in range(3):
         np.testing.assert_allclose(drawn[3 + c], 2 * drawn[c], rtol=1e-12)
+
+
+def test_the_folder_readme_names_an_invalid_preset_instead_of_failing(tmp_path):
+    # a folder holding a preset that does not load (written before fits checked what they write, or edited by hand)
+    # made every later fit into it fail at the README, after its own preset was written
+    shutil.copy(FITS / "ketchup.json", tmp_path / "ketchup.json")
+    (tmp_path / "broken.json").write_text("{\"name\": \"broken\"}")
+    readme = FP.write_presets_readme(tmp_path).read_text()
+    assert "| ketchup |" in readme and "broken.json:" in readme and "Files left out" in readme

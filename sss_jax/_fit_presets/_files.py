@@ -66,9 +66,27 @@ def _triple_str(v, fmt="{:.3g}") -> str:
 ENGINE_ORDER = ("cycles", "eevee", "hdrp", "unreal", "jimenez")
 
 
-def load_presets(out_dir: str | os.PathLike) -> list[dict]:
-    """Every preset file in ``out_dir`` (not the schema), by name."""
-    return [json.loads(p.read_text()) for p in sorted(pathlib.Path(out_dir).glob("*.json")) if p.stem != "schema"]
+def load_presets(out_dir: str | os.PathLike, skipped: list[str] | None = None) -> list[dict]:
+    """Every preset file in ``out_dir`` (not the schema), by name. With a ``skipped`` list, a file ``load_preset``
+    refuses (one written before a fit checked what it writes, or edited by hand) is left out and its reason appended
+    there instead of raising."""
+    from .._presets import preset_from_data
+
+    out = []
+    for path in sorted(pathlib.Path(out_dir).glob("*.json")):
+        if path.stem == "schema":
+            continue
+        if skipped is None:
+            out.append(json.loads(path.read_text()))
+            continue
+        try:
+            data = json.loads(path.read_text())
+            preset_from_data(data, path)
+        except ValueError as exc:  # (SSSInputError and JSON's errors are ValueErrors)
+            skipped.append(f"{path.name}: {exc}")
+            continue
+        out.append(data)
+    return out
 
 
 def preset_rows(presets: list[dict]) -> list[dict[str, Any]]:
@@ -137,7 +155,8 @@ def _markdown_table(rows: list[dict[str, Any]]) -> list[str]:
 def write_presets_readme(out_dir: str | os.PathLike) -> pathlib.Path:
     """``README.md`` with a table of every preset in ``out_dir`` (its numbers read from the files)."""
     out = pathlib.Path(out_dir)
-    presets = load_presets(out)
+    skipped: list[str] = []
+    presets = load_presets(out, skipped)  # a broken file is named in the README, not a failure of the whole fit
     lines = [
         "# Presets",
         "",
@@ -192,6 +211,8 @@ def write_presets_readme(out_dir: str | os.PathLike) -> pathlib.Path:
     ]
     lines += _markdown_table(engine_rows(presets))
     lines.append("")
+    if skipped:
+        lines += ["## Files left out (not valid presets)", ""] + [f"- {reason}" for reason in skipped] + [""]
     path = out / "README.md"
     write_bytes_atomic(path, "\n".join(lines).encode())
     return path
