@@ -369,7 +369,7 @@ def test_cli_apply_reports_each_failed_frame_and_goes_on(tmp_path, capsys):
     (["--technique", "burley", "--d-mm", "1,1,1", "--mfp-mm", "1,1,1"], "either --d-mm or --mfp-mm"),
     (["--technique", "sta"], "needs --light-dir"),
     (["--technique", "magic", "--d-mm", "1,1,1"], "unknown technique 'magic'"),
-    (["--technique", "burley", "--d-mm", "1,1,1", "--taps", "4"], "--taps must be odd"),
+    (["--technique", "separable", "--d-mm", "1,1,1", "--taps", "4"], "--taps must be odd"),
     (["--technique", "burley", "--d-mm=-1,1,1"], r"d_mm must lie in \[0.0, inf\]"),
     (["--technique", "burley", "--d-mm", "1,1,1", "--albedo", "2,0,0"], r"albedo must lie in \[0.0, 1.0\]"),
     # STA's own inputs, checked before any frame runs (albedo 2 and thickness -3 made values of 1.4e4)

@@ -8,7 +8,7 @@ import sys
 
 from . import rgb_triple
 from ._options import WarningPrinter, add_technique_flags, given_technique_options, sta_thickness_warning
-from ._options import add_sta_flags, given_sta_flag_names, sta_params, technique_options
+from ._options import add_sta_flags, given_sta_flag_names, sta_params, technique_option_specs, technique_options
 
 EPILOG = """examples:
   sss-jax apply frame.exr -o out.exr --technique burley --albedo 0.8,0.6,0.5 --d-mm 3,1.4,0.8 --focal-px 1200 --mm-per-unit 10
@@ -63,8 +63,8 @@ def register(subparsers) -> None:
     p.add_argument("--depth-kind", choices=("planar", "distance"), default="planar",
                    help="Z is planar view depth (default) or distance to the camera")
     p.add_argument("--channel-map", help="JSON/TOML file mapping buffers (irradiance, depth, albedo, normal, thickness, id) to channels")
-    p.add_argument("--samples", type=int, default=32, help="Burley spiral samples (default 32)")
-    p.add_argument("--taps", type=int, default=25, help="separable taps per pass (default 25)")
+    p.add_argument("--samples", type=int, default=None, help="Burley spiral samples (default 32)")
+    p.add_argument("--taps", type=int, default=None, help="separable taps per pass (default 25)")
     p.add_argument("--radius-px", type=int, help="reference window radius in pixels (default: 99.9%% of the energy)")
     sta = p.add_argument_group("STA")
     sta.add_argument("--light-dir", type=rgb_triple, help="direction towards the light, camera space (x right, y down, z forward)")
@@ -144,6 +144,16 @@ def run(args) -> int:
     try:
         if args.technique not in TECHNIQUES:
             raise ValueError(f"unknown technique {args.technique!r}; valid techniques: {', '.join(TECHNIQUES)}")
+        # a count the technique does not have is refused, as every other technique flag is (before: --samples
+        # with separable, --taps with burley ran without a word)
+        specs = technique_option_specs()
+        for name, default in (("samples", 32), ("taps", 25), ("radius_px", None)):
+            owners = sorted({spec.technique for spec in specs.get(name, ())})
+            if getattr(args, name) is not None and args.technique not in owners:
+                raise ValueError(f"--{name.replace('_', '-')} is an option of {', '.join(owners)}, not of "
+                                 f"{args.technique}")
+            if getattr(args, name) is None:
+                setattr(args, name, default)
         for name in ("samples", "taps"):
             if getattr(args, name) < 1:
                 raise ValueError(f"--{name} must be >= 1, got {getattr(args, name)}")
