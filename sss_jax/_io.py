@@ -190,7 +190,7 @@ def _read_image(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[st
     channels: dict[str, np.ndarray] = {}
     integers: dict[str, np.ndarray] = {}
     metadata: dict[str, Any] = {}
-    shape, window, placed = None, None, None
+    shape, data_window, placed = None, None, None
     try:
         spec = inp.spec()
         fast = _scanline_exr_pixels(path, inp, spec)
@@ -202,14 +202,15 @@ def _read_image(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[st
         while inp.seek_subimage(sub, 0):
             spec = inp.spec()
             if shape is None:
-                shape, window = _frame_shape(spec), (spec.x, spec.y, spec.width, spec.height)
+                shape, data_window = _frame_shape(spec), (spec.x, spec.y, spec.width, spec.height)
                 placed = _frame_window(spec)
                 for attr in spec.extra_attribs:
                     metadata[attr.name] = attr.value
-            elif (spec.x, spec.y, spec.width, spec.height) != window:
+            elif (spec.x, spec.y, spec.width, spec.height) != data_window:
                 # parts of one frame cover the same pixels (a pass at another resolution is not a crop of it)
+                x, y, w, h = data_window
                 raise SSSInputError(f"{path}: subimage {sub} is {spec.width}x{spec.height} at ({spec.x}, {spec.y}), "
-                                    f"the first is {window[2]}x{window[3]} at ({window[0]}, {window[1]})")
+                                    f"the first is {w}x{h} at ({x}, {y})")
             pixels = inp.read_image(sub, 0, 0, spec.nchannels, oiio.FLOAT)
             if pixels is None:
                 raise SSSInputError(f"{path}: could not read subimage {sub} (truncated or corrupted: {inp.geterror()})")
@@ -668,9 +669,9 @@ def _frame_from_decoded(path: pathlib.Path, decoded, *, channel_map, depth_kind:
                                  (side.get("scene_unit_mm"), f"scene_unit_mm of {sidecar}"))
 
     depth = buffers["depth"].astype(np.float32)
-    from ._scene import BACKGROUND_DEPTH  # (here: _io itself imports no JAX)
+    from ._scene import surface_mask  # (here: _io itself imports no JAX)
 
-    depth = np.where((depth > 0) & (depth < BACKGROUND_DEPTH), depth, np.inf).astype(np.float32)  # as surface_mask
+    depth = np.where(surface_mask(depth), depth, np.inf).astype(np.float32)
     if depth_kind == "distance":
         if focal_px is None:
             raise SSSInputError(f"{path}: depth_kind='distance' needs the focal length (focal_px) to convert to planar")

@@ -122,9 +122,9 @@ def validate_buffers(buffers: Buffers, *, materials: int | None = None) -> None:
 BACKGROUND_DEPTH = 1e9
 
 
-def surface_mask(depth: Array) -> Array:
+def surface_mask(depth: Array | np.ndarray) -> Array | np.ndarray:
     """Pixels with a surface: positive depth below ``BACKGROUND_DEPTH`` (inf, NaN, 0 and a background's huge
-    finite depth are none)."""
+    finite depth are none). Operators only: a NumPy depth gives a NumPy mask (host side, no dispatch)."""
     return (depth > 0) & (depth < BACKGROUND_DEPTH)
 
 

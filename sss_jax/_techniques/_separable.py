@@ -18,7 +18,7 @@ from .._materials import (
     ProfileMaterial,
     TwoGaussianMaterial,
 )
-from .._scene import BACKGROUND_DEPTH, Buffers, Camera
+from .._scene import Buffers, Camera, surface_mask
 from .._units import px_per_mm
 from ._common import (
     MIN_FOOTPRINT_PX,
@@ -504,7 +504,7 @@ def separable_edge_error(buffers: Buffers, material, camera: Camera, taps: int,
     ``frame_truncation``), is the bound. NumPy throughout; the bound is kept per kernels, frame shape and nearest
     depth (an eager call of the same material on the next frame reads its depth and ids, nothing more)."""
     depth = np.asarray(buffers.depth)  # the buffer's own type: its least valid depth is one of its values
-    valid = (depth > 0) & (depth < BACKGROUND_DEPTH)  # surface_mask, in NumPy (host side: no dispatch)
+    valid = surface_mask(depth)  # NumPy in, NumPy out
     if buffers.material_id is not None:
         valid &= np.asarray(buffers.material_id) > 0
     nearest = float(np.min(depth, where=valid, initial=np.inf))

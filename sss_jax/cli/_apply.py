@@ -8,7 +8,7 @@ import sys
 
 from . import rgb_triple
 from ._options import WarningPrinter, add_technique_flags, given_technique_options, sta_thickness_warning
-from ._options import add_sta_flags, given_sta_flag_names, sta_params, technique_option_specs, technique_options
+from ._options import add_sta_flags, check_option_taken, given_sta_flag_names, sta_params, technique_options
 
 EPILOG = """examples:
   sss-jax apply frame.exr -o out.exr --technique burley --albedo 0.8,0.6,0.5 --d-mm 3,1.4,0.8 --focal-px 1200 --mm-per-unit 10
@@ -146,13 +146,10 @@ def run(args) -> int:
             raise ValueError(f"unknown technique {args.technique!r}; valid techniques: {', '.join(TECHNIQUES)}")
         # a count the technique does not have is refused, as every other technique flag is (before: --samples
         # with separable, --taps with burley ran without a word)
-        specs = technique_option_specs()
         for name, default in (("samples", 32), ("taps", 25), ("radius_px", None)):
-            owners = sorted({spec.technique for spec in specs.get(name, ())})
-            if getattr(args, name) is not None and args.technique not in owners:
-                raise ValueError(f"--{name.replace('_', '-')} is an option of {', '.join(owners)}, not of "
-                                 f"{args.technique}")
-            if getattr(args, name) is None:
+            if getattr(args, name) is not None:
+                check_option_taken("--" + name.replace("_", "-"), name, (args.technique,))
+            else:
                 setattr(args, name, default)
         for name in ("samples", "taps"):
             if getattr(args, name) < 1:

@@ -114,34 +114,35 @@ def run(args) -> int:
 
     registry = _registry()
     values = vars(args)
+    source, target = registry[args.source], registry[args.target]
+    params_of = {f.dest for f in source.flags if f.key is not None}  # what --from reads, what --to takes
+    options_of = {f.dest for f in target.flags if f.option is not None}
+    both_ways = _both_ways()
     try:
         if args.mm_per_unit is not None and not (0 < args.mm_per_unit < float("inf")):
             raise ValueError(f"--mm-per-unit must be a finite positive number, got {args.mm_per_unit}")
         if args.json is not None and not args.json.parent.is_dir():
             raise ValueError(f"--json: directory {args.json.parent} does not exist")
-        source, target = registry[args.source], registry[args.target]
-        used = {f.dest for f in source.flags if f.key is not None} | {f.dest for f in target.flags if f.option}
-        ignored = [f.flag for f in _flags().values() if values.get(f.dest) is not None and f.dest not in used]
+        ignored = [f.flag for f in _flags().values() if values.get(f.dest) is not None
+                   and f.dest not in params_of | options_of]
         if ignored:  # a flag neither engine of this conversion reads would be dropped without a word
             raise ValueError(f"{', '.join(ignored)}: not a parameter of {args.source} (--from) nor an option of "
                              f"{args.target} (--to); `sss-jax convert --help` lists each engine's flags")
-        options = {f.dest for f in target.flags if f.option}
-        ignored = ["--to-" + f.flag[2:] for f in _both_ways()
-                   if values.get("to_" + f.dest) is not None and f.dest not in options]
+        ignored = ["--to-" + f.flag[2:] for f in both_ways
+                   if values.get("to_" + f.dest) is not None and f.dest not in options_of]
         if ignored:
             raise ValueError(f"{', '.join(ignored)}: not an option of {args.target} (--to); "
                              "`sss-jax convert --help` lists each engine's flags")
         params = source.params_from_flags(values)
         # the target's options: a --to- flag where given, else the plain flag's value (both sides alike)
-        targeted = {**values, **{f.dest: values["to_" + f.dest] for f in _both_ways()
+        targeted = {**values, **{f.dest: values["to_" + f.dest] for f in both_ways
                                  if values.get("to_" + f.dest) is not None}}
         result = convert(args.source, args.target, params, **target.options_from_flags(targeted))
     except ValueError as exc:
         # a plain flag the message names set both sides: say how to set the target's alone (e.g. a legacy EEVEE
         # 4.1 material to EEVEE Next, which starts with 4.2)
-        both = [f.flag for f in _both_ways() if values.get(f.dest) is not None and values.get("to_" + f.dest) is None
-                and f.dest in str(exc) and f.dest in {g.dest for g in registry[args.source].flags if g.key is not None}
-                and f.dest in {g.dest for g in registry[args.target].flags if g.option is not None}]
+        both = [f.flag for f in both_ways if values.get(f.dest) is not None and values.get("to_" + f.dest) is None
+                and f.dest in str(exc) and f.dest in params_of & options_of]
         hint = "".join(f" ({flag} set both --from and --to; --to-{flag[2:]} sets the target's alone)" for flag in both)
         print(f"sss-jax convert: {exc}{hint}", file=sys.stderr)
         return 2

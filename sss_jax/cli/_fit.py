@@ -226,15 +226,15 @@ def _run_match(args) -> int:
             v = getattr(args, name)
             if v is not None and not (v > 0 and v < float("inf")):
                 raise ValueError(f"--{name.replace('_', '-')} must be a finite positive number, got {v}")
-        model = technique_options(args, args.technique).get("model", "sta")
+        options = technique_options(args, args.technique)
+        model = options.get("model", "sta")
         if args.technique == "sta" and model != "sta":
             raise ValueError(f"--model {model}: the match fits the STA parameters of --model sta; the {model} model "
                              "has none to fit (its light follows the medium: a preset's, or the Burley medium of "
                              "--albedo/--d-mm), so `apply --technique sta --model "
                              f"{model}` renders it as it is")
         material, light = _material(args)  # the starting material, exactly as `apply` reads it
-        extra = option_arguments(match_render, {args.technique: technique_options(args, args.technique)},
-                                 "fit --render")
+        extra = option_arguments(match_render, {args.technique: options}, "fit --render")
         if args.technique == "sta":
             material = (material, args.albedo if args.albedo is not None else (1.0, 1.0, 1.0))
         use_albedo_pass = args.albedo is None and not args.fit_albedo

@@ -224,6 +224,15 @@ def given_technique_options(args: argparse.Namespace) -> dict[str, Any]:
             if getattr(args, _dest(n), _UNSET) is not _UNSET}
 
 
+def check_option_taken(flag: str, name: str, running: Iterable[str], specs: dict | None = None) -> None:
+    """An error naming the techniques that have option ``name`` (given as ``flag``) where none of ``running`` (the
+    command's techniques) takes it: a flag that would do nothing is refused, not dropped."""
+    specs = technique_option_specs() if specs is None else specs
+    owners = sorted({s.technique for s in specs.get(name, ())})
+    if not set(running) & set(owners):
+        raise ValueError(f"{flag} is an option of {', '.join(owners)}, not of {', '.join(sorted(running))}")
+
+
 def technique_options(args: argparse.Namespace, technique: str, *, others: Iterable[str] = ()) -> dict[str, Any]:
     """The options given on the command line that ``technique`` takes, checked against its choices. A given option
     that neither ``technique`` nor any of ``others`` (the command's other techniques) takes is an error naming the
@@ -235,9 +244,7 @@ def technique_options(args: argparse.Namespace, technique: str, *, others: Itera
     names = getattr(args, "technique_flag_names", {})
     _flag = lambda n: "--" + names.get(n, n).replace("_", "-")  # noqa: E731 - the flag as this command spells it
     for name, value in given.items():
-        owners = [s.technique for s in specs.get(name, ())]
-        if not running & set(owners):
-            raise ValueError(f"{_flag(name)} is an option of {', '.join(owners)}, not of {', '.join(sorted(running))}")
+        check_option_taken(_flag(name), name, running, specs)
         spec = mine.get(name)
         if spec is not None and spec.choices is not None and value not in spec.choices:
             raise ValueError(f"{_flag(name)} {_show(value)}: {technique} takes one of "
