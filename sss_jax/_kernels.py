@@ -15,13 +15,15 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._custom_types import ParamLike
-from ._profiles import AbstractProfile, burley_inverse_ccdf, marginal_cdf
+from ._profiles import AbstractProfile, burley_inverse_ccdf, marginal_cdf, marginal_half_mass
 
 __all__ = [
     "SeparableKernel",
     "tap_offsets",
     "separable_kernel_from_profile",
     "two_gaussian_kernel",
+    "profile_half_masses",
+    "two_gaussian_half_masses",
     "SpiralSamples",
     "spiral_samples",
     "spiral_sample",
@@ -106,13 +108,29 @@ def separable_kernel_from_profile(
     profile is integrated, not point-sampled, and ``sum_i w_i = ||a_p||_1 / ||R||_1 = 1`` (Eq. 2).
     ``range_mm`` defaults to the radius holding 99% of the widest channel's energy.
     """
-    if range_mm is None:
-        range_mm = jnp.max(profile.radius_for_energy(0.99))
+    range_mm = _profile_range(profile, range_mm)
     offsets, lower, upper = tap_offsets(taps, range_mm, exponent=exponent)
     # marginal_cdf at +-inf is exactly 0/1 by construction; clip for the arithmetic
     big = jnp.asarray(jnp.finfo(offsets.dtype).max / 4, offsets.dtype)
     weights = marginal_cdf(profile, jnp.clip(upper, -big, big)) - marginal_cdf(profile, jnp.clip(lower, -big, big))
     return SeparableKernel(offsets_mm=offsets, weights=_normalise(weights))
+
+
+def _profile_range(profile: AbstractProfile, range_mm: ParamLike | None) -> Array:
+    """A profile kernel's reach: ``range_mm``, by default the radius holding 99% of the widest channel's energy."""
+    return jnp.max(profile.radius_for_energy(0.99)) if range_mm is None else jnp.asarray(range_mm)
+
+
+def profile_half_masses(profile: AbstractProfile, unit_x: np.ndarray, *, range_mm: ParamLike | None = None) -> Array:
+    """The pre-integrated kernel's mass over ``[0, x]`` at unit positions ``unit_x (K,) >= 0`` (times its reach, as
+    ``separable_kernel_from_profile`` places it), ``(K, C)``: half of ``P(|X| <= x)`` of the 1D marginal whose
+    differences the tap weights are (``_profiles.marginal_half_mass``: the same marginal integrated exactly, where
+    ``marginal_cdf``'s quantiles resolve it only down to ~1/4000 of the profile's scale; a channel with all its mass
+    at 0 gives 1/2 at every x > 0). What the separable pass re-integrates a kernel cut at the frame from
+    (``_separable_spec.cut_table``)."""
+    range_mm = _profile_range(profile, range_mm)
+    x = jnp.asarray(unit_x, range_mm.dtype) * range_mm
+    return marginal_half_mass(profile, x)
 
 
 def _gauss_cdf(x: Array, sigma: Array) -> Array:
@@ -122,6 +140,24 @@ def _gauss_cdf(x: Array, sigma: Array) -> Array:
     z = jnp.where(ok, x, 0.0) / jnp.where(ok, sigma, 1.0)
     step = jnp.where(x >= 0, 1.0, 0.0)
     return jnp.where(ok, 0.5 * (1 + jax.scipy.special.erf(z / math.sqrt(2))), step)
+
+
+def _two_gaussian_parameters(w: ParamLike, sigma_near_mm: ParamLike, sigma_far_mm: ParamLike):
+    w = jnp.asarray(w)
+    dtype = jnp.result_type(w.dtype, jnp.float32)
+    w = w.astype(dtype)
+    s_near = jnp.asarray(sigma_near_mm, dtype)
+    s_far = jnp.asarray(sigma_far_mm, dtype)
+    if not (w.shape == s_near.shape == s_far.shape) or w.ndim != 1:
+        raise ValueError(
+            f"w, sigma_near_mm and sigma_far_mm must all have shape (C,); got {w.shape}, {s_near.shape}, {s_far.shape}"
+        )
+    return w, s_near, s_far, dtype
+
+
+def _two_gaussian_range(s_near: Array, s_far: Array, range_mm: ParamLike | None, dtype) -> Array:
+    """The two-Gaussian kernel's reach: ``range_mm``, by default 3 times the largest sigma (Jimenez's RANGE)."""
+    return jnp.asarray(3 * jnp.max(jnp.maximum(s_near, s_far)) if range_mm is None else range_mm, dtype)
 
 
 def two_gaussian_kernel(
@@ -138,23 +174,25 @@ def two_gaussian_kernel(
     ``w``, ``sigma_near_mm``, ``sigma_far_mm`` have shape (C,). Each tap gets the exact (erf) mass of ``a_m`` over
     its interval. ``range_mm`` defaults to 3 times the largest sigma (Jimenez's RANGE of 3 standard deviations).
     """
-    w = jnp.asarray(w)
-    dtype = jnp.result_type(w.dtype, jnp.float32)
-    w = w.astype(dtype)
-    s_near = jnp.asarray(sigma_near_mm, dtype)
-    s_far = jnp.asarray(sigma_far_mm, dtype)
-    if not (w.shape == s_near.shape == s_far.shape) or w.ndim != 1:
-        raise ValueError(
-            f"w, sigma_near_mm and sigma_far_mm must all have shape (C,); got {w.shape}, {s_near.shape}, {s_far.shape}"
-        )
-    if range_mm is None:
-        range_mm = 3 * jnp.max(jnp.maximum(s_near, s_far))
-    offsets, lower, upper = tap_offsets(taps, jnp.asarray(range_mm, dtype), exponent=exponent)
+    w, s_near, s_far, dtype = _two_gaussian_parameters(w, sigma_near_mm, sigma_far_mm)
+    offsets, lower, upper = tap_offsets(taps, _two_gaussian_range(s_near, s_far, range_mm, dtype), exponent=exponent)
     lo, hi = lower[:, None], upper[:, None]
     mass_near = _gauss_cdf(hi, s_near[None, :]) - _gauss_cdf(lo, s_near[None, :])
     mass_far = _gauss_cdf(hi, s_far[None, :]) - _gauss_cdf(lo, s_far[None, :])
     weights = w[None, :] * mass_near + (1 - w[None, :]) * mass_far
     return SeparableKernel(offsets_mm=offsets, weights=_normalise(weights))
+
+
+def two_gaussian_half_masses(w: ParamLike, sigma_near_mm: ParamLike, sigma_far_mm: ParamLike, unit_x: np.ndarray, *,
+                             range_mm: ParamLike | None = None) -> Array:
+    """``two_gaussian_kernel``'s exact (erf) mass over ``[0, x]`` at unit positions ``unit_x (K,) >= 0`` times its
+    reach, ``(K, C)`` (a sigma of 0 puts 1/2 at every x > 0): what the separable pass re-integrates a kernel cut at
+    the frame from (``_separable_spec.cut_table``)."""
+    w, s_near, s_far, dtype = _two_gaussian_parameters(w, sigma_near_mm, sigma_far_mm)
+    x = jnp.broadcast_to(jnp.asarray(unit_x, dtype)[:, None] * _two_gaussian_range(s_near, s_far, range_mm, dtype),
+                         (len(unit_x), w.shape[0]))
+    half = lambda s: _gauss_cdf(x, jnp.broadcast_to(s[None, :], x.shape)) - 0.5
+    return w[None, :] * half(s_near) + (1 - w[None, :]) * half(s_far)
 
 
 class SpiralSamples(eqx.Module):

@@ -20,7 +20,9 @@ from ._checks import checked
 from ._custom_types import ParamLike
 from ._kernels import (
     SeparableKernel,
+    profile_half_masses,
     separable_kernel_from_profile,
+    two_gaussian_half_masses,
     two_gaussian_kernel,
 )
 from ._profiles import (
@@ -87,6 +89,9 @@ class AbstractMaterial(eqx.Module):
     the techniques never test a material's type (equinox's abstract/final pattern).
 
     - ``separable_kernels(taps, dtype)``: each material's 1D separable kernel (offsets (M, n) mm, weights (M, n, 3)).
+    - ``separable_half_masses(unit_x, dtype)``: each kernel's mass over ``[0, x]`` at unit positions ``unit_x (K,)``
+      (times its reach), ``(M, 3, K)``, from the same profile as its weights: what a kernel cut at the frame is
+      re-integrated from.
     - ``kernel_parameters()``: the arrays that decide the kernel (materials with equal rows share one), or ``None``.
     - ``radius_mm(energy)``: host side, the radius (mm) holding ``energy`` of the widest channel of any material.
     - ``pixel_profile(rows, valid, dtype)``: ``(radial, cdf)`` of each pixel's own material (row ``rows (H, W)``),
@@ -100,6 +105,9 @@ class AbstractMaterial(eqx.Module):
         return int(self.albedo.shape[0])
 
     def separable_kernels(self, taps: int, dtype) -> SeparableKernel:
+        raise NotImplementedError
+
+    def separable_half_masses(self, unit_x: np.ndarray, dtype) -> Array:
         raise NotImplementedError
 
     def kernel_parameters(self) -> list[Array] | None:
@@ -142,6 +150,10 @@ class BurleyMaterial(AbstractMaterial):
     def separable_kernels(self, taps: int, dtype) -> SeparableKernel:
         d = checked(self.d_mm.astype(dtype), "d_mm")
         return jax.vmap(lambda row: separable_kernel_from_profile(BurleyProfile(row), taps=taps))(d)
+
+    def separable_half_masses(self, unit_x: np.ndarray, dtype) -> Array:
+        d = checked(self.d_mm.astype(dtype), "d_mm")
+        return jax.vmap(lambda row: profile_half_masses(BurleyProfile(row), unit_x).T)(d)
 
     def kernel_parameters(self) -> list[Array]:
         return [self.d_mm]
@@ -189,6 +201,12 @@ class TwoGaussianMaterial(AbstractMaterial):
         s_far = checked(self.sigma_far_mm.astype(dtype), "sigma_far_mm")
         return jax.vmap(lambda a, b, c: two_gaussian_kernel(a, b, c, taps=taps))(w, s_near, s_far)
 
+    def separable_half_masses(self, unit_x: np.ndarray, dtype) -> Array:
+        w = jnp.clip(self.w.astype(dtype), 0.0, 1.0)
+        s_near = checked(self.sigma_near_mm.astype(dtype), "sigma_near_mm")
+        s_far = checked(self.sigma_far_mm.astype(dtype), "sigma_far_mm")
+        return jax.vmap(lambda a, b, c: two_gaussian_half_masses(a, b, c, unit_x).T)(w, s_near, s_far)
+
     def kernel_parameters(self) -> list[Array]:
         return [self.w, self.sigma_near_mm, self.sigma_far_mm]
 
@@ -214,6 +232,9 @@ class ProfileMaterial(AbstractMaterial):
     def separable_kernels(self, taps: int, dtype) -> SeparableKernel:
         k = separable_kernel_from_profile(self.profile, taps=taps)
         return SeparableKernel(offsets_mm=k.offsets_mm[None].astype(dtype), weights=k.weights[None].astype(dtype))
+
+    def separable_half_masses(self, unit_x: np.ndarray, dtype) -> Array:
+        return profile_half_masses(self.profile, unit_x).T[None].astype(dtype)
 
     def radius_mm(self, energy: float) -> float:
         return float(np.max(np.asarray(self.profile.radius_for_energy(energy))))

@@ -450,6 +450,33 @@ def preintegrate(profile: AbstractProfile, x_mm: ParamLike, *, segments: int = 8
     return jnp.sum(integrand * (t_max[..., None] * wq.reshape(lead + wq.shape))[..., None], axis=-2)
 
 
+# The trapezoid rule in t over [0, 36] at steps of 1/3 for ``marginal_half_mass``: the integrand G(x cosh t) / cosh t
+# is analytic in the strip |Im t| < pi/2 (the poles of 1/cosh), so the rule's error is ~exp(-pi^2 / h) = 1.4e-13
+# (Trefethen & Weideman 2014, "The exponentially convergent trapezoidal rule"); the tail past 36 is 2 exp(-36).
+_MARGINAL_T = np.arange(0, 109) / 3.0
+_MARGINAL_W = np.full(109, 1 / 3.0)
+_MARGINAL_W[[0, -1]] = 1 / 6.0
+
+
+def marginal_half_mass(profile: AbstractProfile, x_mm: ParamLike) -> Array:
+    """The 1D marginal's mass over ``[0, x]`` (``x >= 0``), ``(..., C)``: ``P(|X| <= x) / 2`` for X = r cos(theta),
+    r distributed as the normalised profile, theta uniform.
+
+    By parts over r (with ``r = x cosh t``), ``P(|X| > x) = (2/pi) integral_0^inf G(x cosh t) / cosh t dt``, G the
+    profile's complementary CDF: one smooth integral (the trapezoid rule above, ~109 CDF evaluations per x, against
+    ``marginal_cdf``'s 2048 arcsines), exact to ~1e-13 for a smooth CDF (Burley's, a Gaussian sum's) at every x
+    however small. A channel with all its mass at 0 gives 1/2 at every x > 0."""
+    x = _float(x_mm, profile.albedo)
+    t = jnp.asarray(_MARGINAL_T, x.dtype)
+    cosh = jnp.cosh(t)
+    lead = (1,) * x.ndim
+    r = x[..., None] * cosh.reshape(lead + cosh.shape)  # (..., T)
+    g = 1.0 - profile.cdf(r)  # (..., T, C)
+    weights = (jnp.asarray(_MARGINAL_W, x.dtype) / cosh)[:, None]
+    outside = (2 / math.pi) * jnp.sum(g * weights.reshape(lead + weights.shape), axis=-2)
+    return 0.5 * jnp.clip(1.0 - outside, 0.0, 1.0)
+
+
 def marginal_cdf(profile: AbstractProfile, x_mm: ParamLike, *, quantiles: int = 2048) -> Array:
     """CDF of the 1D marginal of the normalised profile: ``F(x) = integral_{-inf}^{x} a_p(s) ds``, ``(..., C)``.
 

@@ -5,6 +5,7 @@ import itertools
 import math
 import warnings
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -226,6 +227,80 @@ def test_separable_keeps_the_share_of_its_product_kernel_in_the_frame():
                              * marginal_mass(-(row + 0.5) * px, (SPOT_H - 0.5 - row) * px, d) for d in SPOT_D])
         # the taps know the kernel only to their cells' resolution near the frame's edge: a few percent
         np.testing.assert_allclose(out, expected, rtol=0.06)
+
+
+# A kernel cut at the frame is re-integrated from each channel's own profile over the shrunk tap cells. The old rule
+# read a channel's mass "linear within the original cells", which spread a narrow channel's centre mass over every
+# shrunk cell inside the old centre cell: a d = 0 channel beside a wide one stopped being the identity (0.22 of the
+# input off on the frame below). The exact masses below are written from the profiles: the two-Gaussian's erf, and
+# the 1D marginal of Burley's R(r) = (exp(-r/d) + exp(-r/3d)) / (8 pi d r), int R(sqrt(x^2 + y^2)) dy =
+# (K0(|x|/d) + K0(|x|/3d)) / (4 pi d) (scipy's k0, quadrature).
+
+CUT_TAPS = 25
+
+
+def _two_gaussian_mass(lo, hi, w, s_near, s_far):
+    phi = lambda x, s: float(x > 0) if s == 0 else 0.5 * (1 + math.erf(x / (s * math.sqrt(2))))
+    return w * (phi(hi, s_near) - phi(lo, s_near)) + (1 - w) * (phi(hi, s_far) - phi(lo, s_far))
+
+
+def _burley_mass(lo, hi, d):
+    from scipy.special import k0
+    if d == 0:
+        return float(lo < 0 <= hi) if lo != hi else 0.0
+    density = lambda x: (k0(abs(x) / d) + k0(abs(x) / (3 * d))) / (4 * math.pi * d)
+    pts = [0.0] if lo < 0 < hi else None
+    return integrate.quad(density, lo, hi, points=pts, limit=400, epsabs=1e-13)[0]
+
+
+@pytest.mark.parametrize("kind", ["two_gaussian", "burley"])
+def test_a_kernel_cut_at_the_frame_weighs_each_channels_own_mass_over_the_shrunk_cells(kind):
+    from sss_jax._techniques import _separable_spec as spec
+    if kind == "two_gaussian":
+        w, sn, sf = [0.6, 0.5, 1.0], [2.0, 0.05, 0.0], [30.0, 0.4, 0.0]  # wide, narrow, a point (sigma 0)
+        mat = sj.TwoGaussianMaterial(albedo=[[1.0] * 3], w=[w], sigma_near_mm=[sn], sigma_far_mm=[sf])
+        reach_mm = 3 * 30.0
+        mass = lambda lo, hi, c: _two_gaussian_mass(lo, hi, w[c], sn[c], sf[c])
+    else:
+        d = [20.0, 0.1, 0.0]
+        mat = sj.BurleyMaterial(albedo=[[1.0] * 3], d_mm=[d])
+        reach_mm = None
+        mass = lambda lo, hi, c: _burley_mass(lo, hi, d[c])
+    kernels = mat.separable_kernels(CUT_TAPS, jnp.float64)
+    reach_mm = float(np.max(np.abs(np.asarray(kernels.offsets_mm)))) if reach_mm is None else reach_mm
+    w_table = np.moveaxis(np.asarray(kernels.weights), -1, 1)  # (1, 3, n), the pass's order
+    table = np.asarray(spec.cut_table(np.asarray(mat.separable_half_masses(spec.cut_knots(CUT_TAPS)[1:],
+                                                                           jnp.float64)), w_table))
+    bounds, order = spec.cell_bounds(CUT_TAPS), spec.tap_order(CUT_TAPS)
+    for reach_px in [30.0, 100.0, 1e3, 1e5]:  # cut to 0.62 of the kernel, down to 2e-4 of it, on 20 px
+        scale, w_levels = spec.frame_truncation(spec.pass_unit_offsets(CUT_TAPS), w_table, np.array([reach_px]),
+                                                20.0, table)
+        s = float(scale[0])
+        assert s < 1
+        cells = s * reach_mm * bounds
+        exact = np.array([[mass(lo, hi, c) for lo, hi in itertools.pairwise(cells)] for c in range(3)])[:, order]
+        np.testing.assert_allclose(w_levels[0, 0], exact, atol=5e-4, err_msg=f"{kind} at {reach_px} px")
+        np.testing.assert_array_equal(w_levels[0, 0, 2], np.eye(CUT_TAPS)[0])  # the point channel: the centre tap
+
+
+@pytest.mark.parametrize("impl", ["banded", "gather", "pallas"])
+@pytest.mark.parametrize("border", ["leaves", "renormalise"])
+def test_a_channel_without_spread_stays_the_identity_when_its_material_is_cut_at_the_frame(impl, border):
+    # d = 0 (G) beside a channel far wider than the 10x12 frame (R): G renders its input, times its albedo
+    rng = np.random.default_rng(0)
+    e = rng.uniform(0.2, 1.0, (10, 12, 3))
+    cam = sj.Camera(focal_px=100.0, mm_per_unit=10.0)  # depth 50: 0.2 px per mm
+    b = sj.Buffers(irradiance=jnp.asarray(e), depth=jnp.full((10, 12), 50.0))
+    mat = sj.BurleyMaterial(albedo=[[0.8, 0.7, 0.6]], d_mm=[[50.0, 0.0, 0.0]])
+    reach_px = float(np.max(np.abs(np.asarray(mat.separable_kernels(CUT_TAPS, jnp.float64).offsets_mm)))) * 0.2
+    assert reach_px > 12 * 2  # the kernel is cut at the frame along both passes
+    out = np.asarray(sj.separable(b, mat, cam, taps=CUT_TAPS, impl=impl, border=border))
+    np.testing.assert_allclose(out[..., 1:], e[..., 1:] * [0.7, 0.6], rtol=1e-12)
+    assert np.abs(out[..., 0] - 0.8 * e[..., 0]).max() > 0.1  # R does spread
+    if impl == "banded":  # the same pixels with traced buffers (the table read) and traced parameters (built inside)
+        run = lambda bb, mm: sj.separable(bb, mm, cam, taps=CUT_TAPS, impl=impl, border=border)
+        np.testing.assert_allclose(np.asarray(jax.jit(run)(b, mat)), out, rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(np.asarray(jax.jit(lambda bb: run(bb, mat))(b)), out, rtol=1e-12, atol=1e-15)
 
 
 def test_reference_window_narrower_than_the_profile_says_so():

@@ -189,10 +189,16 @@ def test_tile_arguments_are_checked(as_users_run_it):
 # radius quantiles (midpoint rule; radii by bisection on the CDF); a fetch counts as far as it is valid and, following
 # the surface, 1 - |dz| mm_per_unit / range; off the frame it is dark (border "leaves") or the centre ("renormalise");
 # a kernel whose outer cell ends past the frame's extent is shrunk onto the frame, tap i weighing the kernel's mass
-# over its shrunk cell (the cumulative weight linear within a cell), renormalised to the full total with
-# "renormalise". Nothing of sss_jax's kernels or passes is called.
+# over its shrunk cell, renormalised to the full total with "renormalise". That mass is re-integrated from the
+# kernel's own profile (each kernel below gives its mass over [0, x]), tabulated as the spec says: at 0, then at
+# edge 10^(-i/32) for i = 256 ... 0 (edge: where the outer cells end), half the weights' total at the edge, linear
+# between the knots, the first positive knot's value from 0 on (Burley's masses from the K0 density of its marginal,
+# scipy's quadrature). Nothing of sss_jax's kernels or passes is called.
 
 from math import erf
+
+from scipy import integrate
+from scipy.special import k0
 
 
 def _sorted_unit(taps):
@@ -212,14 +218,23 @@ def _cells(taps):
 
 
 def _two_gaussian_taps(w, s_near, s_far, taps):
-    """(offsets_mm (n,) ascending, weights (n, 3)) of w G(s_near) + (1 - w) G(s_far), range 3 max(sigma)."""
+    """(offsets_mm (n,) ascending, weights (n, 3), half) of w G(s_near) + (1 - w) G(s_far), range 3 max(sigma);
+    ``half(u)``: the kernel's mass over [0, u range] at unit positions ``u (K,)``, ``(K, 3)``."""
     reach = 3 * max(max(s_near), max(s_far))
     inf_cells, _ = _cells(taps)
-    phi = lambda x, s: 0.5 * (1 + erf(x / (s * np.sqrt(2)))) if np.isfinite(x) else float(x > 0)
-    weights = np.array([[w[c] * (phi(hi, s_near[c]) - phi(lo, s_near[c]))
-                         + (1 - w[c]) * (phi(hi, s_far[c]) - phi(lo, s_far[c])) for c in range(3)]
+
+    def phi(x, s):
+        if not np.isfinite(x) or s == 0:
+            return float(x > 0) if x != 0 else 0.5
+        return 0.5 * (1 + erf(x / (s * np.sqrt(2))))
+
+    mass = lambda lo, hi, c: (w[c] * (phi(hi, s_near[c]) - phi(lo, s_near[c]))
+                              + (1 - w[c]) * (phi(hi, s_far[c]) - phi(lo, s_far[c])))
+    weights = np.array([[mass(lo, hi, c) for c in range(3)]
                         for lo, hi in zip(reach * inf_cells[:-1], reach * inf_cells[1:])])
-    return reach * _sorted_unit(taps), weights / weights.sum(0)
+    total = weights.sum(0)
+    half = lambda u: np.array([[mass(0.0, x * reach, c) for c in range(3)] for x in u]) / total
+    return reach * _sorted_unit(taps), weights / total, half
 
 
 def _burley_radius(u, d):
@@ -238,31 +253,56 @@ def _burley_taps(d, taps, quantiles=2048):
     inf_cells, _ = _cells(taps)
     u = (np.arange(quantiles) + 0.5) / quantiles
 
-    def marginal(x, dc):  # P(X <= x), X = r cos(theta), r Burley-distributed, theta uniform
+    radii = [_burley_radius(u, dc) for dc in d]  # each channel's quantile radii
+
+    def marginal(x, c):  # P(X <= x), X = r cos(theta), r Burley-distributed, theta uniform
         if not np.isfinite(x):
             return float(x > 0)
-        r = _burley_radius(u, dc)
+        r = radii[c]
         inside = np.where(r > abs(x), 2 / np.pi * np.arcsin(np.minimum(abs(x) / r, 1.0)), 1.0).mean()
         return 0.5 + 0.5 * np.sign(x) * inside
 
-    weights = np.array([[marginal(hi, d[c]) - marginal(lo, d[c]) for c in range(3)]
+    weights = np.array([[marginal(hi, c) - marginal(lo, c) for c in range(3)]
                         for lo, hi in zip(reach * inf_cells[:-1], reach * inf_cells[1:])])
-    return reach * _sorted_unit(taps), weights / weights.sum(0)
+    total = weights.sum(0)
+
+    def half(units):  # the marginal's mass over [0, x], exactly: its density is (K0(|x|/d) + K0(|x|/3d)) / (4 pi d)
+        density = lambda t, dc: (k0(t / dc) + k0(t / (3 * dc))) / (4 * np.pi * dc)
+        mass = lambda x, dc: 0.5 if dc == 0 else integrate.quad(density, 0, x, args=(dc,), limit=400,
+                                                                 epsabs=1e-15, epsrel=1e-13)[0]
+        return np.array([[mass(x * reach, d[c]) for c in range(3)] for x in units]) / total
+
+    return reach * _sorted_unit(taps), weights / total, half
 
 
-def _cut_kernel(offsets_px, weights, extent, leaves):
-    """The kernel shrunk onto the frame's extent where its outer cell ends past it (see the section's comment)."""
+def _cut_knots(taps):
+    """The spec's knots (unit positions): 0, then edge 10^(-i/32), i = 256 ... 0."""
+    return np.concatenate([[0.0], _cells(taps)[1][-1] * 10.0 ** (np.arange(-256, 1) / 32)])
+
+
+def _cut_table(weights, half, taps):
+    """(K + 1, 3): 0 at 0, the kernel's masses over [0, x] at the inner knots, half its weights' total at the edge."""
+    knots = _cut_knots(taps)
+    return np.concatenate([np.zeros((1, 3)), half(knots[1:-1]), weights.sum(0)[None] / 2])
+
+
+def _cut_kernel(offsets_px, weights, table, extent, leaves):
+    """The kernel shrunk onto the frame's extent where its outer cell ends past it (see the section's comment);
+    ``table``: ``_cut_table``'s, or a function giving it (built only where the kernel is cut)."""
     taps = offsets_px.shape[0]
     reach = np.abs(offsets_px).max()
     _, cells = _cells(taps)
     if reach * cells[-1] <= extent:
         return offsets_px, weights
     s = extent / (reach * cells[-1])
-    cum = np.concatenate([np.zeros((1, 3)), np.cumsum(weights, 0)])
+    knots, values = _cut_knots(taps), table() if callable(table) else table
 
-    def cumulative(x):  # at unit position x, linear within the original cells
-        j = min(max(np.searchsorted(cells, x, side="right") - 1, 0), taps - 1)
-        return cum[j] + (cum[j + 1] - cum[j]) * (x - cells[j]) / (cells[j + 1] - cells[j])
+    def cumulative(x):  # the mass over [0, x] (negative below 0) at unit position x, linear between the knots
+        a = abs(x)
+        if a < knots[1]:
+            return np.sign(x) * values[1]
+        j = min(np.searchsorted(knots, a, side="right") - 1, knots.size - 2)
+        return np.sign(x) * (values[j] + (values[j + 1] - values[j]) * (a - knots[j]) / (knots[j + 1] - knots[j]))
 
     cut = np.array([cumulative(s * cells[k + 1]) - cumulative(s * cells[k]) for k in range(taps)])
     if not leaves:
@@ -272,8 +312,16 @@ def _cut_kernel(offsets_px, weights, extent, leaves):
 
 def numpy_separable(e, z, valid, rows, kernels, ppm, mm_per_unit, albedo, *, linear, follow, leaves,
                     pre_post=False, origin=(0, 0), frame_shape=None, footprint=0.5):
-    """Both passes pixel by pixel; ``kernels[m] = (offsets_mm ascending, weights (n, 3))``; ``albedo (M, 3)``."""
+    """Both passes pixel by pixel; ``kernels[m] = (offsets_mm ascending, weights (n, 3), half)`` (``half`` as
+    ``_two_gaussian_taps``'); ``albedo (M, 3)``."""
     h, w = z.shape
+    tables = {}  # each kernel's cut table, built where it is first cut
+
+    def table(m):
+        if m not in tables:
+            tables[m] = _cut_table(kernels[m][1], kernels[m][2], kernels[m][1].shape[0])
+        return tables[m]
+
     frame_shape = frame_shape or (h, w)
     a = np.where(valid[..., None], albedo[rows], 1.0)
     x = np.where(valid[..., None], e * (np.sqrt(a) if pre_post else 1.0), 0.0)
@@ -282,11 +330,12 @@ def numpy_separable(e, z, valid, rows, kernels, ppm, mm_per_unit, albedo, *, lin
         length, extent, start = (w, frame_shape[1], origin[1]) if axis == 1 else (h, frame_shape[0], origin[0])
         for py in range(h):
             for px in range(w):
-                offsets_mm, weights = kernels[rows[py, px]]
+                offsets_mm, weights, _ = kernels[rows[py, px]]
                 reach_mm = np.abs(offsets_mm).max()
                 if not valid[py, px] or reach_mm * ppm[py, px] < footprint:
                     continue
-                offs, wts = _cut_kernel(offsets_mm * ppm[py, px], weights, extent, leaves)
+                offs, wts = _cut_kernel(offsets_mm * ppm[py, px], weights, lambda m=rows[py, px]: table(m), extent,
+                                        leaves)
                 here = px if axis == 1 else py
                 acc = np.zeros(3)
                 for off, wt in zip(offs, wts):

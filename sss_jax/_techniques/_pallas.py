@@ -28,8 +28,7 @@ from .._scene import Buffers, Camera
 from ._burley_gpu import frame_pixels, frame_result, frames_mean, needs_truncation_on_device
 from ._burley_spec import fetch_planes, frame_rotation, xla_fetch
 from ._common import _finish
-from ._separable_gpu import gather_pass, pass_result, pass_tables
-from ._separable_spec import cell_edge
+from ._separable_gpu import gather_pass, needs_cut, pass_result, pass_tables
 
 # Pixels per program: a power of two (Triton's block shapes must be), large enough to fill a GPU's warps.
 BLOCK = 256
@@ -59,7 +58,7 @@ def _call(kernel, planes_full: list[Array], planes_block: list[Array], small: li
     )(*planes_full, *planes_block, *small)
 
 
-def _separable_forward(e, z, reach_px, scale, skip, rows, w_table, unit_offsets, axis, follow_surface,
+def _separable_forward(e, z, reach_px, scale, skip, rows, w_table, unit_offsets, cut_table, axis, follow_surface,
                        interpolation, border, origin_along, frame_length, truncate, block):
     _, h, w = e.shape
     n_pix, n_taps = h * w, unit_offsets.shape[0]
@@ -69,8 +68,8 @@ def _separable_forward(e, z, reach_px, scale, skip, rows, w_table, unit_offsets,
     sources = [flat(e[0]), flat(e[1]), flat(e[2]), flat(z)]
     per_pixel = [flat(e[0]), flat(e[1]), flat(e[2]), flat(z), flat(reach_px), flat(scale),
                  flat(skip.astype(jnp.int32), 1), flat(rows.astype(jnp.int32))]
-    table_names = ("unit", "w", "wsum", "cell_lo", "cell_hi", "bounds", "cum")
-    tables = pass_tables(w_table, unit_offsets, 1)  # one tap per step of the kernel's loop
+    table_names = ("unit", "w", "wsum", "cell_lo", "cell_hi", "knots", "cut")
+    tables = pass_tables(w_table, unit_offsets, 1, cut_table)  # one tap per step of the kernel's loop
     kw = dict(taps=n_taps, length=length, origin_along=origin_along, frame_length=frame_length,
               leaves=border == "leaves", truncate=truncate, one_row=w_table.shape[0] == 1,
               follow_surface=follow_surface, interpolation=interpolation, taps_per_step=1)
@@ -103,25 +102,26 @@ def _separable_forward(e, z, reach_px, scale, skip, rows, w_table, unit_offsets,
     return jnp.stack([o[:n_pix].reshape(h, w) for o in out])
 
 
-_SEPARABLE_STATIC = (8, 9, 10, 11, 12, 13, 14)
+_SEPARABLE_STATIC = (9, 10, 11, 12, 13, 14, 15)
 
 
 @functools.partial(jax.custom_vjp, nondiff_argnums=_SEPARABLE_STATIC)
-def _separable_pass(e, z, reach_px, scale, skip, rows, w_table, unit_offsets, axis, follow_surface, interpolation,
-                    border, origin_along, frame_length, block):
-    edge = cell_edge(unit_offsets.shape[0])
-    wide = jnp.any(jnp.where(skip, 0.0, reach_px) * edge > frame_length)  # as gather_pass decides it
-    run = lambda truncate: _separable_forward(e, z, reach_px, scale, skip, rows, w_table, unit_offsets, axis,
-                                              follow_surface, interpolation, border, origin_along, frame_length,
-                                              truncate, block)
+def _separable_pass(e, z, reach_px, scale, skip, rows, w_table, unit_offsets, cut_table, axis, follow_surface,
+                    interpolation, border, origin_along, frame_length, block):
+    run = lambda truncate: _separable_forward(e, z, reach_px, scale, skip, rows, w_table, unit_offsets, cut_table,
+                                              axis, follow_surface, interpolation, border, origin_along,
+                                              frame_length, truncate, block)
+    if cut_table is None:  # as gather_pass: the caller knows no kernel reaches past the frame
+        return run(False)
+    wide = needs_cut(reach_px, skip, unit_offsets.shape[0], frame_length)  # as gather_pass decides it
     return jax.lax.cond(wide, lambda: run(True), lambda: run(False))
 
 
-def _separable_fwd(e, z, reach_px, scale, skip, rows, w_table, unit_offsets, axis, follow_surface, interpolation,
-                   border, origin_along, frame_length, block):
-    out = _separable_pass(e, z, reach_px, scale, skip, rows, w_table, unit_offsets, axis, follow_surface,
+def _separable_fwd(e, z, reach_px, scale, skip, rows, w_table, unit_offsets, cut_table, axis, follow_surface,
+                   interpolation, border, origin_along, frame_length, block):
+    out = _separable_pass(e, z, reach_px, scale, skip, rows, w_table, unit_offsets, cut_table, axis, follow_surface,
                           interpolation, border, origin_along, frame_length, block)
-    return out, (e, z, reach_px, scale, skip, rows, w_table, unit_offsets)
+    return out, (e, z, reach_px, scale, skip, rows, w_table, unit_offsets, cut_table)
 
 
 def _separable_bwd(axis, follow_surface, interpolation, border, origin_along, frame_length, block, residuals,
@@ -135,14 +135,15 @@ _separable_pass.defvjp(_separable_fwd, _separable_bwd)
 
 
 def separable_pass_pallas(e: Array, z: Array, reach_px: Array, scale: Array, skip: Array, rows: Array,
-                          w_table: Array, unit_offsets: Array, *, axis: int, follow_surface: bool, interpolation: str,
-                          border: str = "renormalise", origin_along: int = 0, frame_length: int | None = None,
-                          block: int = BLOCK) -> Array:
+                          w_table: Array, unit_offsets: Array, cut_table: Array | None = None, *, axis: int,
+                          follow_surface: bool, interpolation: str, border: str = "renormalise", origin_along: int = 0,
+                          frame_length: int | None = None, block: int = BLOCK) -> Array:
     """``_separable_gpu.gather_pass`` as one Pallas kernel (same arguments, same result to rounding)."""
     if axis not in (1, 2):
         raise ValueError(f"axis must be 1 (vertical) or 2 (horizontal), got {axis!r}")
     length = e.shape[axis]
-    return _separable_pass(e, z, reach_px, scale, skip, rows, w_table, unit_offsets, axis, bool(follow_surface),
+    return _separable_pass(e, z, reach_px, scale, skip, rows, w_table, unit_offsets, cut_table, axis,
+                           bool(follow_surface),
                            interpolation, border, int(origin_along),
                            int(length if frame_length is None else frame_length), int(block))
 

@@ -170,13 +170,15 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
                     mm_per_unit: Array, follow_surface: bool, interpolation: str,
                     rows_per_band: int | None = None, axis: int = 2, border: str = "leaves",
                     origin_along: int = 0, frame_length: int | None = None, block_cols: int | None = None,
-                    skip_centre: bool = False) -> Array:
+                    skip_centre: bool = False, cut_table: Callable[[], Array] | Array | None = None) -> Array:
     """One 1D pass of planar ``e (3, H, W)`` along ``axis``: 2 horizontal, 1 vertical (no transposes: both read
     whole rows). Each material row's levels (``level_reach_px (M, L)``, or ``(L,)`` shared) are shifted-slice passes
     blended per pixel by ``level_weights (L, H, W)`` and ``onehot (M, H, W)`` (the pixel's row; ``None`` for one
     material); a (row, level) pair runs with its own tap weights, one number per tap and channel (``w_table (M, 3,
     n)``); ``skip`` pixels keep their own value. ``inv_reach_mm (M,)``: one over each row's kernel reach in mm (with
-    ``mm_per_unit``, the depth difference at which a fetched pixel stops counting).
+    ``mm_per_unit``, the depth difference at which a fetched pixel stops counting). ``cut_table``: the cut at the
+    frame's ``(M, 3, K + 1)`` (``spec.cut_table``), or a function building it (called only where a level is cut:
+    traced parameters build it inside the pass), or ``None`` where the caller knows that no level is cut.
 
     The frame is cut into blocks (bands of rows, each cut into ``block_cols`` columns; independent in either pass: a
     block reads its taps from the planes padded by one block along the pass) and each block computes only the pairs
@@ -219,11 +221,18 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
     levels = level_reach_px.shape[1]
 
     # kernels reaching past the frame are cut at its extent (the rest leaves), their taps spread over it
-    def cut(reach_m, w_m):  # one material row's levels
-        scale_m, w_m = spec.frame_truncation(unit_offsets, w_m[None], reach_m, float(frame_length))
-        return scale_m, w_m[:, 0]
+    level_scale = spec.truncation_scale(level_reach_px, spec.cell_edge(unit_offsets.shape[0]), float(frame_length))
+    uncut = jnp.broadcast_to(w_table[:, None], (count, levels) + w_table.shape[1:])  # (M, L, 3, n)
+    if cut_table is None:
+        w_levels = uncut
+    else:
+        def cut_levels():  # the table built (or read) only where a level is cut: a close-up
+            table = cut_table() if callable(cut_table) else cut_table
+            cut = lambda r, w_m, t_m: spec.frame_truncation(unit_offsets, w_m[None], r, float(frame_length),
+                                                            t_m[None])[1][:, 0]
+            return jax.vmap(cut)(level_reach_px, w_table, table.astype(w_table.dtype))
 
-    level_scale, w_levels = jax.vmap(cut)(level_reach_px, w_table)  # (M, L), (M, L, 3, n)
+        w_levels = jax.lax.cond(jnp.any(level_scale < 1.0), cut_levels, lambda: uncut)
     if not leaves:  # the cut kernel renormalised: its part beyond the frame counts as the part inside
         w_levels = spec.renormalised(w_levels, jnp.sum(w_table, axis=-1, keepdims=True)[:, None])
     chunks, per_chunk = tap_chunks(unit_offsets.shape[0])
@@ -300,14 +309,15 @@ def _separable_impl(buffers: Buffers, material, camera: Camera, taps: int, albed
                     interpolation: str, scale_levels: int, min_footprint_px: float,
                     kernel_groups: tuple[int, ...] | None = None, border: str = "leaves",
                     origin: tuple[int, int] = (0, 0), frame_shape: tuple[int, int] | None = None,
-                    kernels: tuple[Array, Array] | None = None) -> Array:
+                    kernels: tuple[Array, Array, Array | None] | None = None) -> Array:
     dtype = _work_dtype(buffers.irradiance.dtype)
     prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
     rows = prep.rows
     if kernel_groups is not None:  # materials with one kernel share it: one kernel, one weight term per group
         rows = jnp.asarray(kernel_groups, jnp.int32)[rows]
-    if kernels is None:  # traced parameters: built here, so gradients reach them
-        kernels = _pass_kernels(material, taps, dtype, kernel_groups)
+    if kernels is None:  # traced parameters: built here, so gradients reach them (the cut's table where it runs)
+        offsets, weights = _pass_kernels(material, taps, dtype, kernel_groups)
+        kernels = offsets, weights, lambda: _pass_cut_table(material, taps, dtype, kernel_groups, weights)
     offsets, weights = kernels[0].astype(dtype), kernels[1].astype(dtype)  # (K, n) mm, (K, n, 3)
     mm_per_unit = camera.mm_per_unit.astype(dtype)
     ppm = px_per_mm(prep.depth, focal_px=camera.focal_px.astype(dtype), mm_per_unit=mm_per_unit)
@@ -347,7 +357,8 @@ def _separable_impl(buffers: Buffers, material, camera: Camera, taps: int, albed
     unit_offsets = jnp.asarray(spec.pass_unit_offsets(taps), dtype)
     w_table = jnp.moveaxis(weights, -1, 1)  # (M, 3, n)
     common = dict(unit_offsets=unit_offsets, mm_per_unit=mm_per_unit, follow_surface=follow_surface,
-                  interpolation=interpolation, border=border, skip_centre=True)  # the pass order is centre first
+                  interpolation=interpolation, border=border, skip_centre=True,  # the pass order is centre first
+                  cut_table=kernels[2])
     frame_shape = tuple(buffers.depth.shape) if frame_shape is None else tuple(frame_shape)
     # planar (3, H, W): the fused loops run along rows (stacked channel slices: XLA's CPU transpose of moveaxis and
     # its layout copy take 2.5x as long at 640x360)
@@ -359,35 +370,78 @@ def _separable_impl(buffers: Buffers, material, camera: Camera, taps: int, albed
     return _finish(buffers, prep, jnp.moveaxis(e, 0, -1))
 
 
+def _distinct(material, kernel_groups: tuple[int, ...] | None):
+    """The material table with one row per distinct kernel (``kernel_groups``; each built once), or the table."""
+    if kernel_groups is None:
+        return material
+    first = np.asarray([kernel_groups.index(g) for g in range(max(kernel_groups) + 1)])
+    return jax.tree.map(lambda a: a[first], material)
+
+
 def _pass_kernels(material, taps: int, dtype, kernel_groups: tuple[int, ...] | None) -> tuple[Array, Array]:
     """The pass's kernels ``(offsets_mm (K, n), weights (K, n, 3))``, one per distinct kernel (``kernel_groups``):
     each material answers for its own."""
-    if kernel_groups is not None:  # each distinct kernel built once
-        first = np.asarray([kernel_groups.index(g) for g in range(max(kernel_groups) + 1)])
-        material = jax.tree.map(lambda a: a[first], material)
-    k = material.separable_kernels(taps, dtype)
+    k = _distinct(material, kernel_groups).separable_kernels(taps, dtype)
     return k.offsets_mm, k.weights
 
 
+def _pass_cut_table(material, taps: int, dtype, kernel_groups: tuple[int, ...] | None, weights: Array) -> Array:
+    """The table of the cut at the frame ``(K, 3, knots)`` of the pass's kernels (``spec.cut_table``; ``weights
+    (K, n, 3)`` theirs), each re-integrated from its material's profile."""
+    half = _distinct(material, kernel_groups).separable_half_masses(spec.cut_knots(taps)[1:], dtype)
+    return spec.cut_table(half.astype(dtype), jnp.moveaxis(weights, -1, 1).astype(dtype))
+
+
 _built_kernels = eqx.filter_jit(_pass_kernels)
+_built_cut_table = eqx.filter_jit(_pass_cut_table)
 _KERNELS: dict = {}
+_CUT_TABLES: dict = {}
 
 
-def _kernels_for(material, taps: int, dtype, kernel_groups) -> tuple[Array, Array] | None:
-    """An eager call's kernels, built once per material parameters, taps, dtype and groups (the pre-integration of
-    a profile is ~3 ms of a 640x360 pass on a CPU, the same for every frame of a batch); ``None`` for parameters that
-    are traced or a material without a parameter key (the pass then builds them itself)."""
+def _kernels_for(material, taps: int, dtype, kernel_groups, *, cut: bool = True
+                 ) -> tuple[Array, Array, Array | None] | None:
+    """An eager call's kernels and the table of their cut at the frame (``_pass_cut_table``; ``None`` where the
+    caller knows that no kernel is cut: ``cut=False``), each built once per material parameters, taps, dtype and
+    groups (the pre-integration of a profile is ~3 ms of a 640x360 pass on a CPU, its cut table ~1 ms, the same
+    for every frame of a batch); ``None`` for parameters that are traced or a material without a parameter key (the
+    pass then builds them itself, the table only where a level is cut)."""
     base = _parameter_key(material)
     if base is None:
         return None
     key = (base, taps, np.dtype(dtype).name, kernel_groups)
-    known = _KERNELS.get(key)  # one read: another thread may empty the cache
-    if known is not None:
-        return known
-    built = _built_kernels(material, taps, dtype, kernel_groups)
-    if not _is_concrete(built):  # called while something traces (a jit around it): staged, not kept
-        return built
-    return _remember(_KERNELS, key, built, limit=64)  # a long fit over many parameters: bounded
+    kernels = _KERNELS.get(key)  # one read: another thread may empty the cache
+    if kernels is None:
+        kernels = _built_kernels(material, taps, dtype, kernel_groups)
+        if not _is_concrete(kernels):  # called while something traces (a jit around it): staged, not kept
+            return (*kernels, _built_cut_table(material, taps, dtype, kernel_groups, kernels[1]) if cut else None)
+        _remember(_KERNELS, key, kernels, limit=64)  # a long fit over many parameters: bounded
+    if not cut:
+        return (*kernels, None)
+    table = _CUT_TABLES.get(key)
+    if table is None:
+        table = _built_cut_table(material, taps, dtype, kernel_groups, kernels[1])
+        if _is_concrete(table):  # not while something traces (staged): kept
+            _remember(_CUT_TABLES, key, table, limit=64)
+    return (*kernels, table)
+
+
+def _may_cut(material, taps: int, frame_shape: tuple[int, int], px_per_mm: float) -> bool:
+    """Host side: whether a kernel may reach past the frame in an eager call: the widest kernel at the nearest
+    active depth (``px_per_mm``, ``_nearest_px_per_mm``) against the frame's shorter extent, with a margin for the
+    pass's rounding."""
+    offsets, _ = _host_kernels(material, taps)
+    widest = float(np.max(np.abs(offsets))) * px_per_mm * spec.cell_edge(taps)
+    return widest > min(frame_shape) * (1 - 1e-4)
+
+
+def _nearest_px_per_mm(buffers: Buffers, camera: Camera) -> float:
+    """Host side: px per mm at the active pixel nearest the camera (0 where none is active)."""
+    depth = np.asarray(buffers.depth)  # the buffer's own type: its least valid depth is one of its values
+    valid = surface_mask(depth)  # NumPy in, NumPy out
+    if buffers.material_id is not None:
+        valid &= np.asarray(buffers.material_id) > 0
+    nearest = float(np.min(depth, where=valid, initial=np.inf))
+    return float(camera.focal_px) / (nearest * float(camera.mm_per_unit)) if np.isfinite(nearest) else 0.0
 
 
 def separable(
@@ -482,35 +536,35 @@ def separable(
     if which != "banded":  # no host read of the parameters (kernel_groups) off the CPU
         return separable_gpu_impl(buffers, material, camera, int(taps), albedo_mode, bool(follow_surface), mode,
                                   float(min_footprint_px), None, which, border, origin, frame_shape)
-    if _is_concrete(buffers, material, camera):  # a host-side check: the CPU formulation only, which counts anyway
-        implied = separable_edge_error(buffers, material, camera, int(taps), float(min_footprint_px))
+    concrete = _is_concrete(buffers, material, camera)
+    ppm = _nearest_px_per_mm(buffers, camera) if concrete else None  # the host reads the depth once
+    if concrete:  # a host-side check: the CPU formulation only, which counts anyway
+        implied = separable_edge_error(buffers, material, camera, int(taps), float(min_footprint_px), px_per_mm=ppm)
         if implied[0] > SAMPLING_ERROR_LIMIT:
             warnings.warn(f"separable: {taps} taps at a reach of {implied[1]:.0f} px leave tap cells up to "
                           f"{implied[2]:.1f} px wide: a hard edge may be off by up to {implied[0]:.3f} of its "
                           f"contrast (more taps lower it)", SamplingWarning, stacklevel=2)
     groups = kernel_groups(material)
+    cut = ppm is None or _may_cut(material, int(taps), frame_shape, ppm)  # no table where no kernel is cut
     return _separable_impl(buffers, material, camera, int(taps), albedo_mode, bool(follow_surface), mode,
                            int(scale_levels), float(min_footprint_px), groups, border, origin, frame_shape,
-                           _kernels_for(material, int(taps), _work_dtype(buffers.irradiance.dtype), groups))
+                           _kernels_for(material, int(taps), _work_dtype(buffers.irradiance.dtype), groups, cut=cut))
 
 
 def separable_edge_error(buffers: Buffers, material, camera: Camera, taps: int,
-                         min_footprint_px: float = MIN_FOOTPRINT_PX) -> tuple[float, float, float]:
+                         min_footprint_px: float = MIN_FOOTPRINT_PX, *, px_per_mm: float | None = None
+                         ) -> tuple[float, float, float]:
     """Host side: what the taps' resolution implies for the widest kernel in the frame (the active pixel nearest the
     camera): ``(error, reach_px, widest_cell_px)``, where ``error`` bounds how far a hard edge's profile can be from
     the kernel's, as a fraction of the edge's contrast. A tap stands for the kernel's mass over its cell; with linear
     fetches a cell up to a pixel wide is resolved, a wider one moves its whole mass at once as the edge crosses it, by
     up to ``w_i (1 - 1 / cell_i) / 2`` (half way across, on average); the largest over the taps of either pass (after
     ``frame_truncation``), is the bound. NumPy throughout; the bound is kept per kernels, frame shape and nearest
-    depth (an eager call of the same material on the next frame reads its depth and ids, nothing more)."""
-    depth = np.asarray(buffers.depth)  # the buffer's own type: its least valid depth is one of its values
-    valid = surface_mask(depth)  # NumPy in, NumPy out
-    if buffers.material_id is not None:
-        valid &= np.asarray(buffers.material_id) > 0
-    nearest = float(np.min(depth, where=valid, initial=np.inf))
-    if not np.isfinite(nearest):
+    depth (an eager call of the same material on the next frame reads its depth and ids, nothing more;
+    ``px_per_mm``: the nearest active depth's, where the caller has read it already)."""
+    ppm = _nearest_px_per_mm(buffers, camera) if px_per_mm is None else px_per_mm
+    if ppm == 0:
         return 0.0, 0.0, 0.0
-    ppm = float(camera.focal_px) / (nearest * float(camera.mm_per_unit))
     key, (offsets, weights) = _host_kernels(material, taps, with_key=True)
     shape = tuple(buffers.depth.shape[-2:])
     memo_key = None if key is None else (key, shape, ppm, float(min_footprint_px))
@@ -522,15 +576,20 @@ def separable_edge_error(buffers: Buffers, material, camera: Camera, taps: int,
     unit = spec.pass_unit_offsets(taps)
     bounds = spec.cell_bounds(taps)
     order = np.argsort(spec.tap_order(taps))
+    edge = spec.cell_edge(taps)
     for m in range(offsets.shape[0]):
         reach_px = float(reach_mm[m]) * ppm
         if reach_px < min_footprint_px or reach_px <= 0:
             continue
+        w_m = np.moveaxis(weights[m:m + 1], -1, 1)  # (1, 3, n)
         for extent in set(shape):
-            scale, w_levels = frame_truncation(unit, np.moveaxis(weights[m:m + 1], -1, 1), np.asarray([reach_px]),
-                                               float(extent))
-            w_sorted = w_levels[0, 0][:, order]  # (3, n) ascending offsets
-            cells = np.diff(bounds) * float(scale[0]) * reach_px
+            scale, w_pass = 1.0, w_m[0]
+            if reach_px * edge > extent:  # cut at the frame (a close-up): the table built once per parameters
+                cut_scale, w_levels = frame_truncation(unit, w_m, np.asarray([reach_px]), float(extent),
+                                                       _host_cut_table(material, taps, key)[m:m + 1])
+                scale, w_pass = float(cut_scale[0]), w_levels[0, 0]
+            w_sorted = w_pass[:, order]  # (3, n) ascending offsets
+            cells = np.diff(bounds) * scale * reach_px
             error = float(np.max(w_sorted * np.maximum(0.0, 1 - 1 / np.maximum(cells, 1e-12)) / 2))
             if error > worst[0]:
                 worst = (error, reach_px, float(np.max(cells)))
@@ -590,6 +649,23 @@ def _host_kernels(material, taps: int, *, with_key: bool = False):
 # the host kernels as one compiled program: built eagerly they were ~75 small dispatches, each compiled on its first
 # use, ~2 s of a process's first separable call (4.6-5.1 -> 2.5-3.0 s; most of the bench's compile_seconds)
 _host_kernel_build = eqx.filter_jit(lambda material, taps, dtype: material.separable_kernels(taps, dtype))
+_HOST_CUT_TABLES: dict = {}
+
+
+def _host_cut_table(material, taps: int, key) -> np.ndarray:
+    """Host side: the table of the material's kernels cut at the frame ``(M, 3, knots)`` in float64
+    (``spec.cut_table``), built once per material parameters and tap count (``key``, ``_host_kernels``' key, or
+    ``None``: not kept)."""
+    out = None if key is None else _HOST_CUT_TABLES.get(key)  # one read: another thread may empty the cache
+    if out is None:
+        out = np.asarray(_host_cut_build(material, taps, jax.dtypes.canonicalize_dtype(jnp.float64)), np.float64)
+        if key is not None:
+            _remember(_HOST_CUT_TABLES, key, out)
+    return out
+
+
+_host_cut_build = eqx.filter_jit(lambda material, taps, dtype: _pass_cut_table(
+    material, taps, dtype, None, material.separable_kernels(taps, dtype).weights))
 
 
 def kernel_groups(material) -> tuple[int, ...] | None:

@@ -35,12 +35,13 @@ from ._common import _finish, _prepare, _work_dtype
 TAPS_PER_STEP = 4
 
 
-def pass_tables(w_table: Array, unit_offsets: Array, taps_per_step: int) -> dict[str, Array]:
+def pass_tables(w_table: Array, unit_offsets: Array, taps_per_step: int, cut: Array | None = None
+                ) -> dict[str, Array]:
     """The small tables a whole-frame pass reads, flat (a Pallas kernel indexes them as refs, XLA as arrays), the taps
     padded to whole steps with taps of weight 0 at offset 0 and an empty cell: ``unit (n',)``, ``w (M 3 n')`` (row m,
     channel c, tap i at ``(3 m + c) n' + i``), ``wsum (M 3)``, and for the cut at the frame ``cell_lo``/``cell_hi
-    (n',)`` (tap i's cell, unit offsets), ``bounds (n + 1,)`` ascending and ``cum (M 3 (n + 1))`` (the cumulative
-    weights at the bounds)."""
+    (n',)`` (tap i's cell, unit offsets), ``knots (K + 1,)`` (``spec.cut_knots``) and ``cut (M 3 (K + 1))`` (the cut's
+    table, ``spec.cut_table``: ``cut``, zeros where none is given)."""
     m, _, n = w_table.shape
     dtype = w_table.dtype
     steps = -(-n // taps_per_step)
@@ -48,13 +49,13 @@ def pass_tables(w_table: Array, unit_offsets: Array, taps_per_step: int) -> dict
     order = spec.tap_order(n)
     bounds = spec.cell_bounds(n)
     lo, hi = bounds[order], bounds[order + 1]  # tap i (pass order) is the order[i]-th from the left
-    sorted_w = w_table[..., np.argsort(order)]
-    cum = jnp.concatenate([jnp.zeros((m, 3, 1), dtype), jnp.cumsum(sorted_w, axis=-1)], axis=-1)
+    knots = spec.cut_knots(n)
+    cut = jnp.zeros((m, 3, knots.shape[0]), dtype) if cut is None else cut.astype(dtype)
     return dict(unit=jnp.pad(unit_offsets, (0, extra)),
                 w=jnp.pad(w_table, [(0, 0), (0, 0), (0, extra)]).reshape(-1),
                 wsum=jnp.sum(w_table, axis=-1).reshape(-1),
                 cell_lo=jnp.asarray(np.pad(lo, (0, extra)), dtype), cell_hi=jnp.asarray(np.pad(hi, (0, extra)), dtype),
-                bounds=jnp.asarray(bounds, dtype), cum=cum.reshape(-1))
+                knots=jnp.asarray(knots, dtype), cut=cut.reshape(-1))
 
 
 def pass_result(centre: Sequence[Array], z: Array, reach_px: Array, scale: Array, rows: Array, along: Array,
@@ -81,15 +82,15 @@ def pass_result(centre: Sequence[Array], z: Array, reach_px: Array, scale: Array
     weight = lambda c, i: tables["w"][c * n_pad + i] if one_row else tables["w"][(rows * 3 + c) * n_pad + i]
     full_sum = [tables["wsum"][c] if one_row else tables["wsum"][rows * 3 + c] for c in range(3)]
 
-    def cumulative(x):  # the kernel's cumulative weight per channel at unit position x (linear within a cell)
-        j = sum((tables["bounds"][k] <= x).astype(jnp.int32) for k in range(1, n))  # x's cell, shared by channels
-        cell = (tables["bounds"][j], tables["bounds"][j + 1])
-        base = [c * (n + 1) if one_row else (rows * 3 + c) * (n + 1) for c in range(3)]
-        return [spec.cumulative_at(x, cell, tables["cum"][b + j], tables["cum"][b + j + 1]) for b in base]
+    knots = tables["knots"].shape[0]
+
+    def cumulative(x):  # the cut kernel's mass over [0, x] per channel at unit position x (``spec.cut_cumulative``)
+        base = [c * knots if one_row else (rows * 3 + c) * knots for c in range(3)]
+        return [spec.cut_cumulative(x, n, lambda j: tables["knots"][j], lambda j, b=b: tables["cut"][b + j])
+                for b in base]
 
     if truncate:
-        cut_sum = [hi - lo for hi, lo in zip(cumulative(cut * tables["bounds"][n]),
-                                             cumulative(cut * tables["bounds"][0]))]
+        cut_sum = [2 * half for half in cumulative(cut * spec.cell_edge(n))]
         # leaves: the cut kernel's own mass; renormalise: scaled to the full kernel's total (``spec.renormalised``)
         gain = [1.0 if leaves else jnp.where(f > 0, s / jnp.where(f > 0, f, 1.0), 1.0)
                 for s, f in zip(full_sum, cut_sum)]
@@ -136,8 +137,9 @@ def pass_result(centre: Sequence[Array], z: Array, reach_px: Array, scale: Array
 
 def gather_pass(e: Float[Array, "3 H W"], z: Float[Array, "H W"], reach_px: Float[Array, "H W"],
                 scale: Float[Array, "H W"], skip: Bool[Array, "H W"], rows: Int[Array, "H W"],
-                w_table: Float[Array, "M 3 n"], unit_offsets: Float[Array, " n"], *, axis: int,
-                follow_surface: bool, interpolation: str, border: str = "renormalise", origin_along: int = 0,
+                w_table: Float[Array, "M 3 n"], unit_offsets: Float[Array, " n"],
+                cut_table: Float[Array, "M 3 K"] | None = None, *, axis: int, follow_surface: bool,
+                interpolation: str, border: str = "renormalise", origin_along: int = 0,
                 frame_length: int | None = None, taps_per_step: int = TAPS_PER_STEP) -> Float[Array, "3 H W"]:
     """One 1D pass of planar irradiance ``e`` along ``axis`` (2 horizontal, 1 vertical), XLA formulation.
 
@@ -147,14 +149,16 @@ def gather_pass(e: Float[Array, "3 H W"], z: Float[Array, "H W"], reach_px: Floa
     (``mm_per_unit / reach_mm``). ``rows``: each pixel's row of ``w_table (M, 3, n)`` (tap weights per channel).
     ``skip`` pixels keep their value. ``interpolation``: "bilinear" (two pixels, weights 1 - f and f) or "nearest".
     ``border``, ``origin_along``, ``frame_length``: as ``pass_result``. A kernel reaching past the frame is cut
-    there per pixel (decided on the device: the cut's arithmetic runs only where some pixel needs it)."""
+    there per pixel (decided on the device: the cut's arithmetic runs only where some pixel needs it), re-integrated
+    from ``cut_table (M, 3, K + 1)`` (``spec.cut_table``); ``None`` where the caller knows that no kernel reaches
+    past the frame (no cut is made)."""
     if axis not in (1, 2):
         raise ValueError(f"axis must be 1 (vertical) or 2 (horizontal), got {axis!r}")
     _, h, w = e.shape
     length = w if axis == 2 else h
     frame_length = length if frame_length is None else int(frame_length)
     along = jax.lax.broadcasted_iota(jnp.int32, (h, w), axis - 1)  # each pixel's position along the pass
-    tables = pass_tables(w_table, unit_offsets, taps_per_step)
+    tables = pass_tables(w_table, unit_offsets, taps_per_step, cut_table)
     # one gather per corner fetches the four planes of a pixel (flat, row-major: q is a position on the line)
     packed = jnp.stack([e[0], e[1], e[2], z], axis=-1).reshape(h * w, 4)
     line = jax.lax.broadcasted_iota(jnp.int32, (h, w), 0) * w if axis == 2 else \
@@ -168,10 +172,18 @@ def gather_pass(e: Float[Array, "3 H W"], z: Float[Array, "H W"], reach_px: Floa
     # smaller unrolled body keeps the compile time of the branch that seldom runs small
     run = lambda truncate: tuple(pass_result(list(e), z, reach_px, scale, rows, along, fetch, tables,
                                              truncate=truncate, taps_per_step=1 if truncate else taps_per_step, **kw))
-    edge = spec.cell_edge(unit_offsets.shape[0])
-    wide = jnp.any(jnp.where(skip, 0.0, reach_px) * edge > frame_length)
-    out = jax.lax.cond(wide, lambda: run(True), lambda: run(False))
+    if cut_table is None:
+        out = run(False)
+    else:
+        out = jax.lax.cond(needs_cut(reach_px, skip, unit_offsets.shape[0], frame_length), lambda: run(True),
+                           lambda: run(False))
     return jnp.where(skip[None], e, jnp.stack(out))
+
+
+def needs_cut(reach_px: Array, skip: Array, taps: int, frame_length: int) -> Array:
+    """Whether some pixel's kernel reaches past the frame along the pass (its outer cells end beyond the extent), on
+    the device: what decides a whole-frame pass's ``lax.cond`` between the cut and the plain taps."""
+    return jnp.any(jnp.where(skip, 0.0, reach_px) * spec.cell_edge(taps) > frame_length)
 
 
 class PassInputs(eqx.Module):
@@ -185,12 +197,15 @@ class PassInputs(eqx.Module):
     rows: Array
     w_table: Array  # (M, 3, n)
     unit_offsets: Array  # (n,)
+    cut_table: Array  # (M, 3, K + 1): the cut at the frame's (``spec.cut_table``)
 
 
 def pass_inputs(buffers: Buffers, material, camera: Camera, prep, taps: int, min_footprint_px: float,
-                kernel_groups: tuple[int, ...] | None, dtype) -> PassInputs:
+                kernel_groups: tuple[int, ...] | None, dtype, frame_shape: tuple[int, int]) -> PassInputs:
     """Per-pixel reach (material row's kernel reach times px per mm at the pixel's depth), the follow-the-surface
-    scale and the skip flag (no surface, or a footprint below ``min_footprint_px``), as ``separable`` defines them."""
+    scale and the skip flag (no surface, or a footprint below ``min_footprint_px``), as ``separable`` defines them,
+    and the table of the kernels' cut at the frame (``frame_shape``): built on the device only where some pixel's
+    kernel reaches past the frame along a pass (zeros otherwise: no pass reads it then)."""
     rows, kernel_material = prep.rows, material
     if kernel_groups is not None:  # materials with one kernel share its table row
         first = np.asarray([kernel_groups.index(g) for g in range(max(kernel_groups) + 1)])
@@ -206,7 +221,11 @@ def pass_inputs(buffers: Buffers, material, camera: Camera, prep, taps: int, min
     ok_reach = reach_mm > 0
     inv_reach_mm = jnp.where(ok_reach, 1.0 / jnp.where(ok_reach, reach_mm, 1.0), 0.0)
     active = prep.valid & (reach_px >= min_footprint_px) & (reach_px > 0)
+    w_table = jnp.moveaxis(weights, -1, 1)
+    knots = spec.cut_knots(taps)
+    build = lambda: spec.cut_table(kernel_material.separable_half_masses(knots[1:], dtype).astype(dtype), w_table)
+    cut = needs_cut(reach_px, ~active, taps, min(frame_shape))  # the shorter extent: either pass
+    cut_table = jax.lax.cond(cut, build, lambda: jnp.zeros(w_table.shape[:2] + knots.shape, dtype))
     return PassInputs(e=jnp.moveaxis(prep.irradiance, -1, 0), z=prep.depth, reach_px=reach_px,
-                      scale=mm_per_unit * inv_reach_mm, skip=~active, rows=rows,
-                      w_table=jnp.moveaxis(weights, -1, 1),
-                      unit_offsets=jnp.asarray(spec.pass_unit_offsets(taps), dtype))
+                      scale=mm_per_unit * inv_reach_mm, skip=~active, rows=rows, w_table=w_table,
+                      unit_offsets=jnp.asarray(spec.pass_unit_offsets(taps), dtype), cut_table=cut_table)

@@ -19,8 +19,8 @@ as dark), else 0 (the tap counts as the centre: "renormalise").
 
 A kernel whose outer tap cell reaches past the frame's extent along the pass is cut there (``truncation_scale``):
 its taps spread over ``[-extent, extent]`` in the same pattern, each weighing the kernel's mass over its shrunk cell
-(the cumulative weights, linear within the original cells); with "renormalise" the cut kernel keeps the full
-kernel's total. Positions are frame coordinates: a buffer that is a tile of a larger frame states its first pixel
+(re-integrated from each channel's profile: ``cut_table``, ``cut_cumulative``); with "renormalise" the cut kernel
+keeps the full kernel's total. Positions are frame coordinates: a buffer that is a tile of a larger frame states its first pixel
 along the pass in the frame, and the frame's extent decides both the border and the cut.
 """
 
@@ -70,12 +70,60 @@ def truncation_scale(reach_px, edge: float, extent_px):
     return xp.where(fits, 1.0, extent_px / xp.where(fits, 1.0, reach_edge))
 
 
-def cumulative_at(x, bounds, cum_lo, cum_hi):
-    """The kernel's cumulative weight at unit position ``x`` inside a cell ``[bounds_lo, bounds_hi]`` whose
-    cumulative weights at its ends are ``cum_lo``/``cum_hi``: linear within the cell (the taps know the kernel no
-    finer than their cells)."""
-    lo, hi = bounds
-    return cum_lo + (cum_hi - cum_lo) * (x - lo) / (hi - lo)
+# The kernel cut at the frame is re-integrated from each channel's own profile (``cut_table``): its cumulative mass at
+# fixed unit positions, 0 and then geometric from 1e-8 of the outer cells' edge to the edge, KNOTS_PER_DECADE per
+# decade, linear between them; the mass within the first knot counts as at 0 (a wide channel holds ~1e-7 of itself
+# there; a channel 1000x narrower than its material's widest, ~1e-4). Fine near 0, so a channel whose mass sits at the
+# centre (d = 0, sigma 0, or merely narrow beside a wide channel of its material) keeps it in the centre tap's shrunk
+# cell however far the kernel is cut; the taps' own cells are far too coarse for that (read linearly within them, the
+# centre cell's mass spread over every shrunk cell inside it: a d = 0 channel lost the identity, its centre weight
+# falling to the shrink factor). Geometric, so a position's interval is one logarithm.
+KNOTS_PER_DECADE = 32
+KNOT_DECADES = 8
+
+
+def cut_knots(taps: int) -> np.ndarray:
+    """The unit positions ``(K + 1,)`` (ascending, float64) of the cut's table: 0, then ``edge 10^(-i /
+    KNOTS_PER_DECADE)`` from ``i = KNOTS_PER_DECADE KNOT_DECADES`` down to 0 (the last is the cell edge)."""
+    count = KNOTS_PER_DECADE * KNOT_DECADES
+    return np.concatenate([[0.0], cell_edge(taps) * 10.0 ** (np.arange(-count, 1) / KNOTS_PER_DECADE)])
+
+
+def cut_table(half_masses, w_table):
+    """The cut's table ``(..., 3, K + 1)`` from a kernel's masses over ``[0, x]`` at the positive knots
+    (``half_masses (..., 3, K)``: the material's ``separable_half_masses(cut_knots(n)[1:])``) and its tap weights
+    ``(..., 3, n)``: 0 at 0, the masses inside, half the weights' total at the edge (the mass beyond the outer cells'
+    edge counts there, as the uncut kernel's outer taps hold it, so the cut starts from the whole kernel). NumPy or
+    JAX arrays alike."""
+    xp = np if isinstance(half_masses, np.ndarray) else jnp
+    zero = xp.zeros(half_masses.shape[:-1] + (1,), half_masses.dtype)
+    half_total = 0.5 * xp.sum(w_table, axis=-1, keepdims=True).astype(half_masses.dtype)
+    return xp.concatenate([zero, half_masses[..., :-1], half_total], axis=-1)
+
+
+def knot_index(x, taps: int):
+    """The interval ``[k_j, k_j+1]`` of ``cut_knots`` holding the unit position ``x >= 0`` (int32, 0 to K - 1): one
+    logarithm (the knots are geometric); 0 below the first positive knot, the last at the edge. NumPy or JAX."""
+    xp = np if isinstance(x, (np.ndarray, float, int)) else jnp
+    count = KNOTS_PER_DECADE * KNOT_DECADES
+    edge = cell_edge(taps)
+    tiny = edge * 10.0 ** -(KNOT_DECADES + 1)
+    j = xp.floor(1 + count + KNOTS_PER_DECADE * xp.log10(xp.maximum(x, tiny) / edge))
+    return xp.clip(j, 0, count).astype(xp.int32)
+
+
+def cut_cumulative(x, taps: int, knot_at, value_at):
+    """A cut kernel's mass over ``[0, x]`` (negative for ``x < 0``: the kernel is symmetric) at unit position ``x``
+    (``|x|`` at most the edge): the table linear between knots, the first knot's value from 0 on (the mass that
+    close to 0 counts as at 0). ``knot_at(j)``: the knots (``cut_knots``); ``value_at(j)``: the table's values at
+    knot ``j`` (``cut_table``), in whatever layout the caller keeps them."""
+    xp = np if isinstance(x, (np.ndarray, float, int)) else jnp
+    a = xp.abs(x)
+    j = knot_index(a, taps)
+    k0, k1 = knot_at(j), knot_at(j + 1)
+    v0, v1 = value_at(j), value_at(j + 1)
+    t = xp.where(j == 0, 1.0, (a - k0) / (k1 - k0))
+    return xp.sign(x) * (v0 + (v1 - v0) * t)
 
 
 def tap_offset(unit, reach_px, limit):
@@ -162,36 +210,32 @@ def pass_value(e, weight_sum, kept_e, kept, left=None):
 
 
 def frame_truncation(unit_offsets: Array | np.ndarray, w_table: Array | np.ndarray,
-                     level_reach_px: Array | np.ndarray, extent_px: float
+                     level_reach_px: Array | np.ndarray, extent_px: float, table: Array | np.ndarray
                      ) -> tuple[Array | np.ndarray, Array | np.ndarray]:
     """Per reach level, the scale of the tap pattern and the tap weights ``(L, M, 3, n)`` of a kernel cut at the
     frame's extent along the pass (``extent_px``: no offset beyond it lands in the frame from any pixel).
 
     A kernel whose outermost tap cell reaches past the extent is replaced by its part inside ``[-extent, extent]``,
-    taps spread over that range in the same pattern: tap i gets the kernel's mass over its shrunk cell
-    (``cumulative_at`` at the shrunk boundaries), and the mass beyond the extent is dropped (it leaves the frame from
-    every pixel). Without this a kernel far wider than the frame puts every tap but the centre outside it, and the
-    pass returns the input scaled by the centre weight instead of spreading the light. Kernels within the extent are
-    unchanged. ``unit_offsets`` and ``w_table (M, 3, n)`` are in the pass's tap order (centre first)."""
+    taps spread over that range in the same pattern: tap i gets the kernel's mass over its shrunk cell, re-integrated
+    from each channel's profile (``cut_cumulative`` of ``table (M, 3, K + 1)``, ``cut_table``), and the mass beyond
+    the extent is dropped (it leaves the frame from every pixel). Without this a kernel far wider than the frame puts
+    every tap but the centre outside it, and the pass returns the input scaled by the centre weight instead of
+    spreading the light. Kernels within the extent are unchanged. ``unit_offsets`` and ``w_table (M, 3, n)`` are in
+    the pass's tap order (centre first)."""
     n = unit_offsets.shape[0]
     order = tap_order(n)
-    bounds = cell_bounds(n)
     xp = np if isinstance(w_table, np.ndarray) else jnp  # NumPy for the host check: no dispatch per call
     dtype = w_table.dtype
-    bounds = xp.asarray(bounds, dtype)
-    sorted_w = w_table[..., np.argsort(order)]  # (M, 3, n), offsets ascending
-    cum = xp.concatenate([xp.zeros(sorted_w.shape[:-1] + (1,), dtype), xp.cumsum(sorted_w, axis=-1)], axis=-1)
+    bounds = xp.asarray(cell_bounds(n), dtype)
+    knots = xp.asarray(cut_knots(n), dtype)
     scale = truncation_scale(level_reach_px, cell_edge(n), extent_px)  # (L,)
     fits = scale >= 1.0
-    # the cumulative weights read at the shrunk boundaries: one cell index per level and boundary, shared by every
+    # the cumulative masses at the shrunk boundaries: one knot interval per level and boundary, shared by every
     # material and channel (no vmap: NumPy runs it too)
-    at = xp.clip(scale[:, None] * bounds[None, :], bounds[0], bounds[-1])  # (L, n + 1)
-    cell = xp.clip(xp.searchsorted(bounds, at, side="right") - 1, 0, n - 1)
-    c = cumulative_at(at.astype(dtype)[None, None], (bounds[cell][None, None], bounds[cell + 1][None, None]),
-                      cum[..., cell], cum[..., cell + 1])  # (M, 3, L, n + 1)
+    at = (scale[:, None] * bounds[None, :]).astype(dtype)[None, None]  # (1, 1, L, n + 1)
+    c = cut_cumulative(at, n, lambda j: knots[j], lambda j: table[:, :, j[0, 0]])  # (M, 3, L, n + 1)
     w_levels = xp.moveaxis(xp.diff(c, axis=-1)[..., order], 2, 0)  # (L, M, 3, n)
-    # untouched levels keep their exact weights (no interpolation rounding)
-    w_levels = xp.where(fits[:, None, None, None], w_table[None], w_levels)
+    w_levels = xp.where(fits[:, None, None, None], w_table[None], w_levels)  # untouched levels: their own weights
     return scale.astype(dtype), w_levels
 
 

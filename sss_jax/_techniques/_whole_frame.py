@@ -23,12 +23,12 @@ def separable_gpu_impl(buffers: Buffers, material, camera: Camera, taps: int, al
     and ``frame_shape`` place a tile in its frame (the border and the cut of wide kernels follow the frame)."""
     dtype = _work_dtype(buffers.irradiance.dtype)
     prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
-    p = pass_inputs(buffers, material, camera, prep, taps, min_footprint_px, kernel_groups, dtype)
-    run_pass = separable_pass_pallas if impl == "pallas" else gather_pass
     frame_shape = tuple(buffers.depth.shape) if frame_shape is None else tuple(frame_shape)
+    p = pass_inputs(buffers, material, camera, prep, taps, min_footprint_px, kernel_groups, dtype, frame_shape)
+    run_pass = separable_pass_pallas if impl == "pallas" else gather_pass
     e = p.e
     for axis in (2, 1):  # horizontal, then vertical
-        e = run_pass(e, p.z, p.reach_px, p.scale, p.skip, p.rows, p.w_table, p.unit_offsets, axis=axis,
+        e = run_pass(e, p.z, p.reach_px, p.scale, p.skip, p.rows, p.w_table, p.unit_offsets, p.cut_table, axis=axis,
                      follow_surface=follow_surface, interpolation=interpolation, border=border,
                      origin_along=int(origin[axis - 1]), frame_length=int(frame_shape[axis - 1]))
     return _finish(buffers, prep, jnp.moveaxis(e, 0, -1))
