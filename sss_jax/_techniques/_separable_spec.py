@@ -20,8 +20,8 @@ as dark), else 0 (the tap counts as the centre: "renormalise").
 A kernel whose outer tap cell reaches past the frame's extent along the pass is cut there (``truncation_scale``):
 its taps spread over ``[-extent, extent]`` in the same pattern, each weighing the kernel's mass over its shrunk cell
 (re-integrated from each channel's profile: ``cut_table``, ``cut_cumulative``); with "renormalise" the cut kernel
-keeps the full kernel's total. Positions are frame coordinates: a buffer that is a tile of a larger frame states its first pixel
-along the pass in the frame, and the frame's extent decides both the border and the cut.
+keeps the full kernel's total. Positions are frame coordinates: a buffer that is a tile of a larger frame states its
+first pixel along the pass in the frame, and the frame's extent decides both the border and the cut.
 """
 
 from __future__ import annotations
