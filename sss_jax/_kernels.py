@@ -15,7 +15,12 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._custom_types import ParamLike
-from ._profiles import AbstractProfile, burley_inverse_ccdf, marginal_cdf, marginal_half_mass
+from ._profiles import (
+    AbstractProfile,
+    burley_inverse_ccdf,
+    marginal_cdf,
+    marginal_half_mass,
+)
 
 __all__ = [
     "SeparableKernel",

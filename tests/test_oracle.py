@@ -435,7 +435,6 @@ def test_separable_matches_the_numpy_loop(impl, kind, wide, opts):
 # border the energy beyond the frame is 1 - (1/2pi) int CDF(distance to the frame's edge along phi) dphi (scipy, the
 # corner angles as break points), not the package's triangle rule. Nothing of sss_jax is called.
 
-from scipy import integrate  # noqa: E402
 
 
 def _burley_radial(d):
