@@ -370,26 +370,18 @@ def _separable_impl(buffers: Buffers, material, camera: Camera, taps: int, albed
     return _finish(buffers, prep, jnp.moveaxis(e, 0, -1))
 
 
-def _distinct(material, kernel_groups: tuple[int, ...] | None):
-    """The material table with one row per distinct kernel (``kernel_groups``; each built once), or the table."""
-    if kernel_groups is None:
-        return material
-    first = np.asarray([kernel_groups.index(g) for g in range(max(kernel_groups) + 1)])
-    return jax.tree.map(lambda a: a[first], material)
-
-
 def _pass_kernels(material, taps: int, dtype, kernel_groups: tuple[int, ...] | None) -> tuple[Array, Array]:
     """The pass's kernels ``(offsets_mm (K, n), weights (K, n, 3))``, one per distinct kernel (``kernel_groups``):
     each material answers for its own."""
-    k = _distinct(material, kernel_groups).separable_kernels(taps, dtype)
+    k = spec.distinct_kernels(material, kernel_groups).separable_kernels(taps, dtype)
     return k.offsets_mm, k.weights
 
 
 def _pass_cut_table(material, taps: int, dtype, kernel_groups: tuple[int, ...] | None, weights: Array) -> Array:
     """The table of the cut at the frame ``(K, 3, knots)`` of the pass's kernels (``spec.cut_table``; ``weights
     (K, n, 3)`` theirs), each re-integrated from its material's profile."""
-    half = _distinct(material, kernel_groups).separable_half_masses(spec.cut_knots(taps)[1:], dtype)
-    return spec.cut_table(half.astype(dtype), jnp.moveaxis(weights, -1, 1).astype(dtype))
+    return spec.material_cut_table(spec.distinct_kernels(material, kernel_groups), taps, dtype,
+                                   jnp.moveaxis(weights, -1, 1))
 
 
 _built_kernels = eqx.filter_jit(_pass_kernels)

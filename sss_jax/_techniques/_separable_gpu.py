@@ -206,10 +206,8 @@ def pass_inputs(buffers: Buffers, material, camera: Camera, prep, taps: int, min
     scale and the skip flag (no surface, or a footprint below ``min_footprint_px``), as ``separable`` defines them,
     and the table of the kernels' cut at the frame (``frame_shape``): built on the device only where some pixel's
     kernel reaches past the frame along a pass (zeros otherwise: no pass reads it then)."""
-    rows, kernel_material = prep.rows, material
+    rows, kernel_material = prep.rows, spec.distinct_kernels(material, kernel_groups)
     if kernel_groups is not None:  # materials with one kernel share its table row
-        first = np.asarray([kernel_groups.index(g) for g in range(max(kernel_groups) + 1)])
-        kernel_material = jax.tree.map(lambda a: a[first], material)
         rows = jnp.asarray(kernel_groups, jnp.int32)[rows]
     kernels = kernel_material.separable_kernels(taps, dtype)
     offsets, weights = kernels.offsets_mm.astype(dtype), kernels.weights.astype(dtype)  # (K, n) mm, (K, n, 3)
@@ -223,7 +221,7 @@ def pass_inputs(buffers: Buffers, material, camera: Camera, prep, taps: int, min
     active = prep.valid & (reach_px >= min_footprint_px) & (reach_px > 0)
     w_table = jnp.moveaxis(weights, -1, 1)
     knots = spec.cut_knots(taps)
-    build = lambda: spec.cut_table(kernel_material.separable_half_masses(knots[1:], dtype).astype(dtype), w_table)
+    build = lambda: spec.material_cut_table(kernel_material, taps, dtype, w_table)
     cut = needs_cut(reach_px, ~active, taps, min(frame_shape))  # the shorter extent: either pass
     cut_table = jax.lax.cond(cut, build, lambda: jnp.zeros(w_table.shape[:2] + knots.shape, dtype))
     return PassInputs(e=jnp.moveaxis(prep.irradiance, -1, 0), z=prep.depth, reach_px=reach_px,

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
@@ -99,6 +100,22 @@ def cut_table(half_masses, w_table):
     zero = xp.zeros(half_masses.shape[:-1] + (1,), half_masses.dtype)
     half_total = 0.5 * xp.sum(w_table, axis=-1, keepdims=True).astype(half_masses.dtype)
     return xp.concatenate([zero, half_masses[..., :-1], half_total], axis=-1)
+
+
+def distinct_kernels(material, kernel_groups: tuple[int, ...] | None):
+    """The material table with one row per distinct kernel (``kernel_groups``: the group of each material, groups
+    numbered in order of first appearance; each kernel is then built once), or the table itself (``None``)."""
+    if kernel_groups is None:
+        return material
+    first = np.asarray([kernel_groups.index(g) for g in range(max(kernel_groups) + 1)])
+    return jax.tree.map(lambda a: a[first], material)
+
+
+def material_cut_table(material, taps: int, dtype, w_table):
+    """``cut_table`` of a material table's kernels (``w_table (M, 3, n)`` their weights): each re-integrated from
+    its own profile, ``material.separable_half_masses`` at ``cut_knots``."""
+    half = material.separable_half_masses(cut_knots(taps)[1:], dtype).astype(dtype)
+    return cut_table(half, w_table.astype(dtype))
 
 
 def knot_index(x, taps: int):
