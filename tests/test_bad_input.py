@@ -4,6 +4,7 @@ left behind."""
 import json
 import pathlib
 import re
+import warnings
 
 import jax.numpy as jnp
 import numpy as np
@@ -230,7 +231,7 @@ def test_glob_matching_nothing_and_too_many_for_o(tmp_path, capsys):
     (lambda: sj.validate_buffers(sj.Buffers(irradiance=jnp.full((2, 2, 3), jnp.nan), depth=jnp.ones((2, 2)))),
      "irradiance has 12 non-finite values"),
     (lambda: sj.validate_buffers(sj.Buffers(irradiance=-jnp.ones((2, 2, 3)), depth=jnp.ones((2, 2)))),
-     "irradiance has negative values"),
+     "irradiance has 12 negative values"),
     (lambda: sj.BurleyMaterial([0.5, 0.5], [1, 1, 1]), r"albedo must have 3 values"),
     (lambda: sj.TwoGaussianMaterial([1, 1, 1], [1.2, 0, 0], [1, 1, 1], [2, 2, 2]), r"w must lie in \[0.0, 1.0\]"),
     (lambda: sj.burley(sj.Buffers(irradiance=jnp.ones((4, 4, 3)), depth=jnp.ones((4, 4))),
@@ -439,8 +440,8 @@ CAM = sj.Camera(100.0)
                                             material_id=jnp.full((2, 2), 3)), materials=2),
      ValueError, "material_id uses id 3 but only 2 materials were given"),
     (lambda: sj.validate_buffers(sj.Buffers(irradiance=jnp.ones((2, 2, 3)), depth=jnp.ones((2, 2)),
-                                            thickness=-jnp.ones((2, 2)))),
-     ValueError, "thickness buffer must be >= 0"),
+                                            thickness=jnp.full((2, 2), jnp.nan))),
+     ValueError, "thickness buffer has 4 NaN values, the first at row 0, column 0; thickness must not be NaN"),
     (lambda: sj.separable(B44(), sj.BurleyMaterial([1, 1, 1], [1, 1, 1]), CAM, taps=4),
      ValueError, "taps must be an odd positive integer"),
     (lambda: sj.burley(B44(), sj.BurleyMaterial([1, 1, 1], [1, 1, 1]), CAM, interpolation="cubic"),
@@ -458,6 +459,103 @@ CAM = sj.Camera(100.0)
 def test_more_python_api_bad_input(make, error, message):
     with pytest.raises(error, match=message):
         make()
+
+
+# every technique, with options small enough for a test and a material it takes (two rows where it takes several:
+# the id check)
+TWO_BURLEY = sj.BurleyMaterial([[1.0, 1.0, 1.0], [0.5, 0.5, 0.5]], [[3.0, 2.0, 1.0], [1.0, 1.0, 1.0]])
+ONE_BURLEY = sj.BurleyMaterial([1.0, 1.0, 1.0], [3.0, 2.0, 1.0])
+FRONT_DOOR = {
+    "burley": (lambda: sj.technique("burley", samples=4), TWO_BURLEY),
+    "separable": (lambda: sj.technique("separable", taps=5), TWO_BURLEY),
+    "reference": (lambda: sj.technique("reference", radius_px=2, near_subsamples=1), TWO_BURLEY),
+    "sta": (lambda: sj.technique("sta", light=sj.DirectionalLight([0.0, 0.0, 1.0]), model="thin"), TWO_BURLEY),
+    "hdrp": (lambda: sj.technique("hdrp", quality="low"), TWO_BURLEY),
+    "eevee-next": (lambda: sj.technique("eevee-next", frames=1), TWO_BURLEY),
+    "jimenez": (lambda: sj.technique("jimenez", taps=11), ONE_BURLEY),  # the shader has one kernel
+}
+
+
+def buffers_with(**changes):
+    """An 8x6 frame of surface with two materials (ids 1 and 2), one buffer changed at row 2, column 1."""
+    e, a = np.ones((8, 6, 3), np.float32), np.full((8, 6, 3), 0.5, np.float32)
+    ids = np.ones((8, 6), np.int32)
+    ids[:, 3:] = 2
+    fields = dict(irradiance=e, albedo=a, material_id=ids)
+    for name, value in changes.items():
+        fields[name][2, 1] = value
+    return sj.Buffers(irradiance=jnp.asarray(fields["irradiance"]), depth=jnp.full((8, 6), 10.0),
+                      albedo=jnp.asarray(fields["albedo"]), material_id=jnp.asarray(fields["material_id"]))
+
+
+def test_frame_buffers_the_test_builds_are_valid_for_every_technique():
+    # the frames below differ from this one in one value: each technique takes this one
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the small counts' sampling warnings
+        for name, (make, material) in FRONT_DOOR.items():
+            assert np.all(np.isfinite(np.asarray(make()(buffers_with(), material, CAM)))), name
+
+
+@pytest.mark.parametrize("name", list(FRONT_DOOR))
+@pytest.mark.parametrize("change, message", [
+    (dict(irradiance=np.nan), r"irradiance has 3 non-finite values \(NaN or inf\), the first at row 2, column 1"),
+    (dict(irradiance=np.inf), r"irradiance has 3 non-finite values \(NaN or inf\), the first at row 2, column 1"),
+    (dict(irradiance=-0.5), r"irradiance has 3 negative values \(min -0.5\), the first at row 2, column 1"),
+    (dict(albedo=np.nan), r"albedo buffer has 3 values outside \[0, 1\] or NaN, the first at row 2, column 1"),
+    (dict(material_id=3), r"material_id uses id 3 but only 2 materials were given \(ids 1..2\): 1 pixel above, "
+                          r"the first at row 2, column 1"),  # one material: every id > 0 takes it, no error
+    (dict(material_id=-1), r"material_id has 1 negative id \(min -1\), the first at row 2, column 1"),
+])
+def test_every_technique_refuses_bad_buffer_values_naming_the_buffer_and_the_pixel(name, change, message):
+    # before: a NaN irradiance pixel turned every pixel within the kernel's reach NaN (59 pixels of a 96x64 demo
+    # frame with burley, 630 with separable), an id past the table took the last material's parameters, silently
+    make, material = FRONT_DOOR[name]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        if change.get("material_id", 0) > material.count == 1:
+            make()(buffers_with(**change), material, CAM)  # one material: every id > 0 takes it
+            return
+        caller = {"sta": "translucency"}.get(name, name)  # the function the object calls names itself
+        with pytest.raises(ValueError, match=f"^{re.escape(caller)}: {message}"):
+            make()(buffers_with(**change), material, CAM)
+
+
+def test_buffer_values_are_not_read_back_under_jit():
+    # traced buffers cannot be read: the pass runs (validate_buffers is the check to call there), no host error
+    import equinox as eqx
+
+    run = eqx.filter_jit(lambda b: sj.burley(b, TWO_BURLEY, CAM, samples=4))
+    out = np.asarray(run(buffers_with(irradiance=np.nan)))
+    assert np.isnan(out[2, 1]).any()
+    with pytest.raises(ValueError, match="irradiance has 3 non-finite values"):
+        sj.validate_buffers(buffers_with(irradiance=np.nan))
+
+
+def test_validate_buffers_names_the_frame_of_a_batch():
+    b = buffers_with()
+    e = np.ones((3, 8, 6, 3), np.float32)
+    e[1, 4, 5, 2] = np.nan
+    batch = sj.Buffers(irradiance=jnp.asarray(e), depth=jnp.full((3, 8, 6), 10.0))
+    with pytest.raises(ValueError, match=r"the first at row 4, column 5 of frame \(1,\)"):
+        sj.validate_buffers(batch)
+    sj.validate_buffers(b, materials=2)  # the valid frame passes
+
+
+def test_buffers_that_passed_are_not_read_again_unless_they_can_change():
+    # JAX arrays cannot change: a frame that passed is remembered (the batch checks it, then its technique does);
+    # NumPy arrays can be written in place, so they are read on every call
+    e = np.ones((4, 4, 3), np.float32)
+    held = sj.Buffers(irradiance=e, depth=np.full((4, 4), 10.0, np.float32))
+    sj.validate_buffers(held)
+    e[1, 2, 0] = np.nan
+    with pytest.raises(ValueError, match="irradiance has 1 non-finite value .* row 1, column 2"):
+        sj.validate_buffers(held)
+    with pytest.raises(ValueError, match="^burley: irradiance has 1 non-finite value"):
+        sj.burley(held, ONE_BURLEY, CAM, samples=4)
+    frame = buffers_with(material_id=3)
+    sj.validate_buffers(frame, materials=3)
+    with pytest.raises(ValueError, match="material_id uses id 3 but only 2 materials"):  # another table: read again
+        sj.validate_buffers(frame, materials=2)
 
 
 def test_nan_parameter_inside_jit_is_an_error_not_a_nan_image():

@@ -175,9 +175,14 @@ def burley(
     skip it). "xla-cpu" and "xla-gpu" are the old names of "compacted" and "gather". Host work per eager call of
     "compacted": reading the active pixels' count, their widest d and their mask (computed on the device) to size
     and fill the compacted buffer, and d to check the sampling.
+
+    Buffers held on the host are checked first (``validate_buffers``, as every technique does: each buffer's minimum
+    and maximum, ~0.1 ms at 640x360): a NaN or negative irradiance, an albedo outside [0, 1] or an id past the
+    material table is a ``ValueError`` naming the buffer and its first bad pixel. Under ``jit``/``vmap`` and for
+    buffers on an accelerator nothing is read back: call ``validate_buffers`` there.
     """
     _check_albedo_mode(albedo_mode)
-    check_one_image("burley", buffers)
+    check_one_image("burley", buffers, material.count if isinstance(material, BurleyMaterial) else None)
     if interpolation not in ("bilinear", "nearest"):
         raise ValueError(f"interpolation={interpolation!r} is not one of ('bilinear', 'nearest')")
     if not isinstance(material, BurleyMaterial):

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from .._scene import Buffers, surface_mask
+from .._scene import Buffers, host_view, surface_mask, validate_buffers
 
 ALBEDO_MODES = ("post", "pre_post")
 
@@ -32,12 +32,18 @@ def _check_albedo_mode(mode: str) -> None:
         raise ValueError(f"albedo_mode={mode!r} is not one of {ALBEDO_MODES}")
 
 
-def check_one_image(name: str, buffers: Buffers) -> None:
-    """What every technique checks before tracing: one image (a batch is vmapped), not an empty one."""
+def check_one_image(name: str, buffers: Buffers, materials: int | None = None) -> None:
+    """What every technique checks before tracing: one image (a batch is vmapped), not an empty one, and, where the
+    buffers are concrete and on the host (reading them costs no transfer and no wait), their values
+    (``validate_buffers``: a NaN irradiance would spread to every pixel that reads it, an id past the ``materials``
+    rows take the last row's parameters). Under ``jit``/``vmap`` and on an accelerator nothing is read back: call
+    ``validate_buffers`` there."""
     if buffers.irradiance.ndim != 3:
         raise ValueError(f"{name} takes one image (H, W, 3); vmap for a batch, got {buffers.irradiance.shape}")
     if 0 in buffers.depth.shape:
         raise ValueError(f"{name}: the image is empty ({buffers.depth.shape[1]}x{buffers.depth.shape[0]} pixels)")
+    if _is_concrete(buffers) and all(host_view(leaf) is not None for leaf in jax.tree.leaves(buffers)):
+        validate_buffers(buffers, materials=materials, name=name)
 
 
 def _sss_mask(buffers: Buffers) -> Array:

@@ -192,7 +192,8 @@ class EeveeNextPass(AbstractTechnique):
                  origin: tuple[int, int] = (0, 0), frame_shape: tuple[int, int] | None = None
                  ) -> Float[Array, "H W 3"]:
         self.check_material(material)
-        origin, frame_shape = pass_arguments(self.name, self.albedo_mode, buffers, origin, frame_shape)
+        origin, frame_shape = pass_arguments(self.name, self.albedo_mode, buffers, origin, frame_shape,
+                                             material.count)
         return _eevee_next_impl(buffers, material, camera, int(self.frames), self.albedo_mode, self.seed, origin,
                                 frame_shape)
 

@@ -159,7 +159,8 @@ class HdrpPass(AbstractTechnique):
                  origin: tuple[int, int] = (0, 0), frame_shape: tuple[int, int] | None = None
                  ) -> Float[Array, "H W 3"]:
         self.check_material(material)
-        origin, frame_shape = pass_arguments(self.name, self.albedo_mode, buffers, origin, frame_shape)
+        origin, frame_shape = pass_arguments(self.name, self.albedo_mode, buffers, origin, frame_shape,
+                                             material.count)
         return _hdrp_impl(buffers, material, camera, self.samples, int(self.frames), self.albedo_mode, self.seed,
                           origin, frame_shape)
 

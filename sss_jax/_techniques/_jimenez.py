@@ -34,7 +34,7 @@ from jaxtyping import Array, Float
 from .._materials import BurleyMaterial
 from .._scene import Buffers, Camera, surface_mask
 from ._base import AbstractTechnique, option
-from ._common import ALBEDO_MODES, _check_albedo_mode, _finish, _prepare, _work_dtype
+from ._common import ALBEDO_MODES, _check_albedo_mode, _finish, _prepare, _work_dtype, check_one_image
 from ._engine_frame import frame_geometry
 
 JIMENEZ_TAPS = (11, 17, 25)  # SeparableSSS.h: SSSS_N_SAMPLES for SSSS_QUALITY 0, 1, 2
@@ -203,8 +203,7 @@ class JimenezPass(AbstractTechnique):
                  frame_shape: tuple[int, int] | None = None) -> Float[Array, "H W 3"]:
         _check_albedo_mode(self.albedo_mode)
         params = self.params(material, camera)
-        if buffers.irradiance.ndim != 3:
-            raise ValueError(f"jimenez takes one image (H, W, 3); vmap for a batch, got {buffers.irradiance.shape}")
+        check_one_image("jimenez", buffers, getattr(material, "count", None))
         return _jimenez_impl(buffers, params, camera, int(self.taps), bool(self.follow_surface), self.albedo_mode,
                              tuple(int(o) for o in origin), None if frame_shape is None else tuple(frame_shape))
 

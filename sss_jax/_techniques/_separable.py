@@ -501,10 +501,11 @@ def separable(
     work per eager call of "banded": the sampling check (``separable_edge_error``: NumPy over the depth and ids, the
     bound kept per kernels, shape and nearest depth) and ``kernel_groups``; the kernels are built once per material
     parameters and taps (traced parameters build them inside the pass); the whole-frame layouts read nothing back.
+    Buffers held on the host are checked first, as by every technique (``validate_buffers``; ``burley`` says more).
     """
     _check_border(border)
     _check_albedo_mode(albedo_mode)
-    check_one_image("separable", buffers)
+    check_one_image("separable", buffers, getattr(material, "count", None))
     if not isinstance(material, AbstractMaterial):
         raise TypeError("separable needs a TwoGaussianMaterial, BurleyMaterial or ProfileMaterial, got "
                         + type(material).__name__)
