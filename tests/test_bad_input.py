@@ -481,7 +481,7 @@ def buffers_with(**changes):
     e, a = np.ones((8, 6, 3), np.float32), np.full((8, 6, 3), 0.5, np.float32)
     ids = np.ones((8, 6), np.int32)
     ids[:, 3:] = 2
-    fields = dict(irradiance=e, albedo=a, material_id=ids)
+    fields = {"irradiance": e, "albedo": a, "material_id": ids}
     for name, value in changes.items():
         fields[name][2, 1] = value
     return sj.Buffers(irradiance=jnp.asarray(fields["irradiance"]), depth=jnp.full((8, 6), 10.0),
@@ -498,13 +498,13 @@ def test_frame_buffers_the_test_builds_are_valid_for_every_technique():
 
 @pytest.mark.parametrize("name", list(FRONT_DOOR))
 @pytest.mark.parametrize("change, message", [
-    (dict(irradiance=np.nan), r"irradiance has 3 non-finite values \(NaN or inf\), the first at row 2, column 1"),
-    (dict(irradiance=np.inf), r"irradiance has 3 non-finite values \(NaN or inf\), the first at row 2, column 1"),
-    (dict(irradiance=-0.5), r"irradiance has 3 negative values \(min -0.5\), the first at row 2, column 1"),
-    (dict(albedo=np.nan), r"albedo buffer has 3 values outside \[0, 1\] or NaN, the first at row 2, column 1"),
-    (dict(material_id=3), r"material_id uses id 3 but only 2 materials were given \(ids 1..2\): 1 pixel above, "
-                          r"the first at row 2, column 1"),  # one material: every id > 0 takes it, no error
-    (dict(material_id=-1), r"material_id has 1 negative id \(min -1\), the first at row 2, column 1"),
+    ({"irradiance": np.nan}, r"irradiance has 3 non-finite values \(NaN or inf\), the first at row 2, column 1"),
+    ({"irradiance": np.inf}, r"irradiance has 3 non-finite values \(NaN or inf\), the first at row 2, column 1"),
+    ({"irradiance": -0.5}, r"irradiance has 3 negative values \(min -0.5\), the first at row 2, column 1"),
+    ({"albedo": np.nan}, r"albedo buffer has 3 values outside \[0, 1\] or NaN, the first at row 2, column 1"),
+    ({"material_id": 3}, (r"material_id uses id 3 but only 2 materials were given \(ids 1..2\): 1 pixel above, "
+                          r"the first at row 2, column 1")),  # one material: every id > 0 takes it, no error
+    ({"material_id": -1}, r"material_id has 1 negative id \(min -1\), the first at row 2, column 1"),
 ])
 def test_every_technique_refuses_bad_buffer_values_naming_the_buffer_and_the_pixel(name, change, message):
     # before: a NaN irradiance pixel turned every pixel within the kernel's reach NaN (59 pixels of a 96x64 demo

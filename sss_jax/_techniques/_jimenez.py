@@ -34,7 +34,14 @@ from jaxtyping import Array, Float
 from .._materials import BurleyMaterial
 from .._scene import Buffers, Camera, surface_mask
 from ._base import AbstractTechnique, option
-from ._common import ALBEDO_MODES, _check_albedo_mode, _finish, _prepare, _work_dtype, check_one_image
+from ._common import (
+    ALBEDO_MODES,
+    _check_albedo_mode,
+    _finish,
+    _prepare,
+    _work_dtype,
+    check_one_image,
+)
 from ._engine_frame import frame_geometry
 
 JIMENEZ_TAPS = (11, 17, 25)  # SeparableSSS.h: SSSS_N_SAMPLES for SSSS_QUALITY 0, 1, 2
