@@ -18,7 +18,6 @@ from ._custom_types import ParamLike
 from ._profiles import (
     AbstractProfile,
     burley_inverse_ccdf,
-    marginal_cdf,
     marginal_half_mass,
 )
 
@@ -109,16 +108,26 @@ def separable_kernel_from_profile(
 ) -> SeparableKernel:
     """The pre-integrated SSSS kernel of a profile: tap i gets the energy of ``a_p`` over its interval.
 
-    The weights are differences of the 1D marginal CDF (``_profiles.marginal_cdf``), so the 1/r peak of a Burley
-    profile is integrated, not point-sampled, and ``sum_i w_i = ||a_p||_1 / ||R||_1 = 1`` (Eq. 2).
-    ``range_mm`` defaults to the radius holding 99% of the widest channel's energy.
+    The weights are differences of the 1D marginal's CDF ``F(x) = 1/2 + sign(x) m(|x|)``, ``m`` its mass over
+    ``[0, x]`` (``_profiles.marginal_half_mass``: exact to ~1e-13 of the mass at every scale, the same masses the
+    separable pass re-integrates a kernel cut at the frame from), so the 1/r peak of a Burley profile is integrated,
+    not point-sampled, and ``sum_i w_i = ||a_p||_1 / ||R||_1 = 1`` (Eq. 2; the outer cells reach +-infinity, where
+    ``m`` is 1/2). ``range_mm`` defaults to the radius holding 99% of the widest channel's energy. (Until 2026-12-06
+    the differences of ``marginal_cdf``'s 2048 quantiles: Burley skin's weights off by up to 2.7e-5, built in 2.3 ms
+    against 0.19 ms jitted.)
     """
     range_mm = _profile_range(profile, range_mm)
     offsets, lower, upper = tap_offsets(taps, range_mm, exponent=exponent)
-    # marginal_cdf at +-inf is exactly 0/1 by construction; clip for the arithmetic
-    big = jnp.asarray(jnp.finfo(offsets.dtype).max / 4, offsets.dtype)
-    weights = marginal_cdf(profile, jnp.clip(upper, -big, big)) - marginal_cdf(profile, jnp.clip(lower, -big, big))
-    return SeparableKernel(offsets_mm=offsets, weights=_normalise(weights))
+    return SeparableKernel(offsets_mm=offsets, weights=_normalise(_marginal_cdf(profile, upper)
+                                                                  - _marginal_cdf(profile, lower)))
+
+
+def _marginal_cdf(profile: AbstractProfile, x: Array) -> Array:
+    """The 1D marginal's CDF at the cells' bounds ``x (n,)`` (+-infinity included: exactly 1 and 0, with zero
+    gradients), ``(n, C)``, from its half masses."""
+    finite = jnp.isfinite(x)
+    half = marginal_half_mass(profile, jnp.abs(jnp.where(finite, x, 0.0)))
+    return 0.5 + jnp.sign(x)[:, None] * jnp.where(finite[:, None], half, 0.5)
 
 
 def _profile_range(profile: AbstractProfile, range_mm: ParamLike | None) -> Array:
@@ -129,9 +138,8 @@ def _profile_range(profile: AbstractProfile, range_mm: ParamLike | None) -> Arra
 def profile_half_masses(profile: AbstractProfile, unit_x: np.ndarray, *, range_mm: ParamLike | None = None) -> Array:
     """The pre-integrated kernel's mass over ``[0, x]`` at unit positions ``unit_x (K,) >= 0`` (times its reach, as
     ``separable_kernel_from_profile`` places it), ``(K, C)``: half of ``P(|X| <= x)`` of the 1D marginal whose
-    differences the tap weights are (``_profiles.marginal_half_mass``: the same marginal integrated exactly, where
-    ``marginal_cdf``'s quantiles resolve it only down to ~1/4000 of the profile's scale; a channel with all its mass
-    at 0 gives 1/2 at every x > 0). What the separable pass re-integrates a kernel cut at the frame from
+    differences the tap weights are (``_profiles.marginal_half_mass``; a channel with all its mass at 0 gives 1/2 at
+    every x > 0). What the separable pass re-integrates a kernel cut at the frame from
     (``_separable_spec.cut_table``)."""
     range_mm = _profile_range(profile, range_mm)
     x = jnp.asarray(unit_x, range_mm.dtype) * range_mm

@@ -182,18 +182,18 @@ def test_tile_arguments_are_checked(as_users_run_it):
 # separable (SSSS): an independent NumPy loop of the two 1D passes, against the banded, gather and Pallas layouts
 # ------------------------------------------------------------------------------------------------------------------
 #
-# Written from the formulas (Jimenez et al. 2015, and this package's documented rules), pixel by pixel in float64:
-# taps at ``range sign(o) o^2`` (o evenly spaced in [-1, 1], SeparableSSS::calculateKernel), each weighing the
-# kernel's mass over its cell (half way to its neighbours, the outer cells to infinity); the two-Gaussian kernel's
-# masses from erf, the pre-integrated Burley kernel's from the 1D marginal P(|r cos theta| <= x) averaged over 2048
-# radius quantiles (midpoint rule; radii by bisection on the CDF); a fetch counts as far as it is valid and, following
-# the surface, 1 - |dz| mm_per_unit / range; off the frame it is dark (border "leaves") or the centre ("renormalise");
-# a kernel whose outer cell ends past the frame's extent is shrunk onto the frame, tap i weighing the kernel's mass
-# over its shrunk cell, renormalised to the full total with "renormalise". That mass is re-integrated from the
-# kernel's own profile (each kernel below gives its mass over [0, x]), tabulated as the spec says: at 0, then at
-# edge 10^(-i/32) for i = 256 ... 0 (edge: where the outer cells end), half the weights' total at the edge, linear
-# between the knots, the first positive knot's value from 0 on (Burley's masses from the K0 density of its marginal,
-# scipy's quadrature). Nothing of sss_jax's kernels or passes is called.
+# Written from the formulas (Jimenez et al. 2015, and this package's documented rules), pixel by pixel in float64: taps
+# at ``range sign(o) o^2`` (o evenly spaced in [-1, 1], SeparableSSS::calculateKernel), each weighing the kernel's mass
+# over its cell (half way to its neighbours, the outer cells to infinity); the two-Gaussian kernel's masses from erf,
+# the pre-integrated Burley kernel's from the density of its 1D marginal, (K0(|x|/d) + K0(|x|/3d)) / (4 pi d), by
+# adaptive quadrature (the reach by bisection on the CDF); a fetch counts as far as it is valid and, following the
+# surface, 1 - |dz| mm_per_unit / range; off the frame it is dark (border "leaves") or the centre ("renormalise"); a
+# kernel whose outer cell ends past the frame's extent is shrunk onto the frame, tap i weighing the kernel's mass over
+# its shrunk cell, renormalised to the full total with "renormalise". That mass is re-integrated from the kernel's own
+# profile (each kernel below gives its mass over [0, x]), tabulated as the spec says: at 0, then at edge 10^(-i/32) for
+# i = 256 ... 0 (edge: where the outer cells end), half the weights' total at the edge, linear between the knots, the
+# first positive knot's value from 0 on (Burley's masses from the K0 density of its marginal, scipy's quadrature).
+# Nothing of sss_jax's kernels or passes is called.
 
 from math import erf
 
@@ -247,31 +247,23 @@ def _burley_radius(u, d):
     return 0.5 * (lo + hi)
 
 
-def _burley_taps(d, taps, quantiles=2048):
-    """The pre-integrated kernel: range = the radius holding 99% of the widest channel's energy."""
+def _burley_taps(d, taps):
+    """The pre-integrated kernel: range = the radius holding 99% of the widest channel's energy; each tap the exact
+    mass of the 1D marginal over its cell (its density is (K0(|x|/d) + K0(|x|/3d)) / (4 pi d), by adaptive
+    quadrature); ``half(u)``: the mass over [0, u range]."""
     reach = _burley_radius(np.array([0.99]), max(d))[0]
     inf_cells, _ = _cells(taps)
-    u = (np.arange(quantiles) + 0.5) / quantiles
+    density = lambda t, dc: (k0(t / dc) + k0(t / (3 * dc))) / (4 * np.pi * dc)
 
-    radii = [_burley_radius(u, dc) for dc in d]  # each channel's quantile radii
+    def mass(x, dc):  # over [0, |x|], signed
+        if dc == 0 or not np.isfinite(x):
+            return 0.5 * np.sign(x) if x != 0 else 0.0
+        return np.sign(x) * integrate.quad(density, 0, abs(x), args=(dc,), limit=400, epsabs=1e-15, epsrel=1e-13)[0]
 
-    def marginal(x, c):  # P(X <= x), X = r cos(theta), r Burley-distributed, theta uniform
-        if not np.isfinite(x):
-            return float(x > 0)
-        r = radii[c]
-        inside = np.where(r > abs(x), 2 / np.pi * np.arcsin(np.minimum(abs(x) / r, 1.0)), 1.0).mean()
-        return 0.5 + 0.5 * np.sign(x) * inside
-
-    weights = np.array([[marginal(hi, c) - marginal(lo, c) for c in range(3)]
+    weights = np.array([[mass(hi, d[c]) - mass(lo, d[c]) for c in range(3)]
                         for lo, hi in zip(reach * inf_cells[:-1], reach * inf_cells[1:])])
     total = weights.sum(0)
-
-    def half(units):  # the marginal's mass over [0, x], exactly: its density is (K0(|x|/d) + K0(|x|/3d)) / (4 pi d)
-        density = lambda t, dc: (k0(t / dc) + k0(t / (3 * dc))) / (4 * np.pi * dc)
-        mass = lambda x, dc: 0.5 if dc == 0 else integrate.quad(density, 0, x, args=(dc,), limit=400,
-                                                                 epsabs=1e-15, epsrel=1e-13)[0]
-        return np.array([[mass(x * reach, d[c]) for c in range(3)] for x in units]) / total
-
+    half = lambda units: np.array([[mass(x * reach, d[c]) for c in range(3)] for x in units]) / total
     return reach * _sorted_unit(taps), weights / total, half
 
 
