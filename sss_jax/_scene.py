@@ -128,7 +128,7 @@ def validate_buffers(buffers: Buffers, *, materials: int | None = None, name: st
     Buffers of JAX arrays (immutable) that pass are remembered, weakly and by identity with ``materials``, and not
     read again: the batch checks a frame and then calls its technique, a fit calls one technique many times on one
     frame."""
-    if _passed(buffers, materials):
+    if passed(buffers, materials):
         return
     prefix = f"{name}: " if name else ""
 
@@ -177,7 +177,8 @@ _PASSED_LOCK = threading.Lock()
 _PASSED_KEPT = 16
 
 
-def _passed(buffers: Buffers, materials: int | None) -> bool:
+def passed(buffers: Buffers, materials: int | None) -> bool:
+    """Whether ``validate_buffers(buffers, materials=materials)`` passed before (and is remembered)."""
     entry = _PASSED.get(id(buffers))
     return entry is not None and entry[0]() is buffers and entry[1] == materials
 

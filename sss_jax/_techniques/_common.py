@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from .._scene import Buffers, host_view, surface_mask, validate_buffers
+from .._scene import Buffers, host_view, passed, surface_mask, validate_buffers
 
 ALBEDO_MODES = ("post", "pre_post")
 
@@ -42,6 +42,8 @@ def check_one_image(name: str, buffers: Buffers, materials: int | None = None) -
         raise ValueError(f"{name} takes one image (H, W, 3); vmap for a batch, got {buffers.irradiance.shape}")
     if 0 in buffers.depth.shape:
         raise ValueError(f"{name}: the image is empty ({buffers.depth.shape[1]}x{buffers.depth.shape[0]} pixels)")
+    if passed(buffers, materials):  # checked before (validate_buffers remembers a frame of JAX arrays)
+        return
     if _is_concrete(buffers) and all(host_view(leaf) is not None for leaf in jax.tree.leaves(buffers)):
         validate_buffers(buffers, materials=materials, name=name)
 
