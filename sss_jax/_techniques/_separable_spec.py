@@ -26,6 +26,7 @@ first pixel along the pass in the frame, and the frame's extent decides both the
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 
 import jax
@@ -57,8 +58,10 @@ def cell_bounds(taps: int) -> np.ndarray:
     return np.concatenate([[-outer], mids, [outer]])
 
 
+@functools.lru_cache(maxsize=64)
 def cell_edge(taps: int) -> float:
-    """Where the outer cells end, in units of the reach (the kernel's extent as the taps see it)."""
+    """Where the outer cells end, in units of the reach (the kernel's extent as the taps see it); a float, kept per
+    count (an eager call asks it each time)."""
     return float(cell_bounds(taps)[-1])
 
 
