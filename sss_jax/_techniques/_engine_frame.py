@@ -48,8 +48,9 @@ def nearest_fetch(flat: Array, height: int, width: int, row: Array, col: Array):
 
 def pass_arguments(name: str, albedo_mode: str, buffers: Buffers, origin, frame_shape,
                    materials: int | None = None) -> tuple[tuple[int, int], tuple[int, int] | None]:
-    """What an engine pass checks before tracing (the albedo mode, one image, not a batch, its values: ``check_one_image``) and its tile arguments
-    as the hashable tuples its jitted implementation takes as static arguments."""
+    """What an engine pass checks before tracing (the albedo mode, one image, not a batch, its values:
+    ``check_one_image``) and its tile arguments as the hashable tuples its jitted implementation takes as static
+    arguments."""
     _check_albedo_mode(albedo_mode)
     check_one_image(name, buffers, materials)
     return tuple(int(o) for o in origin), None if frame_shape is None else tuple(frame_shape)
