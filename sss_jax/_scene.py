@@ -110,25 +110,33 @@ def _first_pixel(bad: np.ndarray) -> str:
     return f"row {row}, column {col}" + (f" of frame {tuple(lead)}" if lead else "")
 
 
-def validate_buffers(buffers: Buffers, *, materials: int | None = None, name: str | None = None) -> None:
+def validate_buffers(buffers: Buffers, *, materials: int | None = None, name: str | None = None,
+                     physical: bool = True) -> None:
     """Host-side value checks (outside jit) with messages that name the buffer, the offending values and the first
     pixel holding one (``name``: the caller, e.g. a technique, put before the message).
 
-    - ``irradiance``: finite and >= 0 (a NaN or inf pixel with SSS spreads to every pixel that reads it);
-    - ``albedo``: finite and within [0, 1]; ``normal``: finite; ``thickness``: not NaN (every model reads a
-      negative thickness as 0, as the file reader does, and inf as infinitely thick);
+    What would make a technique's result wrong without a word, always:
+
+    - ``irradiance``, ``albedo`` and ``normal``: finite (a NaN or inf irradiance pixel with SSS spreads to every pixel
+      that reads it); ``thickness``: not NaN (every model reads a negative thickness as 0, as the file reader does,
+      and inf as infinitely thick);
     - ``material_id``: >= 0 and, with ``materials`` > 1 rows, at most ``materials`` (a larger id would take the last
       row's parameters). Depth needs no check: NaN, inf, 0, negative and background depths mean no surface.
+
+    With ``physical`` (the default; the batch and the command line on files), what a renderer writes, too:
+    ``irradiance`` >= 0 and ``albedo`` within [0, 1]. The technique functions check with ``physical=False``: the
+    passes are linear in the irradiance (a signed input, a difference of two lightings, is filtered as such) and clip
+    the albedo to [0, 1] as documented.
 
     Each buffer is read through its minimum and maximum (NaN carries through both), ~0.1 ms at 640x360; the counts
     and the pixel are computed only for a buffer that fails. The technique functions run this on concrete buffers held
     on the host (``_techniques._common.check_one_image``); under ``jit``/``vmap``, or for buffers on an accelerator,
     call it yourself.
 
-    Buffers of JAX arrays (immutable) that pass are remembered, weakly and by identity with ``materials``, and not
-    read again: the batch checks a frame and then calls its technique, a fit calls one technique many times on one
-    frame."""
-    if passed(buffers, materials):
+    Buffers of JAX arrays (immutable) that pass are remembered, weakly and by identity with ``materials`` and
+    ``physical``, and not read again: the batch checks a frame and then calls its technique, a fit calls one
+    technique many times on one frame."""
+    if passed(buffers, materials, physical=physical):
         return
     prefix = f"{name}: " if name else ""
 
@@ -142,16 +150,20 @@ def validate_buffers(buffers: Buffers, *, materials: int | None = None, name: st
         v = np.asarray(x)
         return v, (v.min(), v.max()) if v.size else (0, 0)
 
+    finite = lambda lo, hi: bool(np.isfinite(lo) and np.isfinite(hi))
     e, (lo, hi) = values(buffers.irradiance)
-    if not (np.isfinite(lo) and np.isfinite(hi)):
+    if not finite(lo, hi):
         fail("irradiance has {n} non-finite value{s} (NaN or inf)", ~np.isfinite(e), "irradiance must be finite")
-    if lo < 0:
+    if physical and lo < 0:
         fail(f"irradiance has {{n}} negative value{{s}} (min {float(lo):.3g})", e < 0, "irradiance must be >= 0")
     if buffers.albedo is not None:
         a, (lo, hi) = values(buffers.albedo)
-        if not (lo >= 0 and hi <= 1):  # NaN fails both
+        if physical and not (lo >= 0 and hi <= 1):  # NaN fails both
             fail("albedo buffer has {n} value{s} outside [0, 1] or NaN", ~((a >= 0) & (a <= 1)),
                  "the albedo buffer must be finite and within [0, 1]")
+        if not finite(lo, hi):
+            fail("albedo buffer has {n} non-finite value{s} (NaN or inf)", ~np.isfinite(a),
+                 "the albedo buffer must be finite")
     if buffers.thickness is not None:
         t, (lo, _) = values(buffers.thickness)
         if np.isnan(lo):
@@ -159,7 +171,7 @@ def validate_buffers(buffers: Buffers, *, materials: int | None = None, name: st
                  "thickness must not be NaN (a negative value reads as 0, inf as infinitely thick)", channels=False)
     if buffers.normal is not None:
         nrm, (lo, hi) = values(buffers.normal)
-        if not (np.isfinite(lo) and np.isfinite(hi)):
+        if not finite(lo, hi):
             fail("normal buffer has {n} non-finite value{s}", ~np.isfinite(nrm), "normals must be finite")
     if buffers.material_id is not None:
         ids, (lo, hi) = values(buffers.material_id)
@@ -168,28 +180,32 @@ def validate_buffers(buffers: Buffers, *, materials: int | None = None, name: st
         if materials is not None and materials > 1 and hi > materials:
             fail(f"material_id uses id {int(hi)} but only {materials} materials were given (ids 1..{materials}): "
                  "{n} pixel{s} above", ids > materials, "an id k selects material row k (0: no SSS)", channels=False)
-    _remember(buffers, materials)
+    _remember(buffers, materials, physical)
 
 
-# ``validate_buffers``' passed buffers: id -> (weak reference, materials); a few, the newest kept
-_PASSED: dict[int, tuple[weakref.ref, int | None]] = {}
+# ``validate_buffers``' passed buffers: id -> (weak reference, materials, physical); a few, the newest kept
+_PASSED: dict[int, tuple[weakref.ref, int | None, bool]] = {}
 _PASSED_LOCK = threading.Lock()
 _PASSED_KEPT = 16
 
 
-def passed(buffers: Buffers, materials: int | None) -> bool:
-    """Whether ``validate_buffers(buffers, materials=materials)`` passed before (and is remembered)."""
+def passed(buffers: Buffers, materials: int | None, *, physical: bool = True) -> bool:
+    """Whether ``validate_buffers(buffers, materials=materials, physical=physical)`` passed before (remembered): a
+    frame that passed the physical rules passes the others."""
     entry = _PASSED.get(id(buffers))
-    return entry is not None and entry[0]() is buffers and entry[1] == materials
+    return (entry is not None and entry[0]() is buffers and entry[1] == materials
+            and (entry[2] or not physical))
 
 
-def _remember(buffers: Buffers, materials: int | None) -> None:
+def _remember(buffers: Buffers, materials: int | None, physical: bool) -> None:
     """Keep ``buffers`` as passed where its arrays cannot change (JAX arrays; a NumPy array could be written)."""
     if not all(isinstance(leaf, jax.Array) for leaf in jax.tree.leaves(buffers)):
         return
     with _PASSED_LOCK:
-        _PASSED.pop(id(buffers), None)
-        _PASSED[id(buffers)] = (weakref.ref(buffers), materials)
+        known = _PASSED.pop(id(buffers), None)
+        if known is not None and known[0]() is buffers and known[1] == materials:
+            physical = physical or known[2]  # the stricter pass stands
+        _PASSED[id(buffers)] = (weakref.ref(buffers), materials, physical)
         while len(_PASSED) > _PASSED_KEPT:
             _PASSED.pop(next(iter(_PASSED)))
 

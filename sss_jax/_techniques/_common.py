@@ -34,18 +34,18 @@ def _check_albedo_mode(mode: str) -> None:
 
 def check_one_image(name: str, buffers: Buffers, materials: int | None = None) -> None:
     """What every technique checks before tracing: one image (a batch is vmapped), not an empty one, and, where the
-    buffers are concrete and on the host (reading them costs no transfer and no wait), their values
-    (``validate_buffers``: a NaN irradiance would spread to every pixel that reads it, an id past the ``materials``
-    rows take the last row's parameters). Under ``jit``/``vmap`` and on an accelerator nothing is read back: call
-    ``validate_buffers`` there."""
+    buffers are concrete and on the host (reading them costs no transfer and no wait), the values that would make the
+    result wrong without a word (``validate_buffers(..., physical=False)``: a NaN irradiance would spread to every
+    pixel that reads it, an id past the ``materials`` rows take the last row's parameters). Under ``jit``/``vmap``
+    and on an accelerator nothing is read back: call ``validate_buffers`` there."""
     if buffers.irradiance.ndim != 3:
         raise ValueError(f"{name} takes one image (H, W, 3); vmap for a batch, got {buffers.irradiance.shape}")
     if 0 in buffers.depth.shape:
         raise ValueError(f"{name}: the image is empty ({buffers.depth.shape[1]}x{buffers.depth.shape[0]} pixels)")
-    if passed(buffers, materials):  # checked before (validate_buffers remembers a frame of JAX arrays)
+    if passed(buffers, materials, physical=False):  # checked before (validate_buffers remembers JAX arrays)
         return
     if _is_concrete(buffers) and all(host_view(leaf) is not None for leaf in jax.tree.leaves(buffers)):
-        validate_buffers(buffers, materials=materials, name=name)
+        validate_buffers(buffers, materials=materials, name=name, physical=False)
 
 
 def _sss_mask(buffers: Buffers) -> Array:
