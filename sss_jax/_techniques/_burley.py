@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
+import functools
 import math
 import warnings
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -77,7 +77,7 @@ def _burley_active_mask(buffers: Buffers, material: BurleyMaterial, camera: Came
     return int(count), float(widest), active, planes
 
 
-@eqx.filter_jit
+@functools.partial(jax.jit, static_argnames=("albedo_mode",))
 def _active_stats(buffers: Buffers, material: BurleyMaterial, camera: Camera, min_footprint_px,
                   albedo_mode: str | None = None) -> tuple[Array, Array, Array, list[Array] | None]:
     """``_burley_active_mask`` as one jitted call: the pass's own active mask (``active_footprint``, the work dtype),

@@ -15,6 +15,8 @@ rule and the tile's place in its frame are the spec's, the same in every layout.
 
 from __future__ import annotations
 
+import functools
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -229,7 +231,9 @@ def _compacted_planes(buffers: Buffers, material: BurleyMaterial, camera: Camera
     return pix, rotation
 
 
-@eqx.filter_jit
+@functools.partial(jax.jit, static_argnames=("samples", "albedo_mode", "interpolation", "min_footprint_px",
+                                             "weight_channels", "truncate", "pattern", "frames", "border", "origin",
+                                             "frame_shape"))
 def _compacted_result(buffers: Buffers, material: BurleyMaterial, camera: Camera, idx: Array, planes: list[Array],
                       samples: int, albedo_mode: str, interpolation: str, min_footprint_px: float,
                       weight_channels: int, truncate: bool | None, *, pattern: str, frames: int, seed: ArrayLike,
