@@ -195,17 +195,16 @@ class TwoGaussianMaterial(AbstractMaterial):
         _check_range("sigma_near_mm", self.sigma_near_mm, 0.0)
         _check_range("sigma_far_mm", self.sigma_far_mm, 0.0)
 
+    def _kernel_rows(self, dtype) -> tuple[Array, Array, Array]:
+        """``w`` (clipped to [0, 1]), ``sigma_near_mm`` and ``sigma_far_mm`` (checked) as the kernels take them."""
+        return (jnp.clip(self.w.astype(dtype), 0.0, 1.0), checked(self.sigma_near_mm.astype(dtype), "sigma_near_mm"),
+                checked(self.sigma_far_mm.astype(dtype), "sigma_far_mm"))
+
     def separable_kernels(self, taps: int, dtype) -> SeparableKernel:
-        w = jnp.clip(self.w.astype(dtype), 0.0, 1.0)
-        s_near = checked(self.sigma_near_mm.astype(dtype), "sigma_near_mm")
-        s_far = checked(self.sigma_far_mm.astype(dtype), "sigma_far_mm")
-        return jax.vmap(lambda a, b, c: two_gaussian_kernel(a, b, c, taps=taps))(w, s_near, s_far)
+        return jax.vmap(lambda a, b, c: two_gaussian_kernel(a, b, c, taps=taps))(*self._kernel_rows(dtype))
 
     def separable_half_masses(self, unit_x: np.ndarray, dtype) -> Array:
-        w = jnp.clip(self.w.astype(dtype), 0.0, 1.0)
-        s_near = checked(self.sigma_near_mm.astype(dtype), "sigma_near_mm")
-        s_far = checked(self.sigma_far_mm.astype(dtype), "sigma_far_mm")
-        return jax.vmap(lambda a, b, c: two_gaussian_half_masses(a, b, c, unit_x).T)(w, s_near, s_far)
+        return jax.vmap(lambda a, b, c: two_gaussian_half_masses(a, b, c, unit_x).T)(*self._kernel_rows(dtype))
 
     def kernel_parameters(self) -> list[Array]:
         return [self.w, self.sigma_near_mm, self.sigma_far_mm]

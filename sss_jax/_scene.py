@@ -91,17 +91,11 @@ class Buffers(eqx.Module):
         return tuple(self.depth.shape[-2:])
 
 
-def host_view(x) -> np.ndarray | None:
-    """A NumPy view of ``x`` where reading it costs no transfer (a NumPy array, or a JAX array on the host's CPU
-    device: zero-copy), else ``None`` (an accelerator's array, whose read-back would wait for the device)."""
-    if isinstance(x, np.ndarray):
-        return x
-    try:
-        if all(d.platform == "cpu" for d in x.devices()):
-            return np.asarray(x)
-    except AttributeError:  # a Python scalar or list
-        return np.asarray(x)
-    return None
+def on_host(x) -> bool:
+    """Whether reading ``x`` costs no transfer: a NumPy array (or a Python value), or a JAX array on the host's CPU
+    devices (read zero-copy); not an accelerator's array, whose read-back would wait for the device."""
+    devices = getattr(x, "devices", None)
+    return devices is None or all(d.platform == "cpu" for d in devices())
 
 
 def _first_pixel(bad: np.ndarray) -> str:

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from .._scene import Buffers, host_view, passed, surface_mask, validate_buffers
+from .._scene import Buffers, on_host, passed, surface_mask, validate_buffers
 
 ALBEDO_MODES = ("post", "pre_post")
 
@@ -44,7 +44,7 @@ def check_one_image(name: str, buffers: Buffers, materials: int | None = None) -
         raise ValueError(f"{name}: the image is empty ({buffers.depth.shape[1]}x{buffers.depth.shape[0]} pixels)")
     if passed(buffers, materials, physical=False):  # checked before (validate_buffers remembers JAX arrays)
         return
-    if _is_concrete(buffers) and all(host_view(leaf) is not None for leaf in jax.tree.leaves(buffers)):
+    if _is_concrete(buffers) and all(on_host(leaf) for leaf in jax.tree.leaves(buffers)):
         validate_buffers(buffers, materials=materials, name=name, physical=False)
 
 

@@ -581,7 +581,7 @@ def separable_edge_error(buffers: Buffers, material, camera: Camera, taps: int,
             scale, w_pass = 1.0, w_m[0]
             if reach_px * edge > extent:  # cut at the frame (a close-up): the table built once per parameters
                 cut_scale, w_levels = frame_truncation(unit, w_m, np.asarray([reach_px]), float(extent),
-                                                       _host_cut_table(material, taps, key)[m:m + 1])
+                                                       _host_cut_table(material, taps, key, weights)[m:m + 1])
                 scale, w_pass = float(cut_scale[0]), w_levels[0, 0]
             w_sorted = w_pass[:, order]  # (3, n) ascending offsets
             cells = np.diff(bounds) * scale * reach_px
@@ -648,20 +648,17 @@ _host_kernel_build = eqx.filter_jit(lambda material, taps, dtype: material.separ
 _HOST_CUT_TABLES: dict = {}
 
 
-def _host_cut_table(material, taps: int, key) -> np.ndarray:
+def _host_cut_table(material, taps: int, key, weights: np.ndarray) -> np.ndarray:
     """Host side: the table of the material's kernels cut at the frame ``(M, 3, knots)`` in float64
-    (``spec.cut_table``), built once per material parameters and tap count (``key``, ``_host_kernels``' key, or
-    ``None``: not kept)."""
+    (``spec.cut_table``; ``weights``: the kernels' own, ``_host_kernels``'), built once per material parameters and
+    tap count (``key``, ``_host_kernels``' key, or ``None``: not kept)."""
     out = None if key is None else _HOST_CUT_TABLES.get(key)  # one read: another thread may empty the cache
     if out is None:
-        out = np.asarray(_host_cut_build(material, taps, jax.dtypes.canonicalize_dtype(jnp.float64)), np.float64)
+        dtype = jax.dtypes.canonicalize_dtype(jnp.float64)
+        out = np.asarray(_built_cut_table(material, taps, dtype, None, jnp.asarray(weights, dtype)), np.float64)
         if key is not None:
             _remember(_HOST_CUT_TABLES, key, out)
     return out
-
-
-_host_cut_build = eqx.filter_jit(lambda material, taps, dtype: _pass_cut_table(
-    material, taps, dtype, None, material.separable_kernels(taps, dtype).weights))
 
 
 def kernel_groups(material) -> tuple[int, ...] | None:
