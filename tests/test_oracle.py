@@ -170,6 +170,33 @@ def jax_tree_crop(b, a0, a1, b0, b1):
                       material_id=b.material_id[a0:a1, b0:b1])
 
 
+@pytest.mark.parametrize("impl", ["compacted", "gather", "pallas"])
+def test_a_channel_far_narrower_than_the_widest_keeps_its_weights_in_float32(impl):
+    # d_B = 0.0022 mm beside d_max = 6 mm: the nearest of 6 samples lies ~1 mm out (0.17 d_max), where B's profile
+    # weighs exp(-1 / (3 0.0022)) = e^-150 of its value at 0, below float32's smallest normal (1.2e-38, e^-87).
+    # Before the weights were shifted by the nearest sample's exponent (``weight_offset``) every B weight rounded to
+    # 0 and B kept the pixel's own irradiance (or, nearer the limit, its products with the irradiance flushed to 0
+    # while its weights did not: a black channel). The float64 loop holds e^-150 without trouble: B is the irradiance
+    # where sample 0 lands (the farther samples weigh e^-350 and less of it). Flat depth: the fall-off across a
+    # depth step would take B's weights below float32's range too, which no shift of the in-plane exponent helps.
+    b, mat, e, depth, valid, dpix, ppm = _case()
+    depth = np.full(depth.shape, 50.0)
+    d = [[6.0, 3.0, 0.0022], [5.0, 4.0, 0.002]]
+    mat = sj.BurleyMaterial(albedo=[[1.0, 1.0, 1.0], [1.0, 1.0, 1.0]], d_mm=d)
+    b = sj.Buffers(irradiance=jnp.asarray(e, jnp.float32), depth=jnp.asarray(depth, jnp.float32),
+                   material_id=b.material_id)
+    dpix = np.where(valid[..., None], np.asarray(d)[np.maximum(np.asarray(b.material_id) - 1, 0)], 0.0)
+    ppm = np.where(valid, CAM.focal_px / (depth * 10.0), 0.0)
+    opts = OPTIONS[0]
+    got = np.asarray(sj.burley(b, mat, CAM, samples=6, impl=impl, **opts))
+    assert got.dtype == np.float32
+    truncate = bool(_ccdf(np.hypot(*depth.shape) / (dpix.max(-1) * ppm)[valid].max()) > 1e-4)
+    expected = numpy_burley(e, depth, valid, dpix, ppm, 6, 10.0, linear=True, rotated=True, frames=1, seed=0,
+                            leaves=True, truncate=truncate)
+    np.testing.assert_allclose(got, expected, rtol=2e-5, atol=2e-5)
+    assert np.abs(expected - e)[valid][:, 2].max() > 0.05  # B is not the pixel's own irradiance
+
+
 def test_tile_arguments_are_checked(as_users_run_it):
     b, mat, *_ = _case()
     with pytest.raises(ValueError, match="does not lie inside frame_shape"):

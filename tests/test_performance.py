@@ -169,19 +169,46 @@ def test_grey_channels_share_one_kernel_evaluation():
     # fetch outside the frame (light that leaves) needs the kernel on each of the three channels, none for grey (there
     # it is the sampled profile's own R/pdf, 1). Traced, the truncation is decided on the device: both branches of its
     # cond are in the computation, each with those exponentials. Counted per pixel: an exponential over a
-    # (corners, channels, pixels) array counts corners x channels
+    # (corners, channels, pixels) array counts corners x channels. Once a call, outside the sample loop, the
+    # truncated branch takes two a weight channel for the energy beyond the diagonal: 2 x (3 - 1) more
     n = 24 * 32
     per_pixel = lambda shapes: sum(math.prod(shape[:-1]) for shape in shapes if shape and shape[-1] == n)
     bilinear = dict(samples=8, compact=False, interpolation="bilinear", border="leaves")  # the impl's default rule
     grey_exps = per_pixel(_exp_shapes(lambda bb: sj.burley(bb, grey, CAM, **bilinear), b))
     rgb_exps = per_pixel(_exp_shapes(lambda bb: sj.burley(bb, MAT, CAM, **bilinear), b))
-    assert grey_exps >= 4 and rgb_exps - grey_exps == 2 * (2 * 4 + 3)
+    assert grey_exps >= 4 and rgb_exps - grey_exps == 2 * (2 * 4 + 3) + 2 * (3 - 1)
     # and the image is the one the three-channel evaluation gives
     shared = np.asarray(sj.burley(b, grey, CAM, **bilinear))
     per_channel = np.asarray(_burley_impl(b, grey, CAM, samples=8, albedo_mode="post", interpolation="bilinear",
                                           capacity=None, min_footprint_px=0.5, weight_channels=3, truncate=False))
     np.testing.assert_allclose(shared, per_channel, rtol=1e-12, atol=1e-14)
     assert np.abs(shared - 0.9 * np.asarray(b.irradiance)[..., :1]).max() > 1e-3  # it did scatter
+
+
+def test_weights_are_shifted_only_where_a_channel_needs_it_and_the_image_is_the_same():
+    from sss_jax._techniques._burley_spec import SHIFT_EXPONENT, needs_weight_shift
+
+    # sample 0 of 32 lies at most 0.0316 d_max out (the root of Burley's CCDF at 1 - 1/64, by bisection here)
+    lo, hi = 0.0, 1.0
+    for _ in range(100):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if (math.exp(-mid) + 3 * math.exp(-mid / 3)) / 4 > 1 - 1 / 64 else (lo, mid)
+    edge = lo * 6.0 / (3 * SHIFT_EXPONENT)  # the d below which a channel beside d_max = 6 mm needs the shift
+    assert not needs_weight_shift([[6.0, 3.0, 1.5]], 32, concrete=True)  # skin-like ratios: never
+    assert not needs_weight_shift([[6.0, 6.0, 6.0], [1.0, 0.0, 0.0]], 32, concrete=True)  # d = 0: no weights
+    assert not needs_weight_shift([[6.0, 3.0, edge * 1.01]], 32, concrete=True)
+    assert needs_weight_shift([[6.0, 3.0, edge * 0.99]], 32, concrete=True)
+    assert needs_weight_shift([[2.0, 2.0, 2.0], [6.0, 3.0, edge * 0.99]], 32, concrete=True)  # any row
+    assert needs_weight_shift([[6.0, 3.0, 1.5]], 32, concrete=False)  # traced d cannot be read: always
+    # shifted or not, one image (the shift is a factor per pixel and channel that cancels), to float64's rounding
+    b = _scene(coverage_rows=24)
+    run = lambda shift: np.asarray(_burley_impl(b, MAT, CAM, samples=8, albedo_mode="post",
+                                                interpolation="bilinear", capacity=None, min_footprint_px=0.5,
+                                                weight_channels=3, truncate=None, border="leaves",
+                                                shift_weights=shift))
+    shifted = run(True)
+    np.testing.assert_allclose(shifted, run(False), rtol=1e-12, atol=1e-14)
+    assert np.abs(shifted - 0.9 * np.asarray(b.irradiance)[..., :1]).max() > 1e-3  # it did scatter
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
@@ -281,7 +308,8 @@ def test_untruncated_frames_share_the_sample_radii():
     large = sj.BurleyMaterial(albedo=[0.9, 0.8, 0.7], d_mm=[60.0, 30.0, 15.0])  # 12 px: diagonal 3.3 d
     impl = lambda m, truncate: np.asarray(_burley_impl(b, m, CAM, samples=8, albedo_mode="post",
                                                        interpolation="bilinear", capacity=None, min_footprint_px=0.0,
-                                                       weight_channels=3, truncate=truncate))
+                                                       weight_channels=3, truncate=truncate,
+                                                       shift_weights=False))  # as the call decides for these d
     kw = dict(samples=8, min_footprint_px=0.0, compact=False, interpolation="bilinear", border="leaves")
     out_small = np.asarray(sj.burley(b, small, CAM, **kw))
     np.testing.assert_allclose(out_small, impl(small, True), rtol=1e-12, atol=1e-14)

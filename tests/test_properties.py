@@ -66,6 +66,20 @@ def test_linear_and_no_energy_created(seed, d, a, slope):
         assert np.asarray(o1).min() >= 0
 
 
+def test_linear_where_one_channel_is_twenty_thousand_times_narrower_than_the_widest():
+    # hypothesis's example (seed 0): d_B = 0.001 mm beside d_G = 20.5 mm. Every sample lies >= ~1 mm out, where B's
+    # weights were ~1e-307: their products with the irradiance fell below float64's smallest normal, which XLA's CPU
+    # backend flushes to 0, so 8 pixels of B came out 0 and burley(2 e) != 2 burley(e) (by up to 1.38). The weights
+    # are now scaled by the nearest sample's exponent (``weight_offset``)
+    rng = np.random.default_rng(0)
+    e = rng.uniform(0, 2, (H, W, 3))
+    depth = 40.0 + np.linspace(0, 1, W)[None, :] * np.ones((H, 1))
+    d = jnp.asarray((1.0, 20.5, 0.001))
+    for o1, o2 in zip(_passes(e, depth, d), _passes(2 * e, depth, d)):
+        np.testing.assert_allclose(np.asarray(o2), 2 * np.asarray(o1), rtol=1e-9, atol=1e-9)
+        assert np.asarray(o1).min() > 0  # every input is positive: so is every weighted mean of them
+
+
 # mm: at most 0.06 px at depth 20 (0.4 px per mm), so all but ~e^-16.7 (the exp(-r/3d) tail) of every profile
 # lies within 3 px
 narrow = st.floats(min_value=1e-3, max_value=0.15, allow_nan=False)

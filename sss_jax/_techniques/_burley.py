@@ -20,6 +20,7 @@ from ._burley_spec import (
     active_footprint,
     burley_reach_px,
     needs_truncation,
+    needs_weight_shift,
     padded_planes,
 )
 from ._burley_spec import spiral_rotation as spiral_rotation
@@ -211,6 +212,9 @@ def burley(
     capacity, truncate, active, planes = None, None, None, None
     # concrete d (under jit too): channels with one d share one kernel evaluation (a host read: compacted only)
     weight_channels = weight_channel_count(material.d_mm) if which == "compacted" else 3
+    # and the weights shifted only where some channel is far narrower than its material's widest (traced d: always)
+    shift_weights = which != "compacted" or needs_weight_shift(material.d_mm, int(samples),
+                                                                concrete=_is_concrete(material.d_mm))
     if which == "compacted" and _is_concrete(buffers, material, camera):
         count, widest_d_px, active, planes = _burley_active_mask(buffers, material, camera,
                                                                  float(min_footprint_px), albedo_mode)
@@ -233,7 +237,8 @@ def burley(
                               f"{implied:.2f} of an edge's contrast); more samples or frames", SamplingWarning,
                               stacklevel=2)
     return _burley_impl(buffers, material, camera, int(samples), albedo_mode, interpolation, capacity,
-                        float(min_footprint_px), weight_channels, truncate, active=active, planes=planes, **common)
+                        float(min_footprint_px), weight_channels, truncate, active=active, planes=planes,
+                        shift_weights=shift_weights, **common)
 
 
 def burley_halo_px(buffers: Buffers, material: BurleyMaterial, camera: Camera, *, samples: int = 32,

@@ -30,12 +30,14 @@ from ._burley_spec import (
     TRUNCATION_ENERGY,
     fetch_planes,
     frame_rotation,
+    leaving_energy,
     normalise,
     pixel_planes,
     pixel_planes_at,
     sample_fetch,
     sample_place,
     sample_weights,
+    weight_offset,
     xla_fetch,
 )
 from ._common import _as_seed, _finish, _material_rows, _prepare, _work_dtype
@@ -43,7 +45,8 @@ from ._common import _as_seed, _finish, _material_rows, _prepare, _work_dtype
 
 def frame_result(pix: dict, fetch, cos_phi: Array, sin_phi: Array, *, samples: int, truncate: bool, border: str,
                  weight_channels: int, buffer_shape: tuple[int, int], origin: tuple[int, int],
-                 frame_shape: tuple[int, int], mm_per_unit: Array, interpolation: str, chunks: int = 1) -> list[Array]:
+                 frame_shape: tuple[int, int], mm_per_unit: Array, interpolation: str, chunks: int = 1,
+                 shift_weights: bool = True) -> list[Array]:
     """One frame's scattered channels (3 planes over the layout's pixels), the spiral turned by ``cos_phi``,
     ``sin_phi``: ``samples`` samples, each channel normalised by its weights (plus, with truncated sampling and
     ``border="leaves"``, the energy beyond the frame's diagonal, which leaves).
@@ -53,8 +56,12 @@ def frame_result(pix: dict, fetch, cos_phi: Array, sin_phi: Array, *, samples: i
     reads it (the place feeds the gathers, the kernels and the sums of every corner and channel). ``chunks`` > 1 runs
     the sample loop over that many chunks of the pixels, one after another (``lax.map``: one compiled loop), each a
     multiple of ``CHUNK_ALIGN`` pixels (the last padded with pixels of no surface, cut off after), so that a chunk's
-    planes, places and weights stay in the caches through its samples (``cpu_chunks``). Same arithmetic either way."""
-    planes = dict(pix, cos_phi=cos_phi, sin_phi=sin_phi)
+    planes, places and weights stay in the caches through its samples (``cpu_chunks``). Same arithmetic either way.
+    ``shift_weights``: each channel's weights scaled by its nearest sample's (``weight_offset``: needed where a
+    channel is far narrower than the widest; the host leaves it out where no material needs it, ``needs_weight_shift``:
+    it reads two planes more per fetch, ~5% of the CPU pass)."""
+    shift = weight_offset(pix, samples, truncate=truncate, weight_channels=weight_channels) if shift_weights else {}
+    planes = dict(pix, cos_phi=cos_phi, sin_phi=sin_phi, **shift)
     n = pix["z"].shape[0]
 
     def place(piece, i):
@@ -87,7 +94,8 @@ def frame_result(pix: dict, fetch, cos_phi: Array, sin_phi: Array, *, samples: i
         num, den = (jnp.moveaxis(a, 1, 0).reshape(a.shape[1], chunks * size)[:, :n] for a in (num, den))
     num, den = list(num), list(den)
     if truncate and border == "leaves":
-        den = [den[c] + samples * pix["leave"][c] for c in range(weight_channels)]
+        leave = leaving_energy(planes, frame_shape)
+        den = [den[c] + samples * leave[c] for c in range(weight_channels)]
     return normalise(num, den, pix["e"])
 
 
@@ -168,14 +176,15 @@ def _burley_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, sam
                  truncate: bool | None = None, pattern: str = "rotated", frames: int = 1, seed: ArrayLike = 0,
                  border: str = "leaves", origin: tuple[int, int] = (0, 0),
                  frame_shape: tuple[int, int] | None = None, active: Array | None = None,
-                 planes: list[Array] | None = None) -> Array:
+                 planes: list[Array] | None = None, shift_weights: bool = True) -> Array:
     """The XLA formulations: ``capacity`` slots of compacted active pixels ("compacted", concrete inputs only: the
     host compacts), or ``None`` for every pixel ("gather", one jitted call); ``truncate`` decided on the host (a
     bool) or on the device (``None``). ``active`` (the active mask) and ``planes`` (``padded_planes``): where the
-    host's count computed them already (``_burley._active_stats``); the compacted layout needs ``active``."""
+    host's count computed them already (``_burley._active_stats``); the compacted layout needs ``active``.
+    ``shift_weights``: ``frame_result``'s."""
     frame_shape = tuple(buffers.depth.shape) if frame_shape is None else tuple(frame_shape)
     common = dict(pattern=pattern, frames=int(frames), seed=_as_seed(seed), border=border,
-                  origin=tuple(origin), frame_shape=frame_shape)
+                  origin=tuple(origin), frame_shape=frame_shape, shift_weights=bool(shift_weights))
     if capacity is None:
         return _gather_impl(buffers, material, camera, samples, albedo_mode, interpolation, min_footprint_px,
                             weight_channels, truncate, planes=planes, **common)
@@ -224,8 +233,6 @@ def _compacted_planes(buffers: Buffers, material: BurleyMaterial, camera: Camera
     if frames == 1:
         rotation = frame_rotation(pix, 0, seed, pattern=pattern)
         del pix["frow"], pix["fcol"]  # the hash's inputs
-    if not (truncate and border == "leaves"):
-        del pix["leave"]
     if truncate is False:
         del pix["inside"]  # the truncated radii's, and the device's truncation test's
     return pix, rotation
@@ -233,11 +240,12 @@ def _compacted_planes(buffers: Buffers, material: BurleyMaterial, camera: Camera
 
 @functools.partial(jax.jit, static_argnames=("samples", "albedo_mode", "interpolation", "min_footprint_px",
                                              "weight_channels", "truncate", "pattern", "frames", "border", "origin",
-                                             "frame_shape"))
+                                             "frame_shape", "shift_weights"))
 def _compacted_result(buffers: Buffers, material: BurleyMaterial, camera: Camera, idx: Array, planes: list[Array],
                       samples: int, albedo_mode: str, interpolation: str, min_footprint_px: float,
                       weight_channels: int, truncate: bool | None, *, pattern: str, frames: int, seed: ArrayLike,
-                      border: str, origin: tuple[int, int], frame_shape: tuple[int, int]) -> Array:
+                      border: str, origin: tuple[int, int], frame_shape: tuple[int, int],
+                      shift_weights: bool) -> Array:
     """The compacted layout's computation: the slots' planes (``_compacted_planes``), the sample loop over them,
     scattered back into the frame."""
     h, w = buffers.depth.shape
@@ -250,7 +258,8 @@ def _compacted_result(buffers: Buffers, material: BurleyMaterial, camera: Camera
     out = layout_result(pix, fetch, idx < h * w, truncate, samples=samples, frames=frames, seed=seed,
                         pattern=pattern, border=border, rotation=rotation, weight_channels=weight_channels,
                         buffer_shape=(h, w), origin=origin, frame_shape=frame_shape,
-                        mm_per_unit=camera.mm_per_unit.astype(dtype), interpolation=interpolation)
+                        mm_per_unit=camera.mm_per_unit.astype(dtype), interpolation=interpolation,
+                        shift_weights=shift_weights)
     # the active pixels are the slots': every other pixel is finished as its own (local) shading, and the slots'
     # finished values written over them (``_finish`` per pixel, so one pass over the frame instead of three)
     local = _finish(buffers, prep, prep.irradiance).reshape(h * w, 3)
@@ -263,7 +272,7 @@ def _compacted_result(buffers: Buffers, material: BurleyMaterial, camera: Camera
 def _gather_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, samples: int, albedo_mode: str,
                  interpolation: str, min_footprint_px: float, weight_channels: int, truncate: bool | None, *,
                  pattern: str, frames: int, seed: ArrayLike, border: str, origin: tuple[int, int],
-                 frame_shape: tuple[int, int], planes: list[Array] | None = None) -> Array:
+                 frame_shape: tuple[int, int], planes: list[Array] | None = None, shift_weights: bool = True) -> Array:
     """The gather layout: every pixel of the buffer, masked at the end, in one computation."""
     h, w = buffers.depth.shape
     dtype, prep, frame_shape, pix, active = frame_pixels(buffers, material, camera, albedo_mode, min_footprint_px,
@@ -274,6 +283,6 @@ def _gather_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, sam
     out = layout_result(pix, fetch, active, truncate, samples=samples, frames=frames, seed=seed, pattern=pattern,
                         border=border, weight_channels=weight_channels, buffer_shape=(h, w), origin=origin,
                         frame_shape=frame_shape, mm_per_unit=camera.mm_per_unit.astype(dtype),
-                        interpolation=interpolation)
+                        interpolation=interpolation, shift_weights=shift_weights)
     scattered = jnp.where(active[..., None], jnp.stack(out, axis=-1).reshape(h, w, 3), prep.irradiance)
     return _finish(buffers, prep, scattered)

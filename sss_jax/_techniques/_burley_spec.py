@@ -38,21 +38,96 @@ BURLEY_R95 = float(np.asarray(burley_inverse_ccdf(np.float64(0.05), np.float64(1
 TRUNCATION_ENERGY = 1e-4
 
 
-def burley_weight(r: Array, d: Array, inv_d: Array, ok_d: Array, scale: Array) -> Array:
+def burley_weight(r: Array, d: Array, decay: Array, ok_d: Array, scale: Array, r0: Array | None = None,
+                  tail: Array | None = None) -> Array:
     """``scale (exp(-x) + exp(-x/3)) / x`` at ``x = r / d``: the Burley profile at ``r`` up to the factor
     ``8 pi d^2`` that cancels in the per-channel normalisation, times ``scale``, written as
-    ``scale d (e3 + e3^3) / r`` with ``e3 = exp(-r / (3 d))``: one exponential per channel. ``d = 0`` (``ok_d``
-    false) gives 0, and so does r = 0 (``scale`` is 0 there: it carries 1/pdf, which is 0 at r = 0): no NaN, finite
+    ``scale d (e3 + e3^3) / r`` with ``e3 = exp(-r decay)``, ``decay = 1 / (3 d)`` (0 where d = 0): one exponential
+    per channel. ``d = 0`` (``ok_d`` false) gives 0, and so does r = 0 (``scale`` is 0 there: it carries 1/pdf, which is 0 at r = 0): no NaN, finite
     gradients.
+
+    With ``r0`` and ``tail`` (``weight_offset``: a radius no sample of the pixel comes closer than, and
+    ``exp(-2 r0 / (3 d))``, 0 where d = 0) the weight is scaled by ``exp(r0 / (3 d))``, one factor per pixel and channel that
+    cancels in its normalisation: ``e3 = exp(-(r - r0) / (3 d)) <= 1`` and ``e3^3`` becomes ``tail e3^3``. The
+    nearest sample's weight is then of order 1 whatever d_max / d is; unscaled, a channel far narrower than the
+    widest (d = 0.001 mm beside d_max = 20 mm) weighs every sample exp(-700) or less, whose products with the
+    irradiance XLA's CPU backend flushes to 0 as subnormals: the channel came out 0 where its weights did not, and
+    the pass was not linear in the irradiance.
 
     Written for XLA's CPU fusion: ``ok_d`` masks the square, which keeps the simplifier from turning ``e3 * e3`` into
     a second exponential, and the divisor (with r > 0, so the mask has the weight's full shape), which keeps it from
     turning the division into a product with a reciprocal: the division is the weight's last operation, so the whole
     weight is one materialised value (XLA does not duplicate an expensive root) that the sums of the numerator and
     the denominator read, instead of each recomputing its arguments."""
-    e3 = jnp.exp(-(r * inv_d) / 3)
-    e3_squared = jnp.where(ok_d, e3, 0.0) * e3
+    # ``decay`` holds 1 / (3 d): the exponent is one product (``-(r / d) / 3`` was three operations an element)
+    e3 = jnp.exp(-(r * decay) if r0 is None else (r0 - r) * decay)
+    # the tail (0 where d = 0) masks the square as ``ok_d`` does without it
+    e3_squared = (jnp.where(ok_d, e3, 0.0) if tail is None else tail * e3) * e3
     return scale * d * e3 * (1 + e3_squared) / jnp.where(ok_d & (r > 0), r, 1.0)
+
+
+def weight_offset(pix: dict, samples: int, *, truncate: bool, weight_channels: int) -> dict:
+    """The planes ``burley_weight`` scales each channel's weights by (``r0`` and its ``tail`` per weight channel),
+    for the pixels of ``pix``; none for one (grey) weight channel, whose d is d_max (the weights stay of order 1).
+
+    ``r0`` is a lower bound of sample 0's in-plane radius, the smallest of the pixel's samples (the stratified
+    radii grow with the sample's index): the Burley CDF's slope is at most 1/2 (its density in r/d, ``(exp(-x) +
+    exp(-x/3)) / 4``, is largest at 0), so the radius holding ``u_0 = 1 / (2 samples)`` of the (truncated) profile is
+    at least ``2 u_0 inside d_max``. Every fetch of the pixel lies at least that far (r3 >= r): no scaled weight
+    exceeds its unscaled form at r0. Its gradient is stopped: the normalised result does not depend on it."""
+    if weight_channels == 1:
+        return {}
+    u0 = 0.5 / samples
+    r0 = 2 * u0 * pix["dmax"] * (pix["inside"] if truncate else 1.0)
+    r0 = jax.lax.stop_gradient(r0)
+    return {"r0": r0, "tail": [jnp.where(ok_d, jnp.exp(-2 * (r0 * decay)), 0.0)
+                               for decay, ok_d in zip(pix["decay"], pix["ok_d"])]}
+
+
+# ``needs_weight_shift``: below this exponent (a factor exp(-20) = 2e-9) the nearest sample's unshifted weight keeps
+# ~1e-29 of float32's range for the irradiance it multiplies and the depth's fall-off
+SHIFT_EXPONENT = 20.0
+
+
+def needs_weight_shift(d_mm, samples: int, *, concrete: bool) -> bool:
+    """Host side: whether ``frame_result`` must shift the weights (``weight_offset``) for materials ``d_mm``: where
+    some channel's d is so far below its material's widest that its nearest sample, unshifted, weighs less than
+    exp(-``SHIFT_EXPONENT``) (sample 0's radius in units of d_max at most ``burley_inverse_ccdf(1 - 1/(2 samples))``:
+    truncation only draws it closer). True where d is not ``concrete`` (traced: it cannot be read)."""
+    if not concrete:
+        return True
+    d = np.asarray(d_mm, np.float64).reshape(-1, 3)
+    d_max = d.max(axis=1, keepdims=True)
+    # Burley's CCDF with y = exp(-x/3) is (y^3 + 3 y) / 4: Cardano's root of y^3 + 3 y = 4 v (NumPy: no JAX
+    # operation, which a trace around the call would stage)
+    v = 1 - 0.5 / samples
+    y = np.cbrt(2 * v + math.sqrt(4 * v * v + 1)) + np.cbrt(2 * v - math.sqrt(4 * v * v + 1))
+    rho0 = -3 * math.log(y)
+    exponent = np.where(d > 0, rho0 * d_max / (3 * np.where(d > 0, d, 1.0)), 0.0)
+    return bool(exponent.max(initial=0.0) > SHIFT_EXPONENT)
+
+
+def leaving_energy(pix: dict, frame_shape: tuple[int, int]) -> list[Array]:
+    """Per weight channel, the energy of the pixel's profile beyond the frame's diagonal in the units of one
+    sample's weight (samples drawn from the d_max profile truncated there, holding ``inside`` of its energy, weigh
+    R_c / pdf (d_c / d_max)^2: a mass m counts as m / inside (d_c / d_max)^2), scaled as ``burley_weight`` scales
+    the weights where ``pix`` holds ``r0`` (``weight_offset``): Burley's CCDF ``(exp(-x) + 3 exp(-x/3)) / 4`` at
+    ``x = r_clip / d`` times ``exp(r0 / (3 d))``, each exponent non-positive (``r0 < r_clip``)."""
+    ppm, dmax = pix["ppm"], pix["dmax"]
+    r_clip = jnp.where(ppm > 0, math.hypot(*frame_shape) / jnp.where(ppm > 0, ppm, 1.0), jnp.inf)
+    r_clip = jnp.minimum(r_clip, 1e30)
+    ok_in = pix["inside"] > 0
+    per_sample = jnp.where(ok_in, 1.0 / jnp.where(ok_in, pix["inside"], 1.0), 0.0)
+    ok_dmax = dmax > 0
+    inv_dmax = jnp.where(ok_dmax, 1.0 / jnp.where(ok_dmax, dmax, 1.0), 0.0)
+    shift = pix.get("r0", 0.0)
+    out = []
+    for d, decay, ok_d in zip(pix["d"], pix["decay"], pix["ok_d"]):
+        lift = shift * decay
+        x3 = jnp.minimum(r_clip * decay, 1e30)  # r_clip / (3 d)
+        ccdf = (jnp.exp(lift - 3 * x3) + 3 * jnp.exp(lift - x3)) / 4
+        out.append(jnp.where(ok_d, ccdf * per_sample * (d * inv_dmax) ** 2, 0.0))
+    return out
 
 
 def _hash_u32(x: Array) -> Array:
@@ -170,10 +245,9 @@ def pixel_planes_at(material, camera, *, e: list[Array], z: Array, valid: Array,
     Inputs: ``e`` (3 planes of the prepared irradiance), ``z`` (depth, 0 where ``valid`` is false), ``rows``
     (material rows), ``frow``/``fcol`` (frame coordinates, integers). Planes: ``row``/``col`` (the same as floats),
     ``frow``/``fcol`` (the rotation hash), ``e``, ``z``, ``dmax`` (widest d, mm), ``ppm`` (px per mm), ``inside``
-    (the d_max profile's energy within the frame's diagonal), ``d``/``inv_d``/``ok_d`` and ``leave`` (the energy of
-    each weight channel's profile beyond the diagonal, per sample in the weights' units, for ``border="leaves"`` with
-    truncated sampling) per weight channel. Each pixel's planes depend on that pixel's inputs alone, so a compacted
-    set computes exactly the values the whole frame would hold there."""
+    (the d_max profile's energy within the frame's diagonal) and, per weight channel, ``d``, ``decay`` (1 / (3 d), 0
+    where d = 0) and ``ok_d`` (d > 0). Each pixel's planes depend on that pixel's inputs alone, so a compacted set
+    computes exactly the values the whole frame would hold there."""
     d_table = checked(material.d_mm.astype(dtype), "d_mm")
     d_max, ppm, active = active_footprint(d_table, camera, depth=z, valid=valid, rows=rows,
                                           min_footprint_px=min_footprint_px, dtype=dtype)
@@ -183,21 +257,13 @@ def pixel_planes_at(material, camera, *, e: list[Array], z: Array, valid: Array,
     r_clip = jnp.minimum(r_clip, 1e30)
     inside = jnp.where(d_max > 0, burley_cdf(r_clip, d_max), 1.0)
     ok_d = d_w > 0
-    inv_d = jnp.where(ok_d, 1.0 / jnp.where(ok_d, d_w, 1.0), 0.0)
-    ok_dmax = d_max > 0
-    inv_dmax = jnp.where(ok_dmax, 1.0 / jnp.where(ok_dmax, d_max, 1.0), 0.0)
-    # the weights of samples drawn from the d_max profile truncated at r_clip (holding ``inside`` of its energy) are
-    # R_c / pdf times (d_c / d_max)^2 (the kernel drops 8 pi d^2): a mass m counts as m / inside (d_c / d_max)^2
-    ok_in = inside > 0
-    per_sample = jnp.where(ok_in, 1.0 / jnp.where(ok_in, inside, 1.0), 0.0)
-    leave = (1 - burley_cdf(r_clip[..., None], d_w)) * per_sample[..., None] * (d_w * inv_dmax[..., None]) ** 2
+    decay = jnp.where(ok_d, 1.0 / (3 * jnp.where(ok_d, d_w, 1.0)), 0.0)  # 1 / (3 d), ``burley_weight``'s
     channel = lambda a, c: a[..., c]
     pix = {"row": frow.astype(dtype), "col": fcol.astype(dtype), "frow": frow, "fcol": fcol, "e": list(e), "z": z,
            "dmax": d_max, "ppm": ppm, "inside": inside,
            "d": [channel(d_w, c) for c in range(weight_channels)],
-           "inv_d": [channel(inv_d, c) for c in range(weight_channels)],
-           "ok_d": [channel(ok_d, c) for c in range(weight_channels)],
-           "leave": [channel(leave, c) for c in range(weight_channels)]}
+           "decay": [channel(decay, c) for c in range(weight_channels)],
+           "ok_d": [channel(ok_d, c) for c in range(weight_channels)]}
     return pix, active
 
 
@@ -356,8 +422,10 @@ def sample_weights(place: dict, pix: dict, *, mm_per_unit: Array, interpolation:
     r3 = jnp.sqrt(jnp.maximum((r_mm * r_mm)[None] + dz_mm * dz_mm, 1e-30))
     base = v_q * (inv_pdf[None] if jnp.ndim(inv_pdf) else inv_pdf)
     channels = lambda key: jnp.stack(pix[key])  # (weight_channels, N)
-    d, inv_d, ok_d = channels("d"), channels("inv_d"), channels("ok_d")
-    wgt = burley_weight(r3[:, None], d[None], inv_d[None], ok_d[None], base[:, None])  # (corners, channels, N)
+    d, decay, ok_d = channels("d"), channels("decay"), channels("ok_d")
+    r0, tail = pix.get("r0"), (channels("tail") if "tail" in pix else None)  # ``weight_offset``, where given
+    wgt = burley_weight(r3[:, None], d[None], decay[None], ok_d[None], base[:, None],  # (corners, channels, N)
+                        None if r0 is None else r0[None, None], None if tail is None else tail[None])
     corners = range(wgt.shape[0])
     # a grey weight (channel 0) serves the three channels; each channel's gathers stay inside its sum
     num = jnp.stack([sum(wgt[q, min(c, weight_channels - 1)] * e_q[c][q] for q in corners) for c in range(3)])
@@ -367,7 +435,8 @@ def sample_weights(place: dict, pix: dict, *, mm_per_unit: Array, interpolation:
         if weight_channels == 1:  # grey: the weight at dz = 0 is R/pdf of the sampled profile itself, 1
             den = den + (out * pix["ok_d"][0])[None]
         else:
-            den = den + burley_weight(r_mm[None], d, inv_d, ok_d, (out * inv_pdf)[None])
+            den = den + burley_weight(r_mm[None], d, decay, ok_d, (out * inv_pdf)[None],
+                                      None if r0 is None else r0[None], tail)
     return num, den
 
 
