@@ -43,12 +43,13 @@ def burley_weight(r: Array, d: Array, decay: Array, ok_d: Array, scale: Array, r
     """``scale (exp(-x) + exp(-x/3)) / x`` at ``x = r / d``: the Burley profile at ``r`` up to the factor
     ``8 pi d^2`` that cancels in the per-channel normalisation, times ``scale``, written as
     ``scale d (e3 + e3^3) / r`` with ``e3 = exp(-r decay)``, ``decay = 1 / (3 d)`` (0 where d = 0): one exponential
-    per channel. ``d = 0`` (``ok_d`` false) gives 0, and so does r = 0 (``scale`` is 0 there: it carries 1/pdf, which is 0 at r = 0): no NaN, finite
-    gradients.
+    per channel. ``d = 0`` (``ok_d`` false) gives 0, and so does r = 0 (``scale`` is 0 there: it carries 1/pdf,
+    which is 0 at r = 0): no NaN, finite gradients.
 
     With ``r0`` and ``tail`` (``weight_offset``: a radius no sample of the pixel comes closer than, and
-    ``exp(-2 r0 / (3 d))``, 0 where d = 0) the weight is scaled by ``exp(r0 / (3 d))``, one factor per pixel and channel that
-    cancels in its normalisation: ``e3 = exp(-(r - r0) / (3 d)) <= 1`` and ``e3^3`` becomes ``tail e3^3``. The
+    ``exp(-2 r0 / (3 d))``, 0 where d = 0) the weight is scaled by ``exp(r0 / (3 d))``, one factor per pixel and
+    channel that cancels in its normalisation: ``e3 = exp(-(r - r0) / (3 d)) <= 1`` and ``e3^3`` becomes
+    ``tail e3^3``. The
     nearest sample's weight is then of order 1 whatever d_max / d is; unscaled, a channel far narrower than the
     widest (d = 0.001 mm beside d_max = 20 mm) weighs every sample exp(-700) or less, whose products with the
     irradiance XLA's CPU backend flushes to 0 as subnormals: the channel came out 0 where its weights did not, and
