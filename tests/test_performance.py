@@ -209,6 +209,17 @@ def test_weights_are_shifted_only_where_a_channel_needs_it_and_the_image_is_the_
     shifted = run(True)
     np.testing.assert_allclose(shifted, run(False), rtol=1e-12, atol=1e-14)
     assert np.abs(shifted - 0.9 * np.asarray(b.irradiance)[..., :1]).max() > 1e-3  # it did scatter
+    # and so is the gradient in d (the shift's radius is a constant to it: the factor cancels for any value)
+    def loss(d, shift):
+        mat = sj.BurleyMaterial(albedo=[0.9, 0.8, 0.7], d_mm=d)
+        out = _burley_impl(b, mat, CAM, samples=8, albedo_mode="post", interpolation="bilinear", capacity=None,
+                           min_footprint_px=0.5, weight_channels=3, truncate=None, shift_weights=shift)
+        return jnp.sum(out * b.irradiance)
+
+    d = jnp.asarray([6.0, 3.0, 1.5])
+    grads = [np.asarray(jax.grad(loss)(d, shift)) for shift in (True, False)]
+    np.testing.assert_allclose(grads[0], grads[1], rtol=1e-10)
+    assert np.all(np.abs(grads[1]) > 1e-3)
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
