@@ -161,7 +161,7 @@ def _burley_forward(pix, active, buffer_shape, origin, frame_shape, samples, mm_
     sources = fetch_planes(pix, buffer_shape)  # whole (padded) planes: every sample's fetch lies in them
     wc = weight_channels
     per_pixel = ([flat(pix[k]) for k in _PIXEL_KEYS] + [flat(pix["e"][c]) for c in range(3)]
-                 + [flat(pix["d"][c]) for c in range(wc)] + [flat(pix["decay"][c]) for c in range(wc)]
+                 + [flat(pix["decay"][c]) for c in range(wc)]
                  + [flat(pix["ok_d"][c].astype(jnp.int32)) for c in range(wc)]
                  + [flat(active.astype(jnp.int32))])
     small = [jnp.reshape(mm_per_unit, (1,)).astype(dtype)]
@@ -178,9 +178,8 @@ def _burley_forward(pix, active, buffer_shape, origin, frame_shape, samples, mm_
         def run():
             pixel = {k: blocks[j][...] for j, k in enumerate(_PIXEL_KEYS)}
             pixel["e"] = centre
-            pixel["d"] = [blocks[n_keys + 3 + c][...] for c in range(wc)]
-            pixel["decay"] = [blocks[n_keys + 3 + wc + c][...] for c in range(wc)]
-            pixel["ok_d"] = [blocks[n_keys + 3 + 2 * wc + c][...] != 0 for c in range(wc)]
+            pixel["decay"] = [blocks[n_keys + 3 + c][...] for c in range(wc)]
+            pixel["ok_d"] = [blocks[n_keys + 3 + wc + c][...] != 0 for c in range(wc)]
 
             def fetch(idx):
                 return [s0[idx], s1[idx], s2[idx], sz[idx]]
