@@ -55,11 +55,12 @@ def burley_weight(r: Array, decay: Array, ok_d: Array, scale: Array, r0: Array |
 
     Written for XLA's CPU fusion: the exponent is one product (``decay``, not ``-(r / d) / 3``: three operations an
     element), the factor d is left out (it cancels: one product and one plane less an element; the compacted pass
-    at 640x360 in 0.96-1.00 of the time, medians of 41 alternating runs), ``ok_d`` masks the exponential, which keeps the simplifier from turning
-    ``e3 * e3`` into a second exponential, and the divisor (with r > 0, so the mask has the weight's full shape),
-    which keeps it from turning the division into a product with a reciprocal: the division is the weight's last
-    operation, so the whole weight is one materialised value (XLA does not duplicate an expensive root) that the sums
-    of the numerator and the denominator read, instead of each recomputing its arguments."""
+    at 640x360 in 0.96-1.00 of the time, medians of 41 alternating runs), ``ok_d`` masks the exponential, which
+    keeps the simplifier from turning ``e3 * e3`` into a second exponential, and the divisor (with r > 0, so the mask
+    has the weight's full shape), which keeps it from turning the division into a product with a reciprocal: the
+    division is the weight's last operation, so the whole weight is one materialised value (XLA does not duplicate
+    an expensive root) that the sums of the numerator and the denominator read, instead of each recomputing its
+    arguments."""
     e3 = jnp.where(ok_d, jnp.exp(-(r * decay) if r0 is None else (r0 - r) * decay), 0.0)
     e3_squared = e3 * (e3 if tail is None else tail * e3)
     return scale * e3 * (1 + e3_squared) / jnp.where(ok_d & (r > 0), r, 1.0)
