@@ -167,8 +167,8 @@ def test_grey_channels_share_one_kernel_evaluation():
     # the per-sample kernel (one exponential per pixel, corner and channel) is evaluated on one channel for the grey
     # material, on three otherwise: two fewer per corner, four corners (bilinear); and the weight of the part of a
     # fetch outside the frame (light that leaves) needs the kernel on each of the three channels, none for grey (there
-    # it is the sampled profile's own R/pdf, 1). Traced, the truncation is decided on the device: both branches of its
-    # cond are in the computation, each with those exponentials. Counted per pixel: an exponential over a
+    # it is the sampled profile's own R/pdf, 1 / d_max in the weights' units). Traced, the truncation is decided on
+    # the device: both branches of its cond are in the computation, each with those exponentials. Counted per pixel: an exponential over a
     # (corners, channels, pixels) array counts corners x channels. Once a call, outside the sample loop, the
     # truncated branch takes two a weight channel for the energy beyond the diagonal: 2 x (3 - 1) more
     n = 24 * 32
