@@ -396,3 +396,11 @@ def test_jimenez_refuses_a_traced_burley_material(as_users_run_it):
     with pytest.raises(TypeError, match="trace JimenezParams instead"):
         jax.jit(lambda d: JimenezPass()(buffers_of(e, z * 0.01, ids), sj.BurleyMaterial(SKIN.albedo, d), cam))(
             SKIN.d_mm)
+    # a concrete material closed over under jit is read on the host like an eager call's (it raised
+    # TracerArrayConversionError: ``material.albedo[0]``, a JAX operation, was staged by the trace)
+    b = buffers_of(e, z * 0.01, ids)
+    eager = np.asarray(JimenezPass()(b, SKIN, cam))
+    traced = np.asarray(jax.jit(lambda bb: JimenezPass()(bb, SKIN, cam))(b))
+    # the same parameters; XLA folds the closed-over kernel build into constants (its exponentials rounded apart)
+    np.testing.assert_allclose(traced, eager, rtol=1e-3, atol=1e-6)
+    assert np.abs(eager - np.asarray(b.irradiance) * np.asarray(SKIN.albedo)).max() > 1e-3  # it scattered

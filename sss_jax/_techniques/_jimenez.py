@@ -121,8 +121,10 @@ def jimenez_params_for(material: BurleyMaterial, camera: Camera, taps: int) -> J
                         "outside jit)")
     if material.count != 1:
         raise ValueError(f"jimenez takes one material (the shader has one kernel), got {material.count}")
-    albedo = tuple(float(v) for v in np.asarray(material.albedo[0], np.float64))
-    d = tuple(float(v) for v in np.asarray(material.d_mm[0], np.float64))
+    # the host reads the whole arrays and indexes them in NumPy: ``material.albedo[0]`` would be a JAX operation,
+    # which a trace around the call (a material closed over under ``jit``) stages as a tracer
+    albedo = tuple(float(v) for v in np.asarray(material.albedo, np.float64).reshape(-1, 3)[0])
+    d = tuple(float(v) for v in np.asarray(material.d_mm, np.float64).reshape(-1, 3)[0])
     block = _fitted(albedo, d, float(camera.mm_per_unit), int(taps))
     return JimenezParams.from_engine(block)
 
