@@ -13,6 +13,7 @@ halo covers the pass's reach (``burley_reach_px``) gives the untiled frame's pix
 
 from __future__ import annotations
 
+import functools
 import math
 
 import jax
@@ -25,10 +26,20 @@ from .._kernels import spiral_sample
 from .._profiles import burley_cdf, burley_inverse_ccdf
 from .._units import px_per_mm
 
+
+@functools.lru_cache(maxsize=256)
+def unit_radius(ccdf: float) -> float:
+    """Host side: the radius, in units of d, beyond which the fraction ``ccdf`` of a Burley profile's energy lies
+    (``burley_inverse_ccdf(ccdf, 1)``), a Python float even where a trace surrounds the call (a JAX operation there
+    would be staged, not evaluated)."""
+    with jax.ensure_compile_time_eval():
+        return float(np.asarray(burley_inverse_ccdf(np.float64(ccdf), np.float64(1.0))))
+
+
 # radius holding 99% (95%) of a Burley profile's energy, in units of d: the footprint the skip and compaction test
 # (the sampling check)
-BURLEY_R99 = float(np.asarray(burley_inverse_ccdf(np.float64(0.01), np.float64(1.0))))
-BURLEY_R95 = float(np.asarray(burley_inverse_ccdf(np.float64(0.05), np.float64(1.0))))
+BURLEY_R99 = unit_radius(0.01)
+BURLEY_R95 = unit_radius(0.05)
 
 # Truncated sampling (each pixel's profile cut at the frame's diagonal, so huge d spreads over the frame instead of
 # losing its samples) is taken where it changes the result: sampling the whole profile instead leaves the energy
@@ -92,17 +103,13 @@ SHIFT_EXPONENT = 20.0
 def needs_weight_shift(d_mm, samples: int, *, concrete: bool) -> bool:
     """Host side: whether ``frame_result`` must shift the weights (``weight_offset``) for materials ``d_mm``: where
     some channel's d is so far below its material's widest that its nearest sample, unshifted, weighs less than
-    exp(-``SHIFT_EXPONENT``) (sample 0's radius in units of d_max at most ``burley_inverse_ccdf(1 - 1/(2 samples))``:
+    exp(-``SHIFT_EXPONENT``) (sample 0's radius in units of d_max at most ``unit_radius(1 - 1/(2 samples))``:
     truncation only draws it closer). True where d is not ``concrete`` (traced: it cannot be read)."""
     if not concrete:
         return True
     d = np.asarray(d_mm, np.float64).reshape(-1, 3)
     d_max = d.max(axis=1, keepdims=True)
-    # Burley's CCDF with y = exp(-x/3) is (y^3 + 3 y) / 4: Cardano's root of y^3 + 3 y = 4 v (NumPy: no JAX
-    # operation, which a trace around the call would stage)
-    v = 1 - 0.5 / samples
-    y = np.cbrt(2 * v + math.sqrt(4 * v * v + 1)) + np.cbrt(2 * v - math.sqrt(4 * v * v + 1))
-    rho0 = -3 * math.log(y)
+    rho0 = unit_radius(1 - 0.5 / samples)
     exponent = np.where(d > 0, rho0 * d_max / (3 * np.where(d > 0, d, 1.0)), 0.0)
     return bool(exponent.max(initial=0.0) > SHIFT_EXPONENT)
 
@@ -114,9 +121,8 @@ def leaving_energy(pix: dict, frame_shape: tuple[int, int]) -> list[Array]:
     m / inside d_c / d_max^2), scaled as ``burley_weight`` scales the weights where ``pix`` holds ``r0``
     (``weight_offset``): Burley's CCDF ``(exp(-x) + 3 exp(-x/3)) / 4`` at ``x = r_clip / d`` times
     ``exp(r0 / (3 d))``, each exponent non-positive (``r0 < r_clip``)."""
-    ppm, dmax = pix["ppm"], pix["dmax"]
-    r_clip = jnp.where(ppm > 0, math.hypot(*frame_shape) / jnp.where(ppm > 0, ppm, 1.0), jnp.inf)
-    r_clip = jnp.minimum(r_clip, 1e30)
+    dmax = pix["dmax"]
+    r_clip = clip_radius(pix["ppm"], frame_shape)
     ok_in = pix["inside"] > 0
     per_sample = jnp.where(ok_in, 1.0 / jnp.where(ok_in, pix["inside"], 1.0), 0.0)
     ok_dmax = dmax > 0
@@ -127,9 +133,16 @@ def leaving_energy(pix: dict, frame_shape: tuple[int, int]) -> list[Array]:
         lift = shift * decay
         x3 = jnp.minimum(r_clip * decay, 1e30)  # r_clip / (3 d)
         ccdf = (jnp.exp(lift - 3 * x3) + 3 * jnp.exp(lift - x3)) / 4
-        d = jnp.where(ok_d, 1 / jnp.where(ok_d, 3 * decay, 1.0), 0.0)
-        out.append(jnp.where(ok_d, ccdf * per_sample * d * inv_dmax * inv_dmax, 0.0))
+        # m / inside d / d_max^2, d = 1 / (3 decay)
+        out.append(jnp.where(ok_d, ccdf * per_sample * inv_dmax * inv_dmax / jnp.where(ok_d, 3 * decay, 1.0), 0.0))
     return out
+
+
+def clip_radius(ppm: Array, frame_shape: tuple[int, int]) -> Array:
+    """The frame's diagonal in mm at each pixel's scale (``ppm``: px per mm; 1e30 where it is 0): no sample beyond
+    it can land in the frame, so the profile is sampled truncated there."""
+    r_clip = jnp.where(ppm > 0, math.hypot(*frame_shape) / jnp.where(ppm > 0, ppm, 1.0), jnp.inf)
+    return jnp.minimum(r_clip, 1e30)
 
 
 def _hash_u32(x: Array) -> Array:
@@ -254,10 +267,7 @@ def pixel_planes_at(material, camera, *, e: list[Array], z: Array, valid: Array,
     d_max, ppm, active = active_footprint(d_table, camera, depth=z, valid=valid, rows=rows,
                                           min_footprint_px=min_footprint_px, dtype=dtype)
     d_w = jnp.where(valid[..., None], d_table[rows][..., :weight_channels], 0.0)  # (N, weight channels)
-    # samples beyond the frame's diagonal can never land in it: the profile is sampled truncated there
-    r_clip = jnp.where(ppm > 0, math.hypot(*frame_shape) / jnp.where(ppm > 0, ppm, 1.0), jnp.inf)
-    r_clip = jnp.minimum(r_clip, 1e30)
-    inside = jnp.where(d_max > 0, burley_cdf(r_clip, d_max), 1.0)
+    inside = jnp.where(d_max > 0, burley_cdf(clip_radius(ppm, frame_shape), d_max), 1.0)
     ok_d = d_w > 0
     decay = jnp.where(ok_d, 1.0 / (3 * jnp.where(ok_d, d_w, 1.0)), 0.0)  # 1 / (3 d), ``burley_weight``'s
     channel = lambda a, c: a[..., c]
@@ -483,5 +493,5 @@ def burley_reach_px(widest_d_px: float, frame_shape: tuple[int, int], samples: i
     diagonal: the halo a tile needs so that its pixels are the untiled frame's."""
     if not widest_d_px > 0:
         return 0
-    rho = float(np.asarray(burley_inverse_ccdf(np.float64(0.5 / samples), np.float64(1.0))))
+    rho = unit_radius(0.5 / samples)
     return int(math.ceil(min(rho * widest_d_px, math.hypot(*frame_shape)))) + 2

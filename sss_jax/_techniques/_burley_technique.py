@@ -12,9 +12,9 @@ from jaxtyping import Array, Float
 
 from .._errors import SamplingWarning
 from .._materials import BurleyMaterial
-from .._profiles import burley_inverse_ccdf
 from .._scene import Buffers, Camera
 from . import _burley
+from ._burley_spec import unit_radius
 from ._base import AbstractTechnique, built, call_options, default_of, option, tile_options
 from ._common import ALBEDO_MODES, BORDERS
 from ._dispatch import IMPLS
@@ -97,7 +97,7 @@ class Burley(AbstractTechnique):
         _, d_px = _burley._burley_active(buffers, material, camera, float(self.min_footprint_px))
         if d_px <= 0:
             return 0
-        unit = float(np.asarray(burley_inverse_ccdf(np.float64(0.5 / self.samples), np.float64(1.0))))
+        unit = unit_radius(0.5 / self.samples)
         reach = math.ceil(unit * d_px) + (1 if self.interpolation == "bilinear" else 0)
         return int(min(reach, max(buffers.depth.shape[-2:])))
 
