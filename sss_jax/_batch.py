@@ -89,11 +89,13 @@ from ._io import (Frame, SSSInputError, Window, _frame_from_decoded, _read_image
                   read_header, write_exr, write_json_atomic, write_png_preview)
 from ._kernels import separable_kernel_from_profile, two_gaussian_kernel
 from ._materials import BurleyMaterial, DirectionalLight, ProfileMaterial, STAParams, TwoGaussianMaterial
-from ._profiles import BurleyProfile, burley_inverse_ccdf
+from ._profiles import BurleyProfile
 from ._scene import Buffers, Camera, validate_buffers
 from ._errors import ReferenceWindowWarning, SamplingWarning, TilePlacementError
 from ._techniques import AbstractTechnique, get_technique
 from ._techniques import technique as make_technique
+from ._techniques._burley_spec import BURLEY_R99, unit_radius
+from ._techniques._common import MIN_FOOTPRINT_PX
 
 __all__ = ["BatchResult", "FrameResult", "Interrupted", "MANIFEST_NAME", "expand_inputs", "frame_number",
            "frame_seed", "frames_for_process", "output_paths", "process_frames", "remove_stale_temporaries"]
@@ -128,9 +130,9 @@ OVERLAP_PIXELS = 1 << 18
 COMPUTE_THREADS = 2
 # Footprint pixels of the reach of the techniques' own checks (the 99%-energy footprint below which a pixel keeps
 # its local shading, MIN_FOOTPRINT_PX in the techniques)
-_MIN_FOOTPRINT_PX = 0.5
-_BURLEY_R99 = float(np.asarray(burley_inverse_ccdf(np.float64(0.01), np.float64(1.0))))
-_BURLEY_R999 = float(np.asarray(burley_inverse_ccdf(np.float64(0.001), np.float64(1.0))))
+_MIN_FOOTPRINT_PX = MIN_FOOTPRINT_PX
+_BURLEY_R99 = BURLEY_R99
+_BURLEY_R999 = unit_radius(0.001)
 
 
 @dataclasses.dataclass

@@ -32,7 +32,7 @@ def unit_radius(ccdf: float) -> float:
     """Host side: the radius, in units of d, beyond which the fraction ``ccdf`` of a Burley profile's energy lies
     (``burley_inverse_ccdf(ccdf, 1)``), a Python float even where a trace surrounds the call (a JAX operation there
     would be staged, not evaluated)."""
-    with jax.ensure_compile_time_eval():
+    with jax.ensure_compile_time_eval(), jax.enable_x64(True):  # float64: a host constant, not the pass's dtype
         return float(np.asarray(burley_inverse_ccdf(np.float64(ccdf), np.float64(1.0))))
 
 

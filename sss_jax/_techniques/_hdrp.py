@@ -40,6 +40,7 @@ from .._scene import Buffers, Camera
 from .._units import px_per_mm
 from ._base import AbstractTechnique, option
 from ._burley import spiral_rotation
+from ._burley_spec import unit_radius
 from ._common import _finish, _prepare, _safe_sqrt, _work_dtype, ALBEDO_MODES
 from ._engine_frame import check_count, frame_geometry, nearest_fetch, pass_arguments
 
@@ -49,8 +50,7 @@ HDRP_PIXELS_PER_SAMPLE = 4  # DiffusionProfileConstants.SSS_PIXELS_PER_SAMPLE
 HDRP_FILTER_CDF = 0.997  # DiffusionProfileSettings.UpdateKernel: the filter radius holds 99.7% of the energy
 GOLDEN_RATIO = (1.0 + math.sqrt(5.0)) / 2.0
 # the filter radius in units of d: Burley's CDF 1 - e^-x/4 - 3 e^(-x/3)/4 = 0.997 (closed form of _profiles)
-with jax.enable_x64(True):
-    FILTER_RADIUS_UNITS = float(np.asarray(burley_inverse_ccdf(np.float64(1 - HDRP_FILTER_CDF), np.float64(1.0))))
+FILTER_RADIUS_UNITS = unit_radius(1 - HDRP_FILTER_CDF)
 
 
 def hdrp_budget(quality: str, budget: int | None) -> int:
@@ -186,9 +186,8 @@ def _max_ppm(buffers: Buffers, camera: Camera) -> float:
 
 
 def _sample_radius_mm(material: BurleyMaterial, n: int) -> float:
-    d = float(np.max(np.asarray(material.d_mm, np.float64)))
-    with jax.enable_x64(True):
-        return float(np.asarray(burley_inverse_ccdf(np.float64(0.5 / n), np.float64(d))))
+    # the inverse CCDF scales with d: r(v, d) = d r(v, 1)
+    return float(np.max(np.asarray(material.d_mm, np.float64))) * unit_radius(0.5 / n)
 
 
 def hdrp(buffers: Buffers, material: BurleyMaterial, camera: Camera, **options) -> Float[Array, "H W 3"]:
