@@ -381,10 +381,6 @@ def _next_pow2(n: Real) -> int:
     return 1 << max(0, math.ceil(n) - 1).bit_length()
 
 
-def _next_pow2(n: Real) -> int:
-    return 1 << max(0, math.ceil(n) - 1).bit_length()
-
-
 def _starts(n: int, t: int) -> list[int]:
     """Tile starts along an axis: every t pixels, the last tile ending at the last pixel (overlapping the one before
     where n is no multiple of t: all tiles have one shape, one compilation)."""
@@ -521,7 +517,8 @@ def _clamp(tech, buffers: Buffers, material, camera: Camera):
     elif option == "taps":
         taps = int(tech.taps)
         footprint = 2 * int(tech.reach_px(buffers, material, camera)) + 1  # a pass reads 2 reach + 1 pixels of a row
-        bound = _next_pow2(max(footprint - 1, 1)) + 1
+        # 2^k + 1 taps (odd, a centre and symmetric pairs); a pass that reaches no other pixel needs its centre only
+        bound = 1 if footprint <= 1 else _next_pow2(footprint - 1) + 1
         if taps > bound:
             return tech.replace(taps=bound), (f"taps {taps} clamped to {bound}: a pass reaches {footprint} pixels, "
                                               "more taps cannot help")

@@ -537,6 +537,20 @@ def test_samples_beyond_the_footprint_are_clamped_with_a_warning(frames, tmp_pat
     assert f"clamped to {bound}" in book["frames"][0]["message"]
 
 
+def test_a_separable_kernel_under_a_pixel_clamps_to_its_centre_tap(frames, tmp_path):
+    # a kernel that reaches no neighbouring pixel (d far under a pixel's width): the clamp once gave 2 taps, an even
+    # count the pass then refused, so the frame failed ("taps must be an odd positive integer, got 2")
+    f = _io.read_frame(frames / "f0.exr")
+    tiny = sj.BurleyMaterial(MAT.albedo, np.full((3, 3), 1e-4, np.float32))
+    assert sj.technique("separable", taps=25).reach_px(f.to_buffers(), tiny, sj.Camera(f.focal_px, 10.0)) == 0
+    with pytest.warns(UserWarning, match="taps 25 clamped to 1: a pass reaches 1 pixels"):
+        r = process_frames(str(frames / "f0.exr"), "separable", tiny, out_dir=tmp_path, progress=False,
+                           devices=jax.devices()[:1])
+    assert r.ok, r.frames[0].message
+    single = np.asarray(sj.separable(f.to_buffers(), tiny, sj.Camera(f.focal_px, 10.0), taps=1))
+    np.testing.assert_allclose(read_rgb(tmp_path / "f0.exr"), single, rtol=1e-6, atol=1e-7)
+
+
 STA_MATERIAL = (sj.STAParams(thickness_mm=2.0), sj.DirectionalLight([0.3, -0.4, 0.9]))
 
 
