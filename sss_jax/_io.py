@@ -438,8 +438,12 @@ def load_channel_map(source: str | os.PathLike | Mapping[str, Any]) -> dict[str,
     if not isinstance(data, dict):
         raise SSSInputError(f"{origin}: a channel map must be a table of buffer name -> channel name(s)")
     for key, value in data.items():
+        if key == "layer":  # a Blender view layer to read every pass from (``_blender_layers``)
+            if not isinstance(value, str):
+                raise SSSInputError(f"{origin}: 'layer' needs a view layer's name, got {value!r}")
+            continue
         if key not in BUFFER_NAMES:
-            raise SSSInputError(f"{origin}: unknown buffer {key!r}; known buffers: {', '.join(BUFFER_NAMES)}")
+            raise SSSInputError(f"{origin}: unknown buffer {key!r}; known buffers: {', '.join(BUFFER_NAMES)} (and 'layer', a Blender view layer)")
         want = 3 if key in ("irradiance", "albedo", "normal") else 1
         names = [value] if isinstance(value, str) else value
         if not isinstance(names, list) or len(names) != want or not all(isinstance(n, str) for n in names):
@@ -447,24 +451,37 @@ def load_channel_map(source: str | os.PathLike | Mapping[str, Any]) -> dict[str,
     return data
 
 
-def _blender_layers(names: list[str]) -> dict[str, str]:
+def _blender_layers(names: list[str], path, layer: str | None = None) -> dict[str, str]:
     """``{pass.channel: full name}`` of one view layer of Blender's ``<layer>.<pass>.<channel>`` channels, every pass
-    taken from that layer (a frame is never put together from two layers' passes: each layer has its own Depth): the
-    first layer with the diffuse light passes and Depth, else the first with Combined and Depth, else the first with
-    Depth, else the first."""
+    taken from that layer (a frame is never put together from two layers' passes: each layer has its own Depth):
+    ``layer`` where named, else the layer with the diffuse light passes and Depth, else with Combined and Depth, else
+    with Depth, else the first. Two layers that both fit the first of these that any fits are ambiguous (one may be
+    lit and the other black): ``SSSInputError`` naming them, and how to choose (a channel map's ``layer``)."""
     layers: dict[str, dict[str, str]] = {}
     for n in names:
         parts = n.split(".")
         if len(parts) >= 3:
             layers.setdefault(".".join(parts[:-2]), {}).setdefault(".".join(parts[-2:]), n)
+    if layer is not None:
+        if layer not in layers:
+            raise SSSInputError(f"{path}: the channel map's layer {layer!r} is not in the file; its view layers: "
+                                f"{', '.join(map(repr, layers)) or 'none'}")
+        return layers[layer]
     has = lambda layer, name: all(f"{name}.{c}" in layer for c in "RGB")
     for wanted in (lambda layer: has(layer, "DiffDir") and "Depth.Z" in layer,
                    lambda layer: has(layer, "Combined") and "Depth.Z" in layer,
                    lambda layer: "Depth.Z" in layer):
-        for layer in layers.values():
-            if wanted(layer):
-                return layer
+        fits = [name for name, passes in layers.items() if wanted(passes)]
+        if len(fits) > 1:
+            raise SSSInputError(f"{path}: {len(fits)} view layers hold the passes ({', '.join(map(repr, fits))}); "
+                                f"name the one to read in a channel map: {json.dumps({'layer': fits[0]})} (--channel-map)")
+        if fits:
+            return layers[fits[0]]
     return next(iter(layers.values()), {})
+
+
+# a depth channel outside Blender's layers: generic, a multi-part file's part ``depth``, Nuke's ``depth.Z``
+_DEPTH_NAMES = ("Z", "depth.Z", "Depth.Z", "depth", "Z.Z")
 
 
 def _first(channels: dict[str, np.ndarray], *candidates: str) -> str | None:
@@ -479,6 +496,8 @@ def _resolve(channels: dict[str, np.ndarray], channel_map: Mapping[str, Any] | N
     names = list(channels)
     found = ", ".join(names[:24]) + (" ..." if len(names) > 24 else "")
     plan: dict[str, list[str] | tuple] = {}
+    layer = (channel_map or {}).get("layer")
+    channel_map = {k: v for k, v in (channel_map or {}).items() if k != "layer"}  # buffers named, if any
     if channel_map:
         for key, value in channel_map.items():
             cols = [value] if isinstance(value, str) else list(value)
@@ -488,8 +507,8 @@ def _resolve(channels: dict[str, np.ndarray], channel_map: Mapping[str, Any] | N
             plan[key] = cols
         layout = "channel-map"
     else:
-        blender = _blender_layers(names)
-        if "DiffDir.R" in blender or "Depth.Z" in blender:
+        blender = _blender_layers(names, path, layer)
+        if "DiffDir.R" in blender or "Depth.Z" in blender or layer is not None:
             layout = "blender"
             rgb = lambda p: [blender.get(f"{p}.{c}") for c in "RGB"]
             if all(rgb("DiffDir")) and all(rgb("DiffInd")):
@@ -498,8 +517,11 @@ def _resolve(channels: dict[str, np.ndarray], channel_map: Mapping[str, Any] | N
                 plan["irradiance"] = rgb("DiffDir")
             elif all(rgb("Combined")):
                 plan["irradiance"] = rgb("Combined")
-            if "Depth.Z" in blender:
-                plan["depth"] = [blender["Depth.Z"]]
+            # the layer's Depth, else a depth channel of its own (``Z`` beside the layer, or a multi-part file's part
+            # ``depth``)
+            z = blender.get("Depth.Z") or _first(channels, *_DEPTH_NAMES)
+            if z:
+                plan["depth"] = [z]
             if all(rgb("DiffCol")):
                 plan["albedo"] = rgb("DiffCol")
             normal = [blender.get(f"Normal.{c}") for c in "XYZ"]
@@ -512,7 +534,7 @@ def _resolve(channels: dict[str, np.ndarray], channel_map: Mapping[str, Any] | N
             layout = "generic"
             if all(c in channels for c in "RGB"):
                 plan["irradiance"] = ["R", "G", "B"]
-            z = _first(channels, "Z", "depth.Z", "Depth.Z", "depth", "Z.Z")
+            z = _first(channels, *_DEPTH_NAMES)
             if z:
                 plan["depth"] = [z]
             if all(f"albedo.{c}" in channels for c in "RGB"):

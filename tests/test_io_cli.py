@@ -505,14 +505,48 @@ def test_blender_view_layers_are_never_mixed(tmp_path):
     frame = _io.read_frame(tmp_path / "layers.exr")
     assert frame.layout == "blender"
     assert np.all(frame.irradiance == 1.0) and np.all(frame.albedo == 0.5) and np.all(frame.depth == 2.0)
-    # a file whose first layer has it all keeps that layer
-    ch2 = {k.replace("Background", "A"): v for k, v in ch.items() if k.startswith("Background")}
-    ch2.update({f"A.DiffDir.{c}": 0.25 * one for c in "RGB"})
-    ch2.update({k.replace("Character", "B"): v for k, v in ch.items() if k.startswith("Character")})
+    # two layers that both hold the light passes and Depth (Blender's "ViewLayer" and "ViewLayer.001": one may be
+    # lit, the other black) are refused, naming both, until a channel map names the layer to read. Before, the
+    # first in the file's order was taken silently (a black frame out of a lit render's file)
+    ch2 = {k.replace("Background", "ViewLayer.001"): v for k, v in ch.items() if k.startswith("Background")}
+    ch2.update({f"ViewLayer.001.DiffDir.{c}": 0.25 * one for c in "RGB"})
+    ch2.update({k.replace("Character", "ViewLayer"): v for k, v in ch.items() if k.startswith("Character")})
     with OpenEXR.File(head, ch2) as f:
-        f.write(str(tmp_path / "first.exr"))
-    first = _io.read_frame(tmp_path / "first.exr")
+        f.write(str(tmp_path / "two.exr"))
+    with pytest.raises(_io.SSSInputError, match=r"2 view layers hold the passes \('ViewLayer.001', 'ViewLayer'\); "
+                                                r"name the one to read in a channel map: \{\"layer\": "):
+        _io.read_frame(tmp_path / "two.exr")
+    first = _io.read_frame(tmp_path / "two.exr", channel_map={"layer": "ViewLayer.001"})
     assert np.all(first.irradiance == 0.25) and np.all(first.depth == 100.0) and first.albedo is None
+    second = _io.read_frame(tmp_path / "two.exr", channel_map={"layer": "ViewLayer"})
+    assert np.all(second.irradiance == 1.0) and np.all(second.albedo == 0.5) and np.all(second.depth == 2.0)
+    with pytest.raises(_io.SSSInputError, match="layer 'Character' is not in the file; its view layers: "
+                                                "'ViewLayer.001', 'ViewLayer'"):
+        _io.read_frame(tmp_path / "two.exr", channel_map={"layer": "Character"})
+    # and from a file, through the CLI's --channel-map
+    (tmp_path / "map.json").write_text('{"layer": "ViewLayer"}')
+    assert np.all(_io.read_frame(tmp_path / "two.exr", channel_map=tmp_path / "map.json").depth == 2.0)
+
+
+def test_a_depth_channel_beside_a_blender_layer_is_read(tmp_path):
+    # Blender's light passes in a layer and the depth in a channel of its own (a bare Z written beside them, or the
+    # README's multi-part file with a part "depth"): the layer's light and that depth. Before: "missing depth
+    # channel(s) (expected Z, ...); channels found: ..., Z"
+    import OpenEXR
+
+    h, w = 4, 6
+    one = np.ones((h, w), np.float32)
+    light = {f"ViewLayer.{name}.{c}": 0.5 * one for name in ("DiffDir", "DiffInd", "DiffCol") for c in "RGB"}
+    head = {"type": OpenEXR.scanlineimage, "compression": OpenEXR.ZIP_COMPRESSION, "sss_jax:focal_px": 100.0}
+    with OpenEXR.File(head, {**light, "Z": 3 * one}) as f:
+        f.write(str(tmp_path / "bare_z.exr"))
+    frame = _io.read_frame(tmp_path / "bare_z.exr")
+    assert frame.layout == "blender" and np.all(frame.irradiance == 1.0) and np.all(frame.depth == 3.0)
+    parts = [OpenEXR.Part({**head, "name": "rgb"}, light), OpenEXR.Part({**head, "name": "depth"}, {"Z": 4 * one})]
+    with OpenEXR.File(parts) as f:
+        f.write(str(tmp_path / "parts.exr"))
+    frame = _io.read_frame(tmp_path / "parts.exr")
+    assert np.all(frame.irradiance == 1.0) and np.all(frame.albedo == 0.5) and np.all(frame.depth == 4.0)
 
 
 def test_a_cropped_data_window_is_read_in_its_display_window(tmp_path, monkeypatch):
