@@ -711,7 +711,18 @@ def _frame_from_decoded(path: pathlib.Path, decoded, *, channel_map, depth_kind:
         elif not np.all(np.isfinite(ids)):
             raise SSSInputError(f"{path}: id channel has non-finite values")
         else:
-            ids = np.rint(ids)
+            whole = np.rint(ids)
+            # ids stored as floats hold whole numbers (Blender's IndexOB, half or float); a fraction is a filtered
+            # (anti-aliased) or scaled pass, or another channel: rounding it picked materials silently (0.5 -> 0)
+            off = np.abs(ids - whole) > 1e-3
+            if off.any():
+                from ._scene import _first_pixel  # (here: _io itself imports no JAX)
+
+                raise SSSInputError(f"{path}: id channel {id_channel!r} has {int(off.sum())} value(s) that are not "
+                                    f"whole numbers (the first {float(ids[off][0]):.4g}, at {_first_pixel(off)}); ids "
+                                    "select materials 1, 2, ...: an unfiltered id pass (Blender's IndexOB), or a "
+                                    "channel map to one")
+            ids = whole
         if np.any(ids < 0):
             raise SSSInputError(f"{path}: id channel has negative ids (min {int(ids.min())})")
         if np.any(ids > np.iinfo(np.int32).max):
@@ -741,13 +752,25 @@ def _frame_from_decoded(path: pathlib.Path, decoded, *, channel_map, depth_kind:
     frame = Frame(irradiance=irradiance, depth=depth, albedo=albedo, normal=normal, thickness=thickness,
                   material_id=ids, focal_px=focal_px, mm_per_unit=mm_per_unit, path=str(path), layout=layout,
                   metadata=metadata, window=window)
+    surface = np.isfinite(depth)
+    lost = None if ids is None else (ids > 0) & ~surface  # a material without a surface to scatter on
     if frame.sss_pixels == 0:
-        if not np.any(np.isfinite(depth)):
-            why = f"depth channel {plan['depth'][0]!r} has no surface (every value is inf, 0 or background)"
+        if not surface.any():
+            why = (f"depth channel {plan['depth'][0]!r} has no surface (every value is NaN, 0, negative, inf or "
+                   "background)")
+        elif lost is not None and lost.any():
+            why = (f"no pixel whose id ({plan['id'][0]!r}) is above 0 has a surface in depth channel "
+                   f"{plan['depth'][0]!r} (its depth there is NaN, 0, negative, inf or background)")
         else:
             why = (f"id channel {plan['id'][0]!r} is 0 on every surface pixel (0 = no SSS); ids stored as floats "
                    "must hold the integer values 1, 2, ...")
         warn(f"{path}: no pixel to scatter: {why}; the output is the input", NoSSSPixelsWarning)
+    elif lost is not None and lost.any():  # none in Blender's renders (ids and depth from the same first hit)
+        from ._scene import _first_pixel
+
+        warn(f"{path}: {int(lost.sum())} pixel(s) with an id above 0 have no surface in depth channel "
+             f"{plan['depth'][0]!r} (NaN, 0, negative, inf or background depth; the first at {_first_pixel(lost)}): "
+             "they keep their input, unscattered and without the albedo", UserWarning)
     return frame
 
 

@@ -908,6 +908,39 @@ def test_a_frame_without_sss_pixels_warns(tmp_path, capsys, as_users_run_it):
     assert err.count("warning: ") >= 1 and err.count("no pixel to scatter") == 1, err
 
 
+def test_ids_and_depths_that_disagree_are_named(tmp_path):
+    # what a wrong or damaged pass looks like, as the fuzzing of 2026-12-06 found it: each was read without a word
+    h, w = 12, 16
+    ids = np.ones((h, w), np.float32)
+    ids[:, :5] = 0
+    rng = np.random.default_rng(3)
+    base = {c: rng.uniform(0.2, 1, (h, w)).astype(np.float32) for c in "RGB"}
+    head = {"sss_jax:focal_px": 200.0, "sss_jax:mm_per_unit": 10.0}
+
+    def frame(name, z, idx):
+        write_renderer_exr(tmp_path / name, {**base, "Z": z.astype(np.float32), "id": idx.astype(np.float32)}, head)
+        return tmp_path / name
+
+    z = np.full((h, w), 30.0)
+    # float ids that are not whole numbers (a filtered or scaled pass): 0.5 was rounded to 0, no SSS there
+    with pytest.raises(_io.SSSInputError, match=r"id channel 'id' has 132 value\(s\) that are not whole numbers "
+                                                r"\(the first 0.5, at row 0, column 5\)"):
+        _io.read_frame(frame("half_ids.exr", z, ids * 0.5))
+    _io.read_frame(frame("whole_ids.exr", z, ids * 2.0 + 1e-5))  # float rounding of a whole number is fine
+    # pixels of a material without a surface (NaN or negative depth under id 1): they keep their input
+    holes = z.copy()
+    holes[3, 7], holes[4, 9] = np.nan, -30.0
+    with pytest.warns(UserWarning, match=r"2 pixel\(s\) with an id above 0 have no surface in depth channel 'Z' "
+                                         r"\(NaN, 0, negative, inf or background depth; the first at row 3, column 7\)"):
+        f = _io.read_frame(frame("holes.exr", holes, ids))
+    assert f.sss_pixels == h * (w - 5) - 2
+    # every material pixel without a surface: the depth is named, not the ids (which are right)
+    lost = np.where(ids > 0, 0.0, 30.0)  # the background a wall, the objects' depth 0
+    with pytest.warns(_io.NoSSSPixelsWarning, match="no pixel whose id \\('id'\\) is above 0 has a surface in depth "
+                                                    "channel 'Z'"):
+        _io.read_frame(frame("lost.exr", lost, ids))
+
+
 def test_cli_help_shows_examples(capsys):
     for cmd in ("apply", "demo"):
         with pytest.raises(SystemExit):
