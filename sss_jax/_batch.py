@@ -280,6 +280,13 @@ def _resume_record(src: pathlib.Path, parameters: dict[str, Any]) -> tuple[dict[
     return attrs, digest
 
 
+def _size(path: pathlib.Path) -> int:
+    try:
+        return path.stat().st_size
+    except OSError:
+        return 0
+
+
 def _existing_output(dst: pathlib.Path) -> dict[str, Any] | None:
     """The header of an existing output, ``{}`` for an existing file that cannot be read, ``None`` if none."""
     if not dst.exists():
@@ -887,7 +894,11 @@ def _existing_outputs(jobs: list[_Job], overwrite: bool) -> dict[pathlib.Path, d
         existing[job.dst] = header
         made_from = header.get("sss_jax:input")
         same_input = made_from is not None and _identity(pathlib.Path(str(made_from))) == _identity(job.src)
-        if header and not same_input and not overwrite:
+        if overwrite:
+            continue
+        if not header and _size(job.dst) > 0:  # not an EXR (notes, a PNG named .exr) or a damaged one: not ours
+            foreign.append(f"{job.dst} exists and is not an EXR that can be read ({_size(job.dst)} bytes)")
+        elif header and not same_input:
             foreign.append(f"{job.dst} exists and was made from {made_from or 'something other than sss_jax'}, "
                            f"not {job.src}")
     if foreign:

@@ -57,6 +57,8 @@ __all__ = ["Frame", "SSSInputError", "NoSSSPixelsWarning", "read_frame", "read_c
            "exr_is_complete", "exr_chunks_complete", "write_exr", "write_png_preview", "write_json_atomic",
            "write_bytes_atomic", "atomic_path", "check_writable", "display_transform", "load_channel_map"]
 
+_HALF_MAX = 65504.0  # the largest finite half float
+
 BUFFER_NAMES = ("irradiance", "depth", "albedo", "normal", "thickness", "id")
 
 
@@ -953,6 +955,15 @@ def write_exr(
                 data.shape[-1], [f"C{i}" for i in range(data.shape[-1])])
     if len(channel_names) != data.shape[-1]:
         raise SSSInputError(f"{path}: {len(channel_names)} channel names for {data.shape[-1]} channels")
+    if half:
+        # beyond half's range a value would be written as inf, which poisons every filter and blend downstream:
+        # written as half's largest, and said
+        over = np.isfinite(data) & (np.abs(data) > _HALF_MAX)
+        if over.any():
+            warnings.warn(f"{path}: {int(over.sum())} value(s) beyond half's range (up to {float(np.abs(data[over]).max()):.3g}) "
+                          f"written as +-{_HALF_MAX:g}, half's largest; a float output keeps them", UserWarning,
+                          stacklevel=2)
+            data = np.where(over, np.sign(data) * _HALF_MAX, data)
     pixels = np.ascontiguousarray(data.astype(np.float16 if half else np.float32, copy=False))
     attributes = {key: _header_value(value) for key, value in (attributes or {}).items()}
     h, w, c = data.shape

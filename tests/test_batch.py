@@ -272,6 +272,22 @@ def test_an_output_made_from_another_input_is_not_overwritten(frames, tmp_path):
     assert r.ok and (out / "beauty.exr").read_bytes() != first
 
 
+def test_a_file_at_an_output_path_that_is_not_an_exr_is_not_overwritten(frames, tmp_path):
+    # someone's notes (or a PNG) named like the output: it cannot be read, so it was taken for an output to recompute
+    # and replaced without --overwrite. An empty file holds nothing to lose: it is replaced
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "f0.exr").write_text("my notes on this shot")
+    with pytest.raises(_io.SSSInputError, match=r"f0.exr exists and is not an EXR that can be read \(21 bytes\)"):
+        process_frames(str(frames / "f0.exr"), "burley", MAT, out_dir=out, samples=4, progress=False,
+                       devices=jax.devices()[:1])
+    assert (out / "f0.exr").read_text() == "my notes on this shot"
+    (out / "f0.exr").write_bytes(b"")
+    assert process_frames(str(frames / "f0.exr"), "burley", MAT, out_dir=out, samples=4, progress=False,
+                          devices=jax.devices()[:1]).ok
+    assert _io.exr_is_complete(out / "f0.exr")
+
+
 def test_a_file_created_meanwhile_is_not_replaced(tmp_path):
     # the placement another process could race with: the write of a new output fails rather than replace
     dst = tmp_path / "o.exr"

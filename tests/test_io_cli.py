@@ -59,6 +59,17 @@ def test_exr_round_trip_float_half_and_header(tmp_path):
     assert not list(tmp_path.glob(".*tmp*"))
 
 
+def test_half_output_beyond_its_range_is_clamped_and_said(tmp_path):
+    # a half EXR holds up to 65504; beyond it the cast gave inf (a bright highlight through --half), silently
+    img = np.array([[[1.0, 7e4, -3e5], [65504.0, 0.5, 1e30]]], np.float32)
+    with pytest.warns(UserWarning, match=r"3 value\(s\) beyond half's range \(up to 1e\+30\) written as \+-65504"):
+        _io.write_exr(tmp_path / "h.exr", img, half=True)
+    inp = oiio.ImageInput.open(str(tmp_path / "h.exr"))
+    got = inp.read_image(oiio.FLOAT)
+    inp.close()
+    np.testing.assert_array_equal(got, [[[1.0, 65504.0, -65504.0], [65504.0, 0.5, 65504.0]]])
+
+
 def test_atomic_write_keeps_the_old_file_on_failure(tmp_path):
     p = tmp_path / "keep.json"
     _io.write_json_atomic(p, {"a": 1})
