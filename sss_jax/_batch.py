@@ -896,7 +896,8 @@ def _existing_outputs(jobs: list[_Job], overwrite: bool) -> dict[pathlib.Path, d
         same_input = made_from is not None and _identity(pathlib.Path(str(made_from))) == _identity(job.src)
         if overwrite:
             continue
-        if not header and _size(job.dst) > 0:  # not an EXR (notes, a PNG named .exr) or a damaged one: not ours
+        if not header and job.dst.is_file() and _size(job.dst) > 0:  # not an EXR (notes, a PNG named .exr) or a
+            # damaged one: not ours (a folder there is named by the output checks)
             foreign.append(f"{job.dst} exists and is not an EXR that can be read ({_size(job.dst)} bytes)")
         elif header and not same_input:
             foreign.append(f"{job.dst} exists and was made from {made_from or 'something other than sss_jax'}, "

@@ -189,6 +189,10 @@ def _read_image(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[st
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
         raise SSSInputError(f"{path}: not a readable image ({oiio.geterror() or 'unknown format'})")
+    if path.suffix.lower() == ".exr" and inp.format_name() != "openexr":  # OpenImageIO reads by content
+        fmt = inp.format_name()
+        inp.close()
+        raise SSSInputError(f"{path}: named .exr but it is not an OpenEXR file (its content is {fmt})")
     channels: dict[str, np.ndarray] = {}
     integers: dict[str, np.ndarray] = {}
     metadata: dict[str, Any] = {}
@@ -681,6 +685,10 @@ def _frame_from_decoded(path: pathlib.Path, decoded, *, channel_map, depth_kind:
         key = _first(d_channels, "Z", "depth.Z", "Depth.Z", "Y", "R") or next(iter(d_channels))
         channels = dict(channels, **{"Z": d_channels[key]})
     plan, layout = _resolve(channels, cmap, path)
+    if layout == "blender" and any(".Combined." in name for name in plan["irradiance"]):
+        warn(f"{path}: no diffuse light passes (DiffDir, DiffInd): the irradiance is the Combined pass, which is "
+             "shaded already (the surface colour, specular and emission in it), so the albedo counts twice and the "
+             "highlights scatter; render the Diffuse Direct, Indirect and Color passes", UserWarning)
     buffers = {k: _stack(channels, v) for k, v in plan.items()}
 
     side = _sidecar(path)

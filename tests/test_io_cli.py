@@ -560,6 +560,30 @@ def test_a_depth_channel_beside_a_blender_layer_is_read(tmp_path):
     assert np.all(frame.irradiance == 1.0) and np.all(frame.albedo == 0.5) and np.all(frame.depth == 4.0)
 
 
+def test_a_combined_pass_taken_for_light_is_said_and_a_png_named_exr_is_named(tmp_path):
+    # Blender's Combined is shaded (the surface colour, specular, emission): taken for the irradiance when the diffuse
+    # light passes are missing, the albedo counts twice, without a word before. A PNG named .exr was read by content
+    # and refused for its channels ("missing depth ... found R, G, B"), never said to be no EXR
+    import OpenEXR
+
+    one = np.ones((4, 6), np.float32)
+    ch = {f"ViewLayer.Combined.{c}": 0.3 * one for c in "RGBA"}
+    ch["ViewLayer.Depth.Z"] = 2 * one
+    with OpenEXR.File({"type": OpenEXR.scanlineimage, "sss_jax:focal_px": 100.0}, ch) as f:
+        f.write(str(tmp_path / "combined.exr"))
+    with pytest.warns(UserWarning, match="no diffuse light passes .*the irradiance is the Combined pass, which is "
+                                         "shaded already"):
+        frame = _io.read_frame(tmp_path / "combined.exr")
+    assert np.all(frame.irradiance == np.float32(0.3))
+    png = tmp_path / "beauty.exr"
+    out = oiio.ImageOutput.create("png")
+    assert out.open(str(png), oiio.ImageSpec(6, 4, 3, oiio.UINT8)) and out.write_image(np.zeros((4, 6, 3), np.uint8))
+    out.close()
+    with pytest.raises(_io.SSSInputError, match="beauty.exr: named .exr but it is not an OpenEXR file "
+                                                r"\(its content is png\)"):
+        _io.read_frame(png)
+
+
 def test_a_cropped_data_window_is_read_in_its_display_window(tmp_path, monkeypatch):
     # auto-cropped renders (Arnold, RenderMan, Nuke) store only a data window inside the display window; the frame
     # is the display window, the crop in its place, nothing around it (no light, no surface, id 0), whichever
