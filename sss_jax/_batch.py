@@ -280,6 +280,16 @@ def _resume_record(src: pathlib.Path, parameters: dict[str, Any]) -> tuple[dict[
     return attrs, digest
 
 
+def _exr_magic(path: pathlib.Path) -> bool:
+    """Whether the file is empty or starts as an OpenEXR file does (its magic number), damaged or not."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4)
+    except OSError:
+        return False
+    return head in (b"", b"\x76\x2f\x31\x01")
+
+
 def _size(path: pathlib.Path) -> int:
     try:
         return path.stat().st_size
@@ -896,9 +906,9 @@ def _existing_outputs(jobs: list[_Job], overwrite: bool) -> dict[pathlib.Path, d
         same_input = made_from is not None and _identity(pathlib.Path(str(made_from))) == _identity(job.src)
         if overwrite:
             continue
-        if not header and job.dst.is_file() and _size(job.dst) > 0:  # not an EXR (notes, a PNG named .exr) or a
-            # damaged one: not ours (a folder there is named by the output checks)
-            foreign.append(f"{job.dst} exists and is not an EXR that can be read ({_size(job.dst)} bytes)")
+        if not header and job.dst.is_file() and not _exr_magic(job.dst):  # notes, a PNG named .exr: not ours (a
+            # damaged EXR is recomputed, as resume does; a folder there is named by the output checks)
+            foreign.append(f"{job.dst} exists and is not an EXR ({_size(job.dst)} bytes)")
         elif header and not same_input:
             foreign.append(f"{job.dst} exists and was made from {made_from or 'something other than sss_jax'}, "
                            f"not {job.src}")

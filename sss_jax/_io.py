@@ -712,6 +712,12 @@ def _frame_from_decoded(path: pathlib.Path, decoded, *, channel_map, depth_kind:
     irradiance = np.asarray(buffers["irradiance"], np.float32)
     if not np.all(np.isfinite(irradiance)):
         raise SSSInputError(f"{path}: irradiance has {int(np.sum(~np.isfinite(irradiance)))} non-finite values")
+    # negatives read as 0: a lossy codec's ringing around 0 (DWAA: -6e-6 beside 2.8) silently, more than a
+    # thousandth of the frame's largest value said (a difference of two renders, or another pass taken for light)
+    low, high = float(irradiance.min(initial=0.0)), float(irradiance.max(initial=0.0))
+    if low < -1e-3 * high or (low < 0 and high <= 0):
+        warn(f"{path}: irradiance has {int(np.sum(irradiance < 0))} negative value(s) (down to {low:.3g}, the "
+             f"largest {high:.3g}), read as 0: a light pass holds no negative light", UserWarning)
     irradiance = np.maximum(irradiance, 0.0)
     ids = buffers.get("id")
     if ids is not None:

@@ -5,6 +5,7 @@ import math
 import os
 import pathlib
 import stat
+import warnings
 
 import numpy as np
 import OpenImageIO as oiio
@@ -974,6 +975,25 @@ def test_ids_and_depths_that_disagree_are_named(tmp_path):
     with pytest.warns(_io.NoSSSPixelsWarning, match="no pixel whose id \\('id'\\) is above 0 has a surface in depth "
                                                     "channel 'Z'"):
         _io.read_frame(frame("lost.exr", lost, ids))
+
+
+def test_negative_light_is_said_unless_it_is_a_codecs_ringing(tmp_path):
+    # negatives are read as 0; a lossy codec's ringing (DWAA: -6e-6 beside 2.8 on Blender's render) silently, a
+    # pass that holds negative light (-1: a difference of two renders, another pass mapped as light) with a warning
+    h, w = 6, 8
+    z = np.full((h, w), 30.0, np.float32)
+    rgb = {c: np.full((h, w), 2.8, np.float32) for c in "RGB"}
+    head = {"sss_jax:focal_px": 200.0, "sss_jax:mm_per_unit": 10.0}
+    ring = dict(rgb, R=np.where(np.arange(w) < 2, np.float32(-6e-6), rgb["R"]))
+    write_renderer_exr(tmp_path / "ring.exr", {**ring, "Z": z})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert _io.read_frame(tmp_path / "ring.exr", focal_px=200.0, mm_per_unit=10.0).irradiance.min() == 0.0
+    neg = dict(rgb, G=np.where(np.arange(w) < 3, np.float32(-1.0), rgb["G"]))
+    write_renderer_exr(tmp_path / "neg.exr", {**neg, "Z": z}, head)
+    with pytest.warns(UserWarning, match=r"irradiance has 18 negative value\(s\) \(down to -1, the largest 2.8\), "
+                                         "read as 0"):
+        assert _io.read_frame(tmp_path / "neg.exr").irradiance.min() == 0.0
 
 
 def test_cli_help_shows_examples(capsys):
