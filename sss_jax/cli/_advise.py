@@ -86,7 +86,7 @@ def register(subparsers) -> None:
     fr.add_argument("--focal-px", type=float, help="focal length in pixels")
     fr.add_argument("--mm-per-unit", type=float, help="millimetres per scene unit of the depth buffer")
     fr.add_argument("--depth-kind", choices=("planar", "distance"), default="planar")
-    fr.add_argument("--channel-map", help="JSON/TOML file mapping buffers to channels")
+    fr.add_argument("--channel-map", help="JSON/TOML file mapping buffers to channels, or naming the Blender view layer to read ({\"layer\": \"ViewLayer\"})")
     p.add_argument("--max-delta-e", type=float, required=True, help="budget: mean CIEDE2000 against the reference "
                    "(or the truth)")
     p.add_argument("--repeats", type=int, default=5,

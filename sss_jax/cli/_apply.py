@@ -62,7 +62,7 @@ def register(subparsers) -> None:
     p.add_argument("--mm-per-unit", type=float, help="millimetres per scene unit of the depth buffer")
     p.add_argument("--depth-kind", choices=("planar", "distance"), default="planar",
                    help="Z is planar view depth (default) or distance to the camera")
-    p.add_argument("--channel-map", help="JSON/TOML file mapping buffers (irradiance, depth, albedo, normal, thickness, id) to channels")
+    p.add_argument("--channel-map", help="JSON/TOML file mapping buffers (irradiance, depth, albedo, normal, thickness, id) to channels, or naming the Blender view layer to read ({\"layer\": \"ViewLayer\"})")
     p.add_argument("--samples", type=int, default=None, help="Burley spiral samples (default 32)")
     p.add_argument("--taps", type=int, default=None, help="separable taps per pass (default 25)")
     p.add_argument("--radius-px", type=int, help="reference window radius in pixels (default: 99.9%% of the energy)")
