@@ -449,7 +449,8 @@ def load_channel_map(source: str | os.PathLike | Mapping[str, Any]) -> dict[str,
                 raise SSSInputError(f"{origin}: 'layer' needs a view layer's name, got {value!r}")
             continue
         if key not in BUFFER_NAMES:
-            raise SSSInputError(f"{origin}: unknown buffer {key!r}; known buffers: {', '.join(BUFFER_NAMES)} (and 'layer', a Blender view layer)")
+            raise SSSInputError(f"{origin}: unknown buffer {key!r}; known buffers: {', '.join(BUFFER_NAMES)} "
+                                "(and 'layer', a Blender view layer)")
         want = 3 if key in ("irradiance", "albedo", "normal") else 1
         names = [value] if isinstance(value, str) else value
         if not isinstance(names, list) or len(names) != want or not all(isinstance(n, str) for n in names):
@@ -480,7 +481,8 @@ def _blender_layers(names: list[str], path, layer: str | None = None) -> dict[st
         fits = [name for name, passes in layers.items() if wanted(passes)]
         if len(fits) > 1:
             raise SSSInputError(f"{path}: {len(fits)} view layers hold the passes ({', '.join(map(repr, fits))}); "
-                                f"name the one to read in a channel map: {json.dumps({'layer': fits[0]})} (--channel-map)")
+                                f"name the one to read in a channel map: {json.dumps({'layer': fits[0]})} "
+                                "(--channel-map)")
         if fits:
             return layers[fits[0]]
     return next(iter(layers.values()), {})
@@ -504,6 +506,9 @@ def _resolve(channels: dict[str, np.ndarray], channel_map: Mapping[str, Any] | N
     plan: dict[str, list[str] | tuple] = {}
     layer = (channel_map or {}).get("layer")
     channel_map = {k: v for k, v in (channel_map or {}).items() if k != "layer"}  # buffers named, if any
+    if layer is not None and channel_map:
+        raise SSSInputError(f"{path}: a channel map names either the buffers' channels or a view layer to read them "
+                            f"from, not both (it names the layer {layer!r} and {', '.join(channel_map)})")
     if channel_map:
         for key, value in channel_map.items():
             cols = [value] if isinstance(value, str) else list(value)
@@ -974,9 +979,9 @@ def write_exr(
         # written as half's largest, and said
         over = np.isfinite(data) & (np.abs(data) > _HALF_MAX)
         if over.any():
-            warnings.warn(f"{path}: {int(over.sum())} value(s) beyond half's range (up to {float(np.abs(data[over]).max()):.3g}) "
-                          f"written as +-{_HALF_MAX:g}, half's largest; a float output keeps them", UserWarning,
-                          stacklevel=2)
+            largest = float(np.abs(data[over]).max())
+            warnings.warn(f"{path}: {int(over.sum())} value(s) beyond half's range (up to {largest:.3g}) written as "
+                          f"+-{_HALF_MAX:g}, half's largest; a float output keeps them", UserWarning, stacklevel=2)
             data = np.where(over, np.sign(data) * _HALF_MAX, data)
     pixels = np.ascontiguousarray(data.astype(np.float16 if half else np.float32, copy=False))
     attributes = {key: _header_value(value) for key, value in (attributes or {}).items()}

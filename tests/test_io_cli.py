@@ -535,6 +535,8 @@ def test_blender_view_layers_are_never_mixed(tmp_path):
     with pytest.raises(_io.SSSInputError, match="layer 'Character' is not in the file; its view layers: "
                                                 "'ViewLayer.001', 'ViewLayer'"):
         _io.read_frame(tmp_path / "two.exr", channel_map={"layer": "Character"})
+    with pytest.raises(_io.SSSInputError, match="names either the buffers' channels or a view layer"):
+        _io.read_frame(tmp_path / "two.exr", channel_map={"layer": "ViewLayer", "depth": "ViewLayer.Depth.Z"})
     # and from a file, through the CLI's --channel-map
     (tmp_path / "map.json").write_text('{"layer": "ViewLayer"}')
     assert np.all(_io.read_frame(tmp_path / "two.exr", channel_map=tmp_path / "map.json").depth == 2.0)
