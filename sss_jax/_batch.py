@@ -221,13 +221,24 @@ def _check_plan(jobs: list[tuple[pathlib.Path, pathlib.Path]], png: bool, manife
             writes.setdefault(_identity(out), []).append((src, out))
     if manifest is not None:
         writes.setdefault(_identity(manifest), []).append((pathlib.Path("(the manifest)"), manifest))
+    files = {}  # the inputs by file (a hard link is another path to one)
+    for src, _ in jobs:
+        with contextlib.suppress(OSError):
+            st = src.stat()
+            files.setdefault((st.st_dev, st.st_ino), src)
     problems = []
     for key, users in writes.items():
         if len(users) > 1:
             problems.append(f"{users[0][1]} would be written by " + " and ".join(str(s) for s, _ in users))
+        src, out = users[0]
         if key in inputs:
-            src, out = users[0]
             problems.append(f"output {out} is the input {inputs[key][0]}: an input is never overwritten")
+            continue
+        with contextlib.suppress(OSError):
+            st = out.stat()
+            if (st.st_dev, st.st_ino) in files:
+                problems.append(f"output {out} is the input {files[st.st_dev, st.st_ino]} under another name (a hard "
+                                "link): an input is never overwritten")
     if problems:
         raise SSSInputError("batch refused before any frame ran: " + "; ".join(problems[:10])
                             + (f"; and {len(problems) - 10} more" if len(problems) > 10 else ""))

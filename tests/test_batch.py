@@ -255,6 +255,14 @@ def test_output_equal_to_an_input_is_refused(frames, tmp_path, capsys):
         process_frames(src, "burley", MAT, out_dir=tmp_path / "in", samples=4, progress=False)
     assert src.read_bytes() == before
     assert sorted(p.name for p in (tmp_path / "in").iterdir()) == ["frame.exr"]
+    # and under another name: a hard link to it (was refused as an output "made from something other than sss_jax")
+    link = tmp_path / "out" / "frame.exr"
+    link.parent.mkdir()
+    os.link(src, link)
+    with pytest.raises(_io.SSSInputError, match=r"output .*out/frame.exr is the input .*in/frame.exr under another "
+                                                r"name \(a hard link\)"):
+        process_frames(src, "burley", MAT, out_dir=tmp_path / "out", samples=4, progress=False, overwrite=True)
+    assert src.read_bytes() == before
 
 
 def test_an_output_made_from_another_input_is_not_overwritten(frames, tmp_path):
