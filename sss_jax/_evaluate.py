@@ -41,13 +41,16 @@ def read_truth(path: str | os.PathLike, channels: str | Sequence[str] | None = N
     ``<ViewLayer>.Combined.R/G/B``, the default for a Blender multilayer file), or three channel names (``"R,G,B"``,
     the default otherwise). ``shape``: the ``(H, W)`` it must have."""
     chans, _, got = read_channels(path)
-    blender = _blender_layers(list(chans))
+    # the view layer, only where a pass is named by itself (three channel names, or a pass's full name, need none)
+    blender = lambda: _blender_layers(list(chans), path, choose="name its channels (--truth-channels "
+                                      "{layer}.Combined.R,{layer}.Combined.G,{layer}.Combined.B)")
     if channels is None:
-        channels = "Combined" if "Combined.R" in blender else "R,G,B"
+        channels = "Combined" if "Combined.R" in blender() else "R,G,B"
     names = [c.strip() for c in channels.split(",")] if isinstance(channels, str) else list(channels)
     if len(names) == 1:
         p = names[0]
-        names = [blender.get(f"{p}.{c}") or f"{p}.{c}" for c in "RGB"]
+        names = ([f"{p}.{c}" for c in "RGB"] if all(f"{p}.{c}" in chans for c in "RGB")
+                 else [blender().get(f"{p}.{c}") or f"{p}.{c}" for c in "RGB"])
     if len(names) != 3:
         raise SSSInputError(f"{path}: truth channels must be a pass name or three channel names, got {channels!r}")
     missing = [n for n in names if n not in chans]

@@ -458,12 +458,13 @@ def load_channel_map(source: str | os.PathLike | Mapping[str, Any]) -> dict[str,
     return data
 
 
-def _blender_layers(names: list[str], path, layer: str | None = None) -> dict[str, str]:
+def _blender_layers(names: list[str], path, layer: str | None = None, *, choose: str | None = None) -> dict[str, str]:
     """``{pass.channel: full name}`` of one view layer of Blender's ``<layer>.<pass>.<channel>`` channels, every pass
     taken from that layer (a frame is never put together from two layers' passes: each layer has its own Depth):
     ``layer`` where named, else the layer with the diffuse light passes and Depth, else with Combined and Depth, else
     with Depth, else the first. Two layers that both fit the first of these that any fits are ambiguous (one may be
-    lit and the other black): ``SSSInputError`` naming them, and how to choose (a channel map's ``layer``)."""
+    lit and the other black): ``SSSInputError`` naming them, and how to choose (``choose``; by default a channel
+    map's ``layer``)."""
     layers: dict[str, dict[str, str]] = {}
     for n in names:
         parts = n.split(".")
@@ -480,9 +481,10 @@ def _blender_layers(names: list[str], path, layer: str | None = None) -> dict[st
                    lambda layer: "Depth.Z" in layer):
         fits = [name for name, passes in layers.items() if wanted(passes)]
         if len(fits) > 1:
+            how = (f"name the one to read in a channel map: {json.dumps({'layer': fits[0]})} (--channel-map)"
+                   if choose is None else choose.format(layer=fits[0]))
             raise SSSInputError(f"{path}: {len(fits)} view layers hold the passes ({', '.join(map(repr, fits))}); "
-                                f"name the one to read in a channel map: {json.dumps({'layer': fits[0]})} "
-                                "(--channel-map)")
+                                + how)
         if fits:
             return layers[fits[0]]
     return next(iter(layers.values()), {})

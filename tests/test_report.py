@@ -259,3 +259,27 @@ def test_trade_figure_gives_every_technique_its_own_colour_and_a_legend():
     assert colours["reference"] == to_rgba("black")
     legend = [t.get_text() for t in ax.get_legend().get_texts()]
     assert set(names) <= set(legend)
+
+
+def test_a_truth_of_two_view_layers_is_read_from_the_one_named(tmp_path):
+    # an offline render with two layers (Blender's ViewLayer lit, ViewLayer.001 black): the truth's Combined of the
+    # first in the file was taken silently; now the ambiguity is named with how to choose, and a pass's full name or
+    # three channel names choose
+    import OpenEXR
+
+    from sss_jax._evaluate import read_truth
+    from sss_jax._io import SSSInputError
+
+    one = np.ones((4, 6), np.float32)
+    ch = {}
+    for layer, value in (("ViewLayer.001", 0.0), ("ViewLayer", 1.0)):
+        ch.update({f"{layer}.Combined.{c}": value * one for c in "RGB"})
+        ch[f"{layer}.Depth.Z"] = one
+    with OpenEXR.File({"type": OpenEXR.scanlineimage}, ch) as f:
+        f.write(str(tmp_path / "truth.exr"))
+    with pytest.raises(SSSInputError, match=r"2 view layers hold the passes \('ViewLayer.001', 'ViewLayer'\); name its "
+                                            r"channels \(--truth-channels ViewLayer.001.Combined.R,"):
+        read_truth(tmp_path / "truth.exr")
+    assert np.all(read_truth(tmp_path / "truth.exr", "ViewLayer.Combined") == 1.0)
+    names = ",".join(f"ViewLayer.001.Combined.{c}" for c in "RGB")
+    assert np.all(read_truth(tmp_path / "truth.exr", names) == 0.0)
