@@ -85,8 +85,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from ._io import (Frame, SSSInputError, Window, _frame_from_decoded, _read_image, check_writable, exr_is_complete,
-                  read_header, write_exr, write_json_atomic, write_png_preview)
+from ._io import (EXR_MAGIC, Frame, SSSInputError, Window, _frame_from_decoded, _read_image, check_writable,
+                  exr_is_complete, read_header, write_exr, write_json_atomic, write_png_preview)
 from ._kernels import separable_kernel_from_profile, two_gaussian_kernel
 from ._materials import BurleyMaterial, DirectionalLight, ProfileMaterial, STAParams, TwoGaussianMaterial
 from ._profiles import BurleyProfile
@@ -128,10 +128,7 @@ PROGRESS_EVERY_S = 2.0
 # shape, counts and calls have not run yet (it compiles, alone).
 OVERLAP_PIXELS = 1 << 18
 COMPUTE_THREADS = 2
-# Footprint pixels of the reach of the techniques' own checks (the 99%-energy footprint below which a pixel keeps
-# its local shading, MIN_FOOTPRINT_PX in the techniques)
-_MIN_FOOTPRINT_PX = MIN_FOOTPRINT_PX
-_BURLEY_R99 = BURLEY_R99
+# the radius holding 99.9% of a Burley profile's energy, in units of d: the footprint that bounds useful samples
 _BURLEY_R999 = unit_radius(0.001)
 
 
@@ -298,7 +295,7 @@ def _exr_magic(path: pathlib.Path) -> bool:
             head = f.read(4)
     except OSError:
         return False
-    return head in (b"", b"\x76\x2f\x31\x01")
+    return head in (b"", EXR_MAGIC)
 
 
 def _size(path: pathlib.Path) -> int:
@@ -366,7 +363,7 @@ def _largest_px(frame, camera: Camera, per_row_mm: np.ndarray, *, active_r99: fl
     """The largest footprint in px over the pixels a technique computes: ``per_row_mm[row] * ppm`` (``ppm =
     focal_px / mm_per_unit / depth``, float32 as the techniques compute it; the row is the material id - 1, or the
     first row for a frame without ids or a single material), over the SSS pixels (finite positive depth, id >= 1)
-    whose footprint ``px * active_r99`` reaches ``_MIN_FOOTPRINT_PX``; 0 where none does.
+    whose footprint ``px * active_r99`` reaches the techniques' ``MIN_FOOTPRINT_PX``; 0 where none does.
 
     Each row's largest value is at its nearest surface (float32 division and multiplication by a positive number
     keep the order: the same value as the per-pixel plane, to the bit), so it takes one pass per row over the
@@ -388,7 +385,7 @@ def _largest_px(frame, camera: Camera, per_row_mm: np.ndarray, *, active_r99: fl
         if not np.isfinite(nearest):
             continue
         px = per_row[row] * (scale / nearest)  # float32, and so is its product with the Python float below
-        if px * active_r99 >= _MIN_FOOTPRINT_PX and px > 0:
+        if px * active_r99 >= MIN_FOOTPRINT_PX and px > 0:
             best = max(best, float(px))
     return best
 
@@ -535,7 +532,7 @@ def _clamp(tech, buffers: Buffers, material, camera: Camera):
     if option == "samples" and hasattr(material, "d_mm"):
         samples = int(tech.samples)
         d_max = np.asarray(material.d_mm, np.float64).reshape(-1, 3).max(axis=-1)
-        d_px = _largest_px(buffers, camera, d_max, active_r99=_BURLEY_R99)
+        d_px = _largest_px(buffers, camera, d_max, active_r99=BURLEY_R99)
         # the power of two keeps the sequence's distinct counts, and compilations, few
         footprint = min(math.pi * (_BURLEY_R999 * d_px) ** 2, h * w)
         bound = _next_pow2(max(footprint, 1.0))

@@ -353,6 +353,9 @@ def exr_is_complete(path: str | os.PathLike) -> bool:
         inp.close()
 
 
+# the first four bytes of every OpenEXR file
+EXR_MAGIC = b"\x76\x2f\x31\x01"
+
 # scan lines per chunk of each OpenEXR compression (the OpenEXR file layout's table)
 _EXR_LINES_PER_CHUNK = {0: 1, 1: 1, 2: 1, 3: 16, 4: 32, 5: 16, 6: 32, 7: 32, 8: 32, 9: 256}
 
@@ -360,7 +363,7 @@ _EXR_LINES_PER_CHUNK = {0: 1, 1: 1, 2: 1, 3: 16, 4: 32, 5: 16, 6: 32, 7: 32, 8: 
 def _exr_chunk_table(data: bytes) -> tuple[int, int, int, int] | None:
     """``(first y, lines per chunk, chunks)`` and where the offset table starts, from a single-part scanline EXR's
     header (``None`` for any other layout: tiled, multi-part, deep, or a header this reader does not follow)."""
-    if len(data) < 8 or data[:4] != b"\x76\x2f\x31\x01":
+    if len(data) < 8 or data[:4] != EXR_MAGIC:
         return None
     flags = struct.unpack_from("<I", data, 4)[0]
     if flags & 0x1a00:  # tiled (0x200), deep (0x800), multi-part (0x1000)
@@ -708,7 +711,7 @@ def _frame_from_decoded(path: pathlib.Path, decoded, *, channel_map, depth_kind:
                                  (side.get("scene_unit_mm"), f"scene_unit_mm of {sidecar}"))
 
     depth = buffers["depth"].astype(np.float32)
-    from ._scene import surface_mask  # (here: _io itself imports no JAX)
+    from ._scene import _first_pixel, surface_mask  # (here: _io itself imports no JAX)
 
     depth = np.where(surface_mask(depth), depth, np.inf).astype(np.float32)
     if depth_kind == "distance":
@@ -739,8 +742,6 @@ def _frame_from_decoded(path: pathlib.Path, decoded, *, channel_map, depth_kind:
             # (anti-aliased) or scaled pass, or another channel: rounding it picked materials silently (0.5 -> 0)
             off = np.abs(ids - whole) > 1e-3
             if off.any():
-                from ._scene import _first_pixel  # (here: _io itself imports no JAX)
-
                 raise SSSInputError(f"{path}: id channel {id_channel!r} has {int(off.sum())} value(s) that are not "
                                     f"whole numbers (the first {float(ids[off][0]):.4g}, at {_first_pixel(off)}); ids "
                                     "select materials 1, 2, ...: an unfiltered id pass (Blender's IndexOB), or a "
@@ -789,8 +790,6 @@ def _frame_from_decoded(path: pathlib.Path, decoded, *, channel_map, depth_kind:
                    "must hold the integer values 1, 2, ...")
         warn(f"{path}: no pixel to scatter: {why}; the output is the input", NoSSSPixelsWarning)
     elif lost is not None and lost.any():  # none in Blender's renders (ids and depth from the same first hit)
-        from ._scene import _first_pixel
-
         warn(f"{path}: {int(lost.sum())} pixel(s) with an id above 0 have no surface in depth channel "
              f"{plan['depth'][0]!r} (NaN, 0, negative, inf or background depth; the first at {_first_pixel(lost)}): "
              "they keep their input, unscattered and without the albedo", UserWarning)

@@ -500,7 +500,8 @@ def burley_r999() -> float:
 def test_the_clamps_largest_footprint_is_the_per_pixel_maximum():
     # the clamp takes each material row's nearest surface; the reference is the per-pixel plane it replaced:
     # px = d[row] * (focal / mm_per_unit / depth) in float32 over the SSS pixels whose px * r99 reaches 0.5 px
-    from sss_jax._batch import _MIN_FOOTPRINT_PX, _largest_px
+    from sss_jax._batch import _largest_px
+    from sss_jax._techniques._common import MIN_FOOTPRINT_PX
 
     rng = np.random.default_rng(7)
     for _ in range(200):
@@ -520,7 +521,7 @@ def test_the_clamps_largest_footprint_is_the_per_pixel_maximum():
         ppm = np.divide(np.float32(camera.focal_px / camera.mm_per_unit), depth, out=np.zeros_like(depth),
                         where=valid)
         px = per_row.astype(np.float32)[rows] * ppm
-        active = valid & (px * r99 >= _MIN_FOOTPRINT_PX) & (px > 0)
+        active = valid & (px * r99 >= MIN_FOOTPRINT_PX) & (px > 0)
         want = float(np.max(px, where=active, initial=0.0))
         frame = types.SimpleNamespace(depth=depth, material_id=ids)  # what the clamp reads of the buffers
         assert _largest_px(frame, camera, per_row, active_r99=r99) == want
