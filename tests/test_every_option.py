@@ -251,6 +251,30 @@ def test_report_technique_entries_bad_options(tmp_path, capsys, as_users_run_it,
     assert not (tmp_path / "rep").exists()
 
 
+def test_an_integer_option_whose_default_is_none_parses_as_an_integer(tmp_path, capsys, as_users_run_it):
+    # hdrp's budget (``int | None``, default None) was parsed as a float, which its check refuses: every value,
+    # 50 included, failed with "budget must be an integer, got 50.0" (apply, report, advise, bench)
+    frame = tmp_path / "frame.exr"
+    write_frame(frame, h=12, w=16)
+
+    def apply(budget):
+        try:
+            return main(["apply", str(frame), "-o", str(tmp_path / f"o{budget}.exr"), "--d-mm", "1,1,1",
+                         "--technique", "hdrp", "--budget", budget])
+        except SystemExit as exc:  # argparse's refusal
+            return exc.code
+
+    assert apply("50") == 0 and read_rgb(tmp_path / "o50.exr").shape == (12, 16, 3)
+    for value, message in (("0", "budget must be in [1, 1000], got 0"), ("5000", "budget must be in [1, 1000]"),
+                           ("2.5", "--budget: expected an integer, got '2.5'")):
+        capsys.readouterr()
+        assert apply(value) == 2
+        assert message in capsys.readouterr().err
+    rc = main(["report", str(frame), "--out", str(tmp_path / "rep"), "--d-mm", "1,1,1", "--techniques",
+               "hdrp:budget=24", "--no-progress", "--no-images", "--repeats", "1"])
+    assert rc == 0, capsys.readouterr().err
+
+
 def test_report_jimenez_taps_given_are_checked(tmp_path, capsys, as_users_run_it):
     frame = tmp_path / "frame.exr"
     write_frame(frame, h=12, w=16)

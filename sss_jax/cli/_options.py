@@ -7,6 +7,7 @@ import argparse
 import dataclasses
 import inspect
 import sys
+import typing
 from collections.abc import Iterable
 from typing import Any
 
@@ -63,6 +64,7 @@ class OptionSpec:
     default: Any
     help: str
     choices: tuple | None = None
+    kind: type | None = None  # the type a value parses to: the default's, else the field's annotation (int | None)
 
 
 
@@ -115,17 +117,29 @@ def technique_option_specs(names: Iterable[str] | None = None) -> dict[str, list
     for tech in (TECHNIQUES if names is None else names):
         entry = TECHNIQUES[tech]
         if isinstance(entry, type) and hasattr(entry, "option_fields"):
+            hints = typing.get_type_hints(entry)
             for field in entry.option_fields():
                 default = field.default if field.default is not dataclasses.MISSING else field.default_factory()
                 choices = field.metadata.get("choices")
                 specs.setdefault(field.name, []).append(OptionSpec(tech, field.name, default, field.metadata["help"],
-                                                                   None if choices is None else tuple(choices)))
+                                                                   None if choices is None else tuple(choices),
+                                                                   _kind(default, hints.get(field.name))))
         else:
             for p in inspect.signature(entry).parameters.values():
                 if p.kind == p.KEYWORD_ONLY and p.default is not p.empty:
                     specs.setdefault(p.name, []).append(
-                        OptionSpec(tech, p.name, p.default, f"sss_jax.{entry.__name__}'s {p.name} option"))
+                        OptionSpec(tech, p.name, p.default, f"sss_jax.{entry.__name__}'s {p.name} option",
+                                   kind=_kind(p.default, p.annotation)))
     return specs
+
+
+def _kind(default: Any, hint: Any) -> type | None:
+    """The type an option's value parses to: its default's, else (a default of None) its annotation's one plain type
+    (``budget: int | None`` -> int; a union of several, e.g. an array-like, -> None: a number or numbers)."""
+    if default is not None:
+        return type(default)
+    plain = [a for a in typing.get_args(hint) if a is not type(None)]
+    return plain[0] if len(plain) == 1 and plain[0] in (bool, int, float, str) else None
 
 
 def _flag(name: str) -> str:
@@ -151,7 +165,7 @@ def _parse_value(text: str, specs: list[OptionSpec]) -> Any:
     if any(spec.choices for spec in specs):
         valid = sorted({_show(c) for s in specs for c in (s.choices or ())})
         raise argparse.ArgumentTypeError(f"expected one of {', '.join(valid)}, got {text!r}")
-    kinds = {type(s.default) for s in specs if s.default is not None}
+    kinds = {s.kind for s in specs if s.kind is not None}
     if kinds & {bool}:
         if word.lower() in ("1", "true", "yes", "on"):
             return True
