@@ -11,15 +11,19 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import math
 import os
 import pathlib
 import sys
+import warnings
+import zipfile
+import zlib
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
-from ._io import Frame, SSSInputError, _blender_layers, read_channels, read_frame, write_bytes_atomic
+from ._io import Frame, SSSInputError, Window, _blender_layers, _read_image, read_frame, write_bytes_atomic
 from ._machine import machine_info
 from ._materials import BurleyMaterial, DirectionalLight, ProfileMaterial, STAParams, TwoGaussianMaterial
 from ._report import FrameImages, ReportData, TechniqueRun
@@ -36,11 +40,15 @@ _CACHE_VERSION = 1
 
 
 def read_truth(path: str | os.PathLike, channels: str | Sequence[str] | None = None,
-               shape: tuple[int, int] | None = None) -> np.ndarray:
+               shape: tuple[int, int] | None = None, *, frame: Frame | None = None) -> np.ndarray:
     """An offline render's RGB ``(H, W, 3)`` (linear). ``channels``: a pass name (``"Combined"``: Blender's
     ``<ViewLayer>.Combined.R/G/B``, the default for a Blender multilayer file), or three channel names (``"R,G,B"``,
-    the default otherwise). ``shape``: the ``(H, W)`` it must have."""
-    chans, _, got = read_channels(path)
+    the default otherwise). ``shape``: the ``(H, W)`` it must have. ``frame``: the input frame it is compared with
+    (its shape then the one the truth must have): a truth black on every SSS pixel of it is an error naming the
+    file (nothing to compare with: a wrong pass or layer), negative radiance there a warning (compared as it is)."""
+    if frame is not None:
+        shape = frame.shape
+    chans, _, _, got, window = _read_image(path)
     # the view layer, only where a pass is named by itself (three channel names, or a pass's full name, need none)
     blender = lambda: _blender_layers(list(chans), path, choose="name its channels (--truth-channels "
                                       "{layer}.Combined.R,{layer}.Combined.G,{layer}.Combined.B)")
@@ -57,12 +65,53 @@ def read_truth(path: str | os.PathLike, channels: str | Sequence[str] | None = N
     if missing:
         found = ", ".join(list(chans)[:24]) + (" ..." if len(chans) > 24 else "")
         raise SSSInputError(f"{path}: truth channel(s) {missing} not found; channels found: {found}")
-    if shape is not None and got != tuple(shape):
-        raise SSSInputError(f"{path}: truth is {got[1]}x{got[0]} but the input frame is {shape[1]}x{shape[0]}")
     rgb = np.stack([chans[n] for n in names], axis=-1).astype(np.float32)
+    if frame is not None and got != tuple(shape):
+        rgb = _frame_region(path, rgb, window, frame)
+    elif shape is not None and got != tuple(shape):
+        raise SSSInputError(f"{path}: truth is {got[1]}x{got[0]} but the input frame is {shape[1]}x{shape[0]}")
     if not np.all(np.isfinite(rgb)):
         raise SSSInputError(f"{path}: truth has {int(np.sum(~np.isfinite(rgb)))} non-finite values")
+    if frame is not None:
+        _check_truth(path, rgb, frame)
     return rgb
+
+
+def _frame_region(path, rgb: np.ndarray, window: Window, frame: Frame) -> np.ndarray:
+    """The truth's pixels where the frame's lie on the image plane (their data windows: a truth rendered with an
+    overscan margin, or a frame cut from a larger render), where both share one display window and the truth holds
+    them all; else the sizes' error."""
+    h, w = frame.shape
+    fwin = frame.window or Window(0, 0, (0, 0, w, h))
+    y0, x0 = fwin.y - window.y, fwin.x - window.x
+    if window.display == fwin.display and 0 <= y0 and 0 <= x0 and y0 + h <= rgb.shape[0] and x0 + w <= rgb.shape[1]:
+        return rgb[y0:y0 + h, x0:x0 + w]
+    where = lambda win, hw: f"{hw[1]}x{hw[0]} at ({win.x}, {win.y}) of display window {win.display[2]}x{win.display[3]}"
+    raise SSSInputError(f"{path}: truth is {rgb.shape[1]}x{rgb.shape[0]} but the input frame is {w}x{h} (truth "
+                        f"{where(window, rgb.shape)}, frame {where(fwin, (h, w))}): it does not hold the frame's pixels")
+
+
+def frame_sss_mask(frame: Frame) -> np.ndarray:
+    """The frame's SSS pixels: material id > 0 (every pixel without ids) on a surface (finite depth)."""
+    ids = frame.material_id if frame.material_id is not None else np.ones(frame.shape, np.int32)
+    return (ids > 0) & np.isfinite(frame.depth)
+
+
+def _check_truth(path, rgb: np.ndarray, frame: Frame) -> None:
+    """A truth black on every SSS pixel is refused; negative radiance there (beyond a codec's ringing, a thousandth
+    of the largest value) is said."""
+    mask = frame_sss_mask(frame)
+    if not mask.any():
+        return
+    on = rgb[mask]
+    if not np.any(on > 0):
+        raise SSSInputError(f"{path}: the truth is black on every SSS pixel of {pathlib.Path(frame.path).name if frame.path else 'the frame'} "
+                            f"({int(mask.sum())} pixels): nothing to compare with (the right pass, layer or file?)")
+    negative = on < -1e-3 * float(np.max(np.abs(on)))
+    if negative.any():
+        warnings.warn(f"{path}: {int(np.sum(np.any(negative, axis=-1)))} SSS pixel(s) of the truth are negative (down "
+                      f"to {float(on.min()):.4g}); an offline render's radiance is >= 0: compared as they are",
+                      UserWarning, stacklevel=3)
 
 
 def _sha256_file(path: pathlib.Path) -> str:
@@ -101,9 +150,10 @@ def _cached_reference(cache_dir: pathlib.Path | None, key: str, shape) -> tuple[
     try:
         with np.load(path) as z:
             img, seconds = np.asarray(z["image"]), float(z["seconds"])
-    except (OSError, KeyError, ValueError):  # missing or damaged: computed again
-        return None
-    return (img, seconds) if img.shape == (*shape, 3) else None
+    except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile, zlib.error):  # missing or damaged:
+        return None  # computed again (and stored over the damaged file)
+    ok = img.shape == (*shape, 3) and bool(np.all(np.isfinite(img))) and math.isfinite(seconds)
+    return (img, seconds) if ok else None
 
 
 def _store_reference(cache_dir: pathlib.Path, key: str, image: np.ndarray, seconds: float) -> None:
@@ -285,7 +335,7 @@ def evaluate_frames(
         if rows > 1 and int(ids.max()) > rows:
             raise SSSInputError(f"{p}: material id {int(ids.max())} in the frame but only {rows} materials given")
         frames.append(f)
-    truth_images = [read_truth(t, truth_channels, f.shape) for t, f in zip(truths, frames)]
+    truth_images = [read_truth(t, truth_channels, frame=f) for t, f in zip(truths, frames)]
 
     # ---- rendering and timing
     cache = None if cache_dir is None else pathlib.Path(cache_dir)

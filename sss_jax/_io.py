@@ -465,7 +465,7 @@ def _blender_layers(names: list[str], path, layer: str | None = None, *, choose:
     """``{pass.channel: full name}`` of one view layer of Blender's ``<layer>.<pass>.<channel>`` channels, every pass
     taken from that layer (a frame is never put together from two layers' passes: each layer has its own Depth):
     ``layer`` where named, else the layer with the diffuse light passes and Depth, else with Combined and Depth, else
-    with Depth, else the first. Two layers that both fit the first of these that any fits are ambiguous (one may be
+    with Depth, else with Combined, else the first. Two layers that both fit the first of these that any fits are ambiguous (one may be
     lit and the other black): ``SSSInputError`` naming them, and how to choose (``choose``; by default a channel
     map's ``layer``)."""
     layers: dict[str, dict[str, str]] = {}
@@ -481,7 +481,8 @@ def _blender_layers(names: list[str], path, layer: str | None = None, *, choose:
     has = lambda layer, name: all(f"{name}.{c}" in layer for c in "RGB")
     for wanted in (lambda layer: has(layer, "DiffDir") and "Depth.Z" in layer,
                    lambda layer: has(layer, "Combined") and "Depth.Z" in layer,
-                   lambda layer: "Depth.Z" in layer):
+                   lambda layer: "Depth.Z" in layer,
+                   lambda layer: has(layer, "Combined")):  # an offline render's layers: the image alone
         fits = [name for name, passes in layers.items() if wanted(passes)]
         if len(fits) > 1:
             how = (f"name the one to read in a channel map: {json.dumps({'layer': fits[0]})} (--channel-map)"

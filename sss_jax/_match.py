@@ -150,10 +150,7 @@ def load_match_frame(render: str | os.PathLike, truth: str | os.PathLike, *, tru
     if frame.focal_px is None:
         raise SSSInputError(f"{render}: no focal length: give focal_px (--focal-px), the EXR header "
                             "sss_jax:focal_px or a sidecar JSON with camera.focal_px")
-    rgb = read_truth(truth, channels=truth_channels)
-    if rgb.shape[:2] != frame.shape:
-        raise SSSInputError(f"{truth}: truth is {rgb.shape[1]}x{rgb.shape[0]}, the render {render} is "
-                            f"{frame.shape[1]}x{frame.shape[0]}: they must show the same view")
+    rgb = read_truth(truth, channels=truth_channels, frame=frame)
     camera = Camera(frame.focal_px, frame.mm_per_unit if frame.mm_per_unit is not None else 1.0)
     return match_frame(frame.to_buffers(use_albedo=use_albedo_pass), camera, rgb, name=pathlib.Path(render).name)
 

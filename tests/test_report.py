@@ -283,3 +283,76 @@ def test_a_truth_of_two_view_layers_is_read_from_the_one_named(tmp_path):
     assert np.all(read_truth(tmp_path / "truth.exr", "ViewLayer.Combined") == 1.0)
     names = ",".join(f"ViewLayer.001.Combined.{c}" for c in "RGB")
     assert np.all(read_truth(tmp_path / "truth.exr", names) == 0.0)
+
+
+def test_a_truth_whose_layers_hold_only_combined_is_never_mixed(tmp_path):
+    # two layers with Combined and no Depth (a beauty render's layers): the first in the file was read silently
+    # (the fuzz's dimmer ViewLayer.001 scored every technique against half the light); now named as ambiguous
+    import OpenEXR
+
+    from sss_jax._evaluate import read_truth
+    from sss_jax._io import SSSInputError
+
+    one = np.ones((4, 6), np.float32)
+    ch = {f"{layer}.Combined.{c}": value * one for layer, value in (("ViewLayer.001", 0.5), ("ViewLayer", 1.0))
+          for c in "RGB"}
+    with OpenEXR.File({"type": OpenEXR.scanlineimage}, ch) as f:
+        f.write(str(tmp_path / "truth.exr"))
+    with pytest.raises(SSSInputError, match=r"2 view layers hold the passes"):
+        read_truth(tmp_path / "truth.exr")
+    assert np.all(read_truth(tmp_path / "truth.exr", "ViewLayer.Combined") == 1.0)
+
+
+def test_a_truth_is_checked_against_the_frame_it_scores(tmp_path):
+    # black on every SSS pixel: refused naming the truth (it was "reference is black on every masked pixel", after
+    # the reference's computation); negative radiance: said; an overscan margin: the frame's pixels read from it
+    import OpenEXR
+
+    from sss_jax._evaluate import read_truth
+    from sss_jax._io import SSSInputError, read_frame, write_exr
+
+    frame = read_frame(_tiny_exr(tmp_path / "in.exr"))
+    write_exr(tmp_path / "black.exr", np.zeros((8, 10, 3)))
+    with pytest.raises(SSSInputError, match=r"black.exr: the truth is black on every SSS pixel of in.exr \(80 pixels\)"):
+        read_truth(tmp_path / "black.exr", frame=frame)
+    rgb = np.full((8, 10, 3), 0.25)
+    rgb[2, 3] = -5.0
+    write_exr(tmp_path / "negative.exr", rgb)
+    with pytest.warns(UserWarning, match=r"negative.exr: 1 SSS pixel\(s\) of the truth are negative \(down to -5\)"):
+        assert read_truth(tmp_path / "negative.exr", frame=frame)[2, 3, 0] == -5.0
+    # the truth rendered with a 2-px overscan margin: data window (-2, -2)-(11, 9) over the display window 10x8
+    wide = np.zeros((12, 14, 3), np.float32)
+    wide[2:10, 2:12] = np.arange(80, dtype=np.float32).reshape(8, 10, 1) + 1
+    header = {"type": OpenEXR.scanlineimage, "compression": OpenEXR.ZIP_COMPRESSION,
+              "dataWindow": (np.array([-2, -2], np.int32), np.array([11, 9], np.int32)),
+              "displayWindow": (np.array([0, 0], np.int32), np.array([9, 7], np.int32))}
+    with OpenEXR.File(header, {c: np.ascontiguousarray(wide[..., i]) for i, c in enumerate("RGB")}) as f:
+        f.write(str(tmp_path / "overscan.exr"))
+    got = read_truth(tmp_path / "overscan.exr", frame=frame)
+    assert got.shape == (8, 10, 3) and np.array_equal(got[..., 0], np.arange(80).reshape(8, 10) + 1)
+
+
+def test_a_damaged_or_non_finite_reference_cache_is_computed_again(tmp_path):
+    # a cut cache file raised zipfile.BadZipFile out of the report (a traceback); a NaN image was read back and
+    # scored as "black"
+    from sss_jax._evaluate import _cached_reference, _store_reference
+
+    image = np.ones((4, 5, 3), np.float32)
+    _store_reference(tmp_path, "k", image, 1.5)
+    assert _cached_reference(tmp_path, "k", (4, 5))[1] == 1.5
+    path = tmp_path / "reference-k.npz"
+    path.write_bytes(path.read_bytes()[:100])
+    assert _cached_reference(tmp_path, "k", (4, 5)) is None
+    _store_reference(tmp_path, "k", np.full((4, 5, 3), np.nan, np.float32), 1.5)
+    assert _cached_reference(tmp_path, "k", (4, 5)) is None
+
+
+def test_an_out_folder_that_cannot_be_written_is_refused_before_any_work(tmp_path, capsys):
+    frame = _tiny_exr(tmp_path / "in.exr")
+    (tmp_path / "a_file").write_text("mine")
+    args = [str(frame), "--d-mm", "1,1,1", "--no-progress", "--repeats", "0"]
+    assert main(["report", *args, "--out", str(tmp_path / "a_file" / "sub")]) == 2
+    assert "a_file is a file, not a directory" in capsys.readouterr().err
+    with pytest.raises(SystemExit):  # "" would be the current folder
+        main(["report", *args, "--out", ""])
+    assert "argument --out: empty" in capsys.readouterr().err

@@ -7,7 +7,7 @@ import pathlib
 import sys
 
 from . import rgb_triple
-from ._options import (add_counts, add_technique_flags, comma_separated_counts, comma_separated_names,
+from ._options import (WarningPrinter, add_counts, add_technique_flags, comma_separated_counts, comma_separated_names,
                        option_arguments, technique_options)
 
 # the techniques whose counts the advisor weighs by default (beside local shading)
@@ -156,7 +156,7 @@ def _frame(args, material):
     buffers = f.to_buffers(use_albedo=args.albedo is None)
     out = {"buffers": buffers, "camera": Camera(f.focal_px, f.mm_per_unit if f.mm_per_unit is not None else 1.0)}
     if args.truth is not None:
-        out["truth"] = read_truth(args.truth, args.truth_channels, f.shape)
+        out["truth"] = read_truth(args.truth, args.truth_channels, frame=f)
     return out
 
 
@@ -165,31 +165,11 @@ def _counts(args, options: dict, running) -> None:
 
 
 def run(args) -> int:
-    from .._advise import advise
-    from .._io import SSSInputError, check_writable
+    from .._io import SSSInputError
 
     try:
-        if not (args.max_delta_e >= 0):
-            raise ValueError(f"--max-delta-e must be >= 0, got {args.max_delta_e}")
-        if args.scene_scale is not None and not (0 < args.scene_scale < float("inf")):
-            raise ValueError(f"--scene-scale must be a finite positive number, got {args.scene_scale}")
-        if args.repeats < 1:
-            raise ValueError(f"--repeats must be >= 1, got {args.repeats}")
-        if args.json is not None:
-            check_writable(args.json, create_dirs=False)
-        material = _material(args)
-        frame = _frame(args, material)
-        names = args.technique or ADVISED
-        running = (*names, "reference")
-        options = {t: technique_options(args, t, others=running) for t in running}
-        _counts(args, options, names)
-        extra = option_arguments(advise, options, "advise")
-        if args.technique or args.taps or args.samples:
-            extra["techniques"] = list(names)
-        size = args.size or (72, 96)
-        advice = advise(material, max_delta_e=args.max_delta_e, size=size, scene_scale=args.scene_scale or 1.0,
-                        repeats=args.repeats, progress=lambda m: print(m, file=sys.stderr, flush=True),
-                        **frame, **extra)
+        with WarningPrinter("sss-jax advise"):  # the frame's and the techniques' warnings, as report says them
+            advice, frame, size = _advise(args)
     except (ValueError, TypeError, OSError, SSSInputError) as exc:
         print(f"sss-jax advise: {exc}", file=sys.stderr)
         return 2
@@ -207,3 +187,32 @@ def run(args) -> int:
         write_json_atomic(args.json, {**advice.to_json(), "frame": None if args.frame is None else str(args.frame),
                                       "truth": None if args.truth is None else str(args.truth)})
     return 0 if advice.choice is not None else 1
+
+
+def _advise(args):
+    """The advice, the frame's buffers (with --frame) and the scene's size: what ``run`` prints."""
+    from .._advise import advise
+    from .._io import check_writable
+
+    if not (args.max_delta_e >= 0):
+        raise ValueError(f"--max-delta-e must be >= 0, got {args.max_delta_e}")
+    if args.scene_scale is not None and not (0 < args.scene_scale < float("inf")):
+        raise ValueError(f"--scene-scale must be a finite positive number, got {args.scene_scale}")
+    if args.repeats < 1:
+        raise ValueError(f"--repeats must be >= 1, got {args.repeats}")
+    if args.json is not None:
+        check_writable(args.json, create_dirs=False)
+    material = _material(args)
+    frame = _frame(args, material)
+    names = args.technique or ADVISED
+    running = (*names, "reference")
+    options = {t: technique_options(args, t, others=running) for t in running}
+    _counts(args, options, names)
+    extra = option_arguments(advise, options, "advise")
+    if args.technique or args.taps or args.samples:
+        extra["techniques"] = list(names)
+    size = args.size or (72, 96)
+    advice = advise(material, max_delta_e=args.max_delta_e, size=size, scene_scale=args.scene_scale or 1.0,
+                    repeats=args.repeats, progress=lambda m: print(m, file=sys.stderr, flush=True),
+                    **frame, **extra)
+    return advice, frame, size

@@ -53,7 +53,7 @@ def register(subparsers) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("inputs", nargs="+", help="input EXR files or glob patterns")
-    p.add_argument("--out", required=True, type=pathlib.Path, help="output directory (created if missing)")
+    p.add_argument("--out", required=True, type=_out_dir, help="output directory (created if missing)")
     p.add_argument("--truth", nargs="+", help="offline render(s) of the same view, one per input")
     p.add_argument("--truth-channels", help="truth pass (Blender: Combined, the default) or R,G,B channel names")
     from .._evaluate import REPORT_TECHNIQUES
@@ -197,6 +197,31 @@ def _warn_sta_thickness(args, params) -> None:
             warnings.warn(f"{path}: {message}", UserWarning, stacklevel=2)
 
 
+def _out_dir(text: str) -> pathlib.Path:
+    """``--out``'s type: a folder's path, not an empty string (which would be the current folder)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("empty: give the report's folder")
+    return pathlib.Path(text)
+
+
+def _check_out(out: pathlib.Path) -> None:
+    """Before any work: ``out`` is a folder or can become one, and a file can be written where it goes (the report
+    is staged beside it): a path under a file, a read-only place or a pseudo filesystem is refused now, not after
+    the frames have been computed."""
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} exists and is not a directory")
+    place = out.absolute() if out.is_dir() else out.absolute().parent
+    while not place.exists():
+        place = place.parent
+    if not place.is_dir():
+        raise ValueError(f"--out {out}: {place} is a file, not a directory")
+    try:
+        with tempfile.TemporaryFile(prefix=".sss_jax_probe.", dir=place):
+            pass
+    except OSError as exc:
+        raise ValueError(f"--out {out}: cannot write in {place} ({exc.strerror})") from None
+
+
 def run(args) -> int:
     from .._evaluate import REPORT_TECHNIQUES, evaluate_frames
     from .._report import report
@@ -208,8 +233,7 @@ def run(args) -> int:
             v = getattr(args, name)
             if v is not None and not (0 < v < float("inf")):
                 raise ValueError(f"--{name.replace('_', '-')} must be a finite positive number, got {v}")
-        if args.out.exists() and not args.out.is_dir():
-            raise ValueError(f"--out {args.out} exists and is not a directory")
+        _check_out(args.out)
         mat, sep, sta, info = materials(args)
         shown = WarningPrinter("sss-jax report")
         notes = []
