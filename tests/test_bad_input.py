@@ -6,6 +6,7 @@ import pathlib
 import re
 import warnings
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import OpenImageIO as oiio
@@ -636,3 +637,58 @@ def test_flags_a_mode_does_not_read_are_refused(argv, message, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err
+
+
+# ---- what the API fuzz of stop 51 found: each failed, or answered wrongly, before --------------------------------
+
+def _flat(h=8, w=8, z=1.0):
+    return sj.Buffers(irradiance=jnp.ones((h, w, 3)), depth=jnp.full((h, w), z))
+
+
+@pytest.mark.parametrize("make, message", [
+    # a seed is an integer in [0, 2**32) for every technique that has one (hdrp's overflowed int32 inside JAX,
+    # eevee-next's -1 overflowed uint32, 1.5 was rounded)
+    (lambda: sj.hdrp(_flat(), sj.BurleyMaterial((0.8,) * 3, (1.0,) * 3), sj.Camera(100.0, 10.0), seed=-1),
+     r"hdrp: seed must be an integer in \[0, 2\*\*32\), got -1"),
+    (lambda: sj.HdrpPass(seed=1.5), r"hdrp: seed must be an integer in \[0, 2\*\*32\), got 1.5"),
+    (lambda: sj.EeveeNextPass(seed=-1), r"eevee-next: seed must be an integer in \[0, 2\*\*32\), got -1"),
+    (lambda: sj.EeveeNextPass(seed=2**32), r"eevee-next: seed must be an integer"),
+    (lambda: sj.burley(_flat(), sj.BurleyMaterial((0.8,) * 3, (1.0,) * 3), sj.Camera(100.0, 10.0), seed="a"),
+     r"burley: seed must be an integer in \[0, 2\*\*32\), got 'a'"),
+    # technique objects are checked when made (reach_px and the batch's halos read them before any call)
+    (lambda: sj.Burley(samples=0), "burley: samples must be a positive integer, got 0"),
+    (lambda: sj.Burley(frames=0), "burley: frames must be a positive integer, got 0"),
+    (lambda: sj.Burley(samples=True), "burley: samples must be a positive integer, got True"),
+    (lambda: sj.Burley(seed=-1), r"burley: seed must be an integer in \[0, 2\*\*32\)"),
+    (lambda: sj.Reference(radius_px=-3), "reference: radius_px must be a non-negative integer, got -3"),
+    (lambda: sj.Reference(near_subsamples=0), "reference: near_subsamples must be a positive integer, got 0"),
+    (lambda: sj.reference(_flat(), sj.BurleyMaterial((0.8,) * 3, (1.0,) * 3), sj.Camera(100.0, 10.0),
+                          near_subsamples=-2), "near_subsamples must be a positive integer, got -2"),
+    # an infinite Jimenez width made every pixel NaN
+    (lambda: sj.JimenezParams(strength=0.5, falloff=0.5, sss_width=float("inf")), "sss_width must be finite and >= 0"),
+])
+def test_technique_options_fuzzed(make, message):
+    with pytest.raises(ValueError, match=message):
+        make()
+
+
+def test_hdrp_runs_a_sequence_whose_frame_seeds_pass_int32(tmp_path):
+    # the batch mixes the frame number into the seed (uint32: frame 1 of seed 0 is 2654435761); hdrp's int32
+    # conversion raised OverflowError at the second frame and ended the batch
+    from sss_jax._batch import frame_seed
+
+    sc = sj.demo_scene(12, 16)
+    mat = sj.BurleyMaterial((0.8, 0.5, 0.4), (3.0, 1.4, 0.8))
+    for k in range(3):
+        _io.write_exr(tmp_path / f"shot_{k:04d}.exr", {
+            **{c: np.asarray(sc.buffers.irradiance)[..., i] for i, c in enumerate("RGB")},
+            "Z": np.where(np.isfinite(np.asarray(sc.buffers.depth)), np.asarray(sc.buffers.depth), -1.0)})
+    assert frame_seed(0, 1) > 2**31
+    with jax.enable_x64(False):  # as users run it (the suite enables x64, where int64 took the seed)
+        r = sj.process_frames(str(tmp_path / "shot_*.exr"), "hdrp", mat, out_dir=tmp_path / "out", progress=False,
+                              focal_px=float(sc.camera.focal_px), mm_per_unit=10.0)
+    assert [f.status for f in r.frames] == ["done"] * 3, [f.message for f in r.frames]
+    # the call itself, in this thread (the batch computes in threads of its own, where the context does not reach)
+    with jax.enable_x64(False):
+        for tech in (sj.hdrp, sj.eevee_next):
+            assert np.all(np.isfinite(np.asarray(tech(sc.buffers, mat, sc.camera, seed=frame_seed(0, 1)))))

@@ -1,9 +1,13 @@
-"""The stability sweep (reduced) and its command line."""
+"""The stability sweep (reduced) and its command line; extremes the API fuzz found."""
 
 import json
 
+import jax
+import jax.numpy as jnp
+import numpy as np
 import pytest
 
+import sss_jax as sj
 from sss_jax._stability import run_sweep, sweep_cases
 from sss_jax.cli import main
 
@@ -71,3 +75,60 @@ def test_stability_cli_prints_every_count_that_fails_it(tmp_path, monkeypatch, c
     assert main(["stability", "--quick", "--json", str(tmp_path / "s.json")]) == 1
     out = capsys.readouterr().out
     assert "limits violated:      1" in out and "limit_violated: limit_identity" in out and "(fake)" in out
+
+
+# ---- what the API fuzz of stop 51 found at the extremes ----------------------------------------------------------
+
+def test_hdrp_gradient_is_finite_where_a_pixel_takes_fewer_samples_than_the_budget():
+    # samples past a pixel's count (masked) evaluated the inverse CDF at u > 1: NaN radii in the masked branch made
+    # every gradient in d NaN (forward finite). 8x8 flat plane: focal 1.0 gives 19 samples of a budget of 20.
+    b = sj.Buffers(irradiance=jnp.ones((8, 8, 3)), depth=jnp.full((8, 8), 1.0))
+    cam = sj.Camera(1.0, 10.0)
+    loss = lambda d: jnp.sum(sj.hdrp(b, sj.BurleyMaterial((0.8, 0.5, 0.4), d), cam, quality="low") ** 2)
+    g = jax.grad(loss)(jnp.asarray((3.0, 1.4, 0.8)))
+    assert np.all(np.isfinite(np.asarray(g)))
+    sc = sj.demo_scene(24, 32)
+    g = jax.grad(lambda d: jnp.sum(sj.hdrp(sc.buffers, sj.BurleyMaterial((0.8, 0.5, 0.4), d), sc.camera,
+                                           quality="low")))(jnp.asarray((3.0, 1.4, 0.8)))
+    assert np.all(np.isfinite(np.asarray(g)))
+
+
+def test_sta_gradient_ignores_infinitely_thick_pixels_and_a_paper_thin_scale_is_allowed():
+    # one pixel of infinite thickness (the demo's background has 629) made d/d thickness_mm NaN; thickness_mm = inf,
+    # which STAParams allows ("paper-thin"), failed inside JAX
+    h, w = 8, 8
+    t = np.full((h, w), 0.1, np.float32)
+    t[:, 3] = np.inf
+    b = sj.Buffers(irradiance=jnp.ones((h, w, 3)), depth=jnp.ones((h, w)), thickness=jnp.asarray(t))
+    light, cam = sj.DirectionalLight((0.0, 0.0, 1.0)), sj.Camera(100.0, 10.0)
+    loss = lambda tm: jnp.sum(sj.translucency(b, sj.STAParams(thickness_mm=tm), cam, light))
+    g = jax.grad(loss)(jnp.asarray(3.0))
+    assert np.isfinite(float(g)) and float(g) > 0  # thicker scale, less attenuation, more light
+    g_cam = jax.grad(lambda mm: jnp.sum(sj.translucency(b, sj.STAParams(thickness_mm=3.0), sj.Camera(100.0, mm),
+                                                        light)))(jnp.asarray(10.0))
+    assert np.isfinite(float(g_cam))
+    # paper-thin: t = exp(-thickness / inf) = 1 on finite thickness, 0 where infinitely thick
+    thin = np.asarray(sj.translucency(b, sj.STAParams(thickness_mm=float("inf"), ambient=0.5, scale=0.0), cam, light))
+    # hand value: albedo 1 x (E 1 + light 1 x t x ambient 0.5)
+    assert np.allclose(thin[:, [0, 1, 2, 4, 5, 6, 7]], 1.5) and np.allclose(thin[:, 3], 1.0)
+
+
+def test_jimenez_keeps_finite_where_its_step_overflows():
+    # a valid but extreme camera overflowed the step to inf: inf - inf = NaN in the clamped fetch, and inf x 0 in
+    # the surface term; now the fetch clamps to the edge as the sampler does
+    with jax.enable_x64(False):  # float32, as users run it (the suite enables x64)
+        b = sj.Buffers(irradiance=jnp.ones((12, 16, 3)), depth=jnp.full((12, 16), 1e-9))
+        mat = sj.BurleyMaterial((0.8, 0.5, 0.4), (3.0, 1.4, 0.8))
+        for cam in (sj.Camera(1e30, 1.0), sj.Camera(3e38, 1e-30)):
+            out = np.asarray(sj.jimenez(b, mat, cam))
+            assert out.dtype == np.float32 and np.all(np.isfinite(out))
+            assert np.allclose(out, (0.8, 0.5, 0.4), rtol=1e-5)  # flat light stays flat: albedo x E
+
+
+def test_reference_window_past_the_frame_is_the_frames():
+    # a window of 100000 px on an 8x8 frame overflowed JAX's argument parsing (40000400001 offsets); a window past
+    # the frame reaches no further pixel: the same result as max(H, W) - 1
+    sc = sj.demo_scene(8, 8)
+    mat = sj.BurleyMaterial((0.8, 0.5, 0.4), (30.0, 14.0, 8.0))
+    far = np.asarray(sj.reference(sc.buffers, mat, sc.camera, radius_px=100000))
+    assert np.array_equal(far, np.asarray(sj.reference(sc.buffers, mat, sc.camera, radius_px=7)))

@@ -36,6 +36,7 @@ from ._common import (
     _sss_mask,
     _work_dtype,
     check_one_image,
+    check_seed,
 )
 from ._dispatch import check_tile, resolve_impl
 from ._pallas import burley_pallas_impl
@@ -197,9 +198,7 @@ def burley(
         raise ValueError(f"pattern={pattern!r} is not one of {BURLEY_PATTERNS}")
     if not isinstance(frames, (int, np.integer)) or isinstance(frames, bool) or frames < 1:
         raise ValueError(f"frames must be a positive integer, got {frames!r}")
-    if _is_concrete(seed) and not (np.ndim(seed) == 0 and float(seed) == int(seed) and 0 <= int(seed) < 2**32):
-        raise ValueError(f"seed must be an integer in [0, 2**32), got {seed!r}")
-    seed = _as_seed(seed)  # validated above where concrete
+    seed = _as_seed(check_seed("burley", seed))
     h, w = buffers.depth.shape[-2:]
     origin, frame_shape = check_tile((h, w), origin, frame_shape)
     options = dict(pattern=pattern, border=border, frames=int(frames), interpolation=interpolation)

@@ -143,6 +143,21 @@ def _is_concrete(*trees) -> bool:
     return not any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(trees))
 
 
+def check_seed(owner: str, seed):
+    """A concrete ``seed`` checked, an integer in [0, 2**32) (the passes hash it as a uint32): the error names the
+    owner and the value (a seed of -1, 1.5 or 2**32 would wrap, round or overflow inside JAX). A traced one passes."""
+    if not _is_concrete(seed):
+        return seed
+    try:
+        ok = (np.ndim(seed) == 0 and not isinstance(seed, (bool, np.bool_)) and np.asarray(seed).dtype != bool
+              and float(seed) == int(seed) and 0 <= int(seed) < 2**32)
+    except (TypeError, ValueError, OverflowError):
+        ok = False
+    if not ok:
+        raise ValueError(f"{owner}: seed must be an integer in [0, 2**32), got {seed!r}")
+    return seed
+
+
 def _as_seed(seed):
     """A seed as the passes take it, uint32: a concrete one stays a NumPy value until a jitted call takes it (an
     eager ``jnp`` conversion is a device dispatch of its own, ~0.1-0.3 ms of a call's host time), a traced one is

@@ -38,7 +38,7 @@ from .._materials import BurleyMaterial
 from .._profiles import burley_inverse_ccdf
 from .._scene import Buffers, Camera
 from ._base import AbstractTechnique, option
-from ._common import ALBEDO_MODES, _finish, _prepare, _safe_sqrt, _work_dtype
+from ._common import ALBEDO_MODES, _as_seed, _finish, _prepare, _safe_sqrt, _work_dtype, check_seed
 from ._engine_frame import check_count, frame_geometry, nearest_fetch, pass_arguments
 
 EEVEE_SAMPLE_LEN = 16  # SubsurfaceModule::end_sync, data_.sample_len (EEVEE Next, 4.2 and later)
@@ -182,6 +182,7 @@ class EeveeNextPass(AbstractTechnique):
 
     def __check_init__(self):
         check_count("frames", self.frames, lo=1)
+        check_seed("eevee-next", self.seed)
         from ..engines._blender import parse_version
 
         if parse_version(self.blender_version) < FIRST_VERSION:
@@ -194,8 +195,8 @@ class EeveeNextPass(AbstractTechnique):
         self.check_material(material)
         origin, frame_shape = pass_arguments(self.name, self.albedo_mode, buffers, origin, frame_shape,
                                              material.count)
-        return _eevee_next_impl(buffers, material, camera, int(self.frames), self.albedo_mode, self.seed, origin,
-                                frame_shape)
+        return _eevee_next_impl(buffers, material, camera, int(self.frames), self.albedo_mode,
+                                _as_seed(check_seed(self.name, self.seed)), origin, frame_shape)
 
     def reach_px(self, buffers: Buffers, material: BurleyMaterial, camera: Camera) -> int:
         """The farthest sample (``x < 1 + 1/16`` of the truncated CDF, at most 16 d0 max radius) at the nearest

@@ -41,7 +41,7 @@ from .._units import px_per_mm
 from ._base import AbstractTechnique, option
 from ._burley import spiral_rotation
 from ._burley_spec import unit_radius
-from ._common import _finish, _prepare, _safe_sqrt, _work_dtype, ALBEDO_MODES
+from ._common import _as_seed, _finish, _prepare, _safe_sqrt, _work_dtype, ALBEDO_MODES, check_seed
 from ._engine_frame import check_count, frame_geometry, nearest_fetch, pass_arguments
 
 HDRP_QUALITY_BUDGETS = {"low": 20, "medium": 40, "high": 80}  # DefaultSssSampleBudgetForQualityLevel
@@ -99,7 +99,10 @@ def _hdrp_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, budge
         def sample(i, carry):
             total_e, total_w = carry
             fi = jnp.asarray(i, dtype)
-            u = fi / n_safe + 0.5 / n_safe
+            # samples past the pixel's count (i >= n, masked below) take the last one's u: u > 1 would put a NaN
+            # radius into the masked branch, and NaN into every gradient
+            fc = jnp.minimum(fi, n_safe - 1)
+            u = fc / n_safe + 0.5 / n_safe
             r = burley_inverse_ccdf(1 - u, jnp.where(active, d_max, 1.0))  # mm, the widest channel's
             phi = 2 * jnp.pi * jnp.mod(fi / GOLDEN_RATIO, 1.0)
             psi = phase + phi
@@ -149,6 +152,7 @@ class HdrpPass(AbstractTechnique):
     def __check_init__(self):
         hdrp_budget(self.quality, self.budget)
         check_count("frames", self.frames, lo=1)
+        check_seed("hdrp", self.seed)
 
     @property
     def samples(self) -> int:
@@ -161,8 +165,9 @@ class HdrpPass(AbstractTechnique):
         self.check_material(material)
         origin, frame_shape = pass_arguments(self.name, self.albedo_mode, buffers, origin, frame_shape,
                                              material.count)
-        return _hdrp_impl(buffers, material, camera, self.samples, int(self.frames), self.albedo_mode, self.seed,
-                          origin, frame_shape)
+        # the seed as a uint32 array (traced: a sequence's seeds share one program; a Python int would be static)
+        return _hdrp_impl(buffers, material, camera, self.samples, int(self.frames), self.albedo_mode,
+                          _as_seed(check_seed(self.name, self.seed)), origin, frame_shape)
 
     def reach_px(self, buffers: Buffers, material: BurleyMaterial, camera: Camera) -> int:
         """The farthest sample: the radius of sample ``n-1`` (``u = 1 - 0.5/n``) at the nearest SSS pixel."""

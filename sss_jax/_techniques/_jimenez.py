@@ -74,8 +74,9 @@ class JimenezParams(eqx.Module):
             v = getattr(self, name)
             if not isinstance(v, jax.core.Tracer) and not np.all((np.asarray(v) >= lo) & (np.asarray(v) <= hi)):
                 raise ValueError(f"JimenezParams {name} must be within [{lo}, {hi}], got {np.asarray(v).tolist()}")
-        if not isinstance(self.sss_width, jax.core.Tracer) and not float(self.sss_width) >= 0:
-            raise ValueError(f"JimenezParams sss_width must be >= 0 (scene units), got {float(self.sss_width)}")
+        if not isinstance(self.sss_width, jax.core.Tracer) and not 0 <= float(self.sss_width) < math.inf:
+            raise ValueError(f"JimenezParams sss_width must be finite and >= 0 (scene units), got "
+                             f"{float(self.sss_width)}")
 
     @classmethod
     def from_engine(cls, params: dict[str, Any]) -> "JimenezParams":
@@ -133,6 +134,9 @@ def _linear_clamp_1d(values: Array, pos: Array, axis: int) -> Array:
     """Bilinear fetch along ``axis`` at fractional pixel ``pos`` (pixel centres at integers) with Clamp addressing:
     ``values (H, W, K)``, ``pos (H, W)``."""
     n = values.shape[axis]
+    # Clamp addressing reads the edge pixel anywhere past it: a position held within [-1, n] fetches the same, and
+    # one that overflowed to +-inf (a huge step) fetches the edge instead of inf - inf = NaN
+    pos = jnp.clip(pos, -1.0, n)
     p0 = jnp.floor(pos)
     f = (pos - p0)[..., None]
     i0 = jnp.clip(p0, 0, n - 1).astype(jnp.int32)
@@ -162,7 +166,9 @@ def _jimenez_impl(buffers: Buffers, params: JimenezParams, camera: Camera, taps:
     colour = jnp.where(prep.valid[..., None], prep.irradiance, jnp.where(jnp.isfinite(raw), raw, 0.0))
     offsets, weights = jimenez_kernel_jax(params.strength.astype(dtype), params.falloff.astype(dtype), taps)
     width = params.sss_width.astype(dtype)
-    step_uv = width * params.alpha.astype(dtype) * inv_tan / depth / 3.0  # finalStep, texture coordinates
+    spread = width * params.alpha.astype(dtype)
+    # finalStep, texture coordinates; no width or no alpha is no step, even where inv_tan / depth overflowed
+    step_uv = jnp.where(spread > 0, spread * inv_tan / depth / 3.0, 0.0)
     steps = (step_uv * fw, step_uv * fh)  # as pixels: a texture coordinate spans W (horizontal) or H pixels
     depth_c = depth[..., None]
     pos0 = (jnp.broadcast_to(jnp.arange(w, dtype=dtype)[None, :], (h, w)),
@@ -176,7 +182,10 @@ def _jimenez_impl(buffers: Buffers, params: JimenezParams, camera: Camera, taps:
             fetched = _linear_clamp_1d(source, pos0[0 if axis == 1 else 1] + offsets[i] * step, axis)
             tap = fetched[..., :3]
             if follow_surface:
-                s = jnp.clip(300.0 * inv_tan * width * jnp.abs(depth - fetched[..., 3]), 0.0, 1.0)[..., None]
+                gap = jnp.abs(depth - fetched[..., 3])
+                # no gap (or no width) is no pull, also where the product overflowed (inf x 0 would be NaN)
+                s = jnp.where((gap > 0) & (width > 0), jnp.clip(300.0 * inv_tan * width * gap, 0.0, 1.0),
+                              0.0)[..., None]
                 tap = tap + s * (centre - tap)
             out = out + weights[i][None, None, :] * tap
         return jnp.where(prep.valid[..., None], out, centre)

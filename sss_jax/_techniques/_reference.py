@@ -203,8 +203,13 @@ def reference(
                              "buffers and the material, traced here): e.g. Reference().reach_px(buffers, material, "
                              "camera) outside the transformation")
         radius_px = reference_radius_px(buffers, material, camera)
-    if not isinstance(radius_px, (int, np.integer)) or radius_px < 0:
+    if not isinstance(radius_px, (int, np.integer)) or isinstance(radius_px, bool) or radius_px < 0:
         raise ValueError(f"radius_px must be a non-negative integer, got {radius_px!r}")
+    if not isinstance(near_subsamples, (int, np.integer)) or isinstance(near_subsamples, bool) or near_subsamples < 1:
+        raise ValueError(f"near_subsamples must be a positive integer, got {near_subsamples!r}")
+    # a window past the frame reaches no further pixel (every pixel of the frame lies within max(H, W) - 1 along
+    # each axis): the same result, without a window of (2 radius_px + 1)^2 offsets
+    radius_px = min(int(radius_px), max(frame_shape) - 1)
     if _is_concrete(buffers, material, camera):
         held = reference_energy_held(buffers, material, camera, int(radius_px), frame_shape=frame_shape)
         if held < 0.999:

@@ -41,9 +41,13 @@ def sta_term(normal: Array, view: Array, light: DirectionalLight, params: STAPar
     cos_back = jnp.clip(jnp.sum(view * -lt, axis=-1), 0.0, 1.0)
     power = checked(params.power.astype(dtype), "STA power")
     t_dir = params.scale.astype(dtype).reshape(1, 1, 3) * _safe_pow(cos_back, power)[..., None]
-    scale_mm = checked(params.thickness_mm.astype(dtype), "STA thickness_mm", positive=True)
-    ratio = thickness_mm[..., None] / scale_mm.reshape(1, 1, 3)
-    atten = jnp.where(jnp.isfinite(ratio), jnp.exp(-jnp.where(jnp.isfinite(ratio), ratio, 0.0)), 0.0)
+    # thickness_mm = inf is paper-thin (t = 1 at any finite thickness): allowed, as STAParams allows it
+    scale_mm = checked(params.thickness_mm.astype(dtype), "STA thickness_mm", positive=True, finite=False)
+    # an infinitely thick pixel lets nothing through; its thickness is kept out of the division, whose gradient
+    # would be inf x 0 = NaN in every parameter (a NaN from pixels that take no part)
+    thick = jnp.isfinite(thickness_mm)[..., None]
+    ratio = jnp.where(thick, thickness_mm[..., None], 0.0) / scale_mm.reshape(1, 1, 3)
+    atten = jnp.where(thick, jnp.exp(-ratio), 0.0)
     return light.colour.astype(dtype).reshape(1, 1, 3) * atten * (t_dir + params.ambient.astype(dtype).reshape(1, 1, 3))
 
 
@@ -56,7 +60,9 @@ def _thickness_mm(buffers: Buffers, thickness: ParamLike | None, camera: Camera,
         thick_units = jnp.broadcast_to(jnp.asarray(thickness, dtype), shape)
     else:
         thick_units = jnp.zeros(shape, dtype)
-    return thick_units * camera.mm_per_unit.astype(dtype)
+    # an infinite thickness stays infinite, kept out of the product (its gradient in mm_per_unit would be NaN)
+    finite = jnp.isfinite(thick_units)
+    return jnp.where(finite, jnp.where(finite, thick_units, 0.0) * camera.mm_per_unit.astype(dtype), jnp.inf)
 
 
 @jax.jit
