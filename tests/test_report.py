@@ -356,3 +356,23 @@ def test_an_out_folder_that_cannot_be_written_is_refused_before_any_work(tmp_pat
     with pytest.raises(SystemExit):  # "" would be the current folder
         main(["report", *args, "--out", ""])
     assert "argument --out: empty" in capsys.readouterr().err
+
+
+def test_a_report_folder_shows_its_latest_report_and_a_users_json_is_kept(tmp_path, capsys):
+    # a second report into the same folder left the first one's images beside its own (report.json listed only
+    # the second's runs); a folder holding the user's own report.json had it replaced without a word
+    frame = _tiny_exr(tmp_path / "in.exr")
+    base = [str(frame), "--d-mm", "1,1,1", "--no-progress", "--repeats", "0", "--techniques", "separable"]
+    out = tmp_path / "rep"
+    assert main(["report", *base, "--taps", "9", "--out", str(out)]) == 0
+    (out / "images" / "in" / "notes.txt").write_text("mine")  # not a report's: stays
+    assert main(["report", *base, "--taps", "17", "--out", str(out)]) == 0
+    names = sorted(p.name for p in (out / "images" / "in").iterdir())
+    assert "separable_9.exr" not in names and "separable_17.exr" in names and "notes.txt" in names
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "report.json").write_text('{"my": "notes"}')
+    capsys.readouterr()
+    assert main(["report", *base, "--taps", "9", "--out", str(mine)]) == 2
+    assert "holds a report.json that is not an sss-jax report" in capsys.readouterr().err
+    assert (mine / "report.json").read_text() == '{"my": "notes"}'

@@ -382,6 +382,30 @@ def _write(out_dir, doc: dict, page_html: str, frames: Sequence[FrameImages], ru
         for rel in files:
             (out_dir / rel).parent.mkdir(parents=True, exist_ok=True)
             os.replace(staging / rel, out_dir / rel)
+        _drop_stale_images(out_dir, {out_dir / rel for rel in files})
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return out_dir / "report.html"
+
+
+def _drop_stale_images(out_dir: pathlib.Path, kept: set[pathlib.Path]) -> None:
+    """An earlier report's images in ``out_dir/images`` that this one did not write (another technique, count or
+    frame): removed, so the folder shows this report's runs only. Only files a report wrote (an EXR with the
+    report's ``sss_jax:technique`` and ``sss_jax:count`` attributes) go; anything else stays."""
+    from .._io import read_header
+
+    images = out_dir / "images"
+    if not images.is_dir():
+        return
+    for path in sorted(images.glob("*/*.exr")):
+        if path in kept:
+            continue
+        try:
+            attrs = read_header(path)[0]
+        except (OSError, ValueError):
+            continue
+        if "sss_jax:technique" in attrs and "sss_jax:count" in attrs:
+            path.unlink(missing_ok=True)
+    for folder in images.iterdir():
+        if folder.is_dir() and not any(folder.iterdir()):
+            folder.rmdir()

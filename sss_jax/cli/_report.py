@@ -210,6 +210,10 @@ def _check_out(out: pathlib.Path) -> None:
     the frames have been computed."""
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out} exists and is not a directory")
+    for name in ("report.json", "report.html"):
+        if (out / name).exists() and not _a_report(out):
+            raise ValueError(f"--out {out} holds a {name} that is not an sss-jax report: the report would replace "
+                             "it; give a new or empty folder, or the folder of an earlier report")
     place = out.absolute() if out.is_dir() else out.absolute().parent
     while not place.exists():
         place = place.parent
@@ -220,6 +224,17 @@ def _check_out(out: pathlib.Path) -> None:
             pass
     except OSError as exc:
         raise ValueError(f"--out {out}: cannot write in {place} ({exc.strerror})") from None
+
+
+def _a_report(out: pathlib.Path) -> bool:
+    """Whether ``out/report.json`` is one a report wrote (its top-level keys)."""
+    import json
+
+    try:
+        doc = json.loads((out / "report.json").read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(doc, dict) and {"techniques", "local_shading", "machine"} <= set(doc)
 
 
 def run(args) -> int:
