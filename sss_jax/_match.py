@@ -46,7 +46,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._io import SSSInputError, display_transform, read_channels, read_frame, write_bytes_atomic
+from ._io import SSSInputError, display_transform, read_frame, write_bytes_atomic
+from ._evaluate import read_truth
 from ._materials import BurleyMaterial, DirectionalLight, STAParams, TwoGaussianMaterial
 from ._scene import Buffers, Camera
 from ._techniques._base import AbstractTechnique
@@ -104,40 +105,6 @@ def match_frame(buffers: Buffers, camera: Camera, truth, *, name: str = "frame")
     return MatchFrame(buffers, camera, truth, ids, name)
 
 
-def read_truth(path: str | os.PathLike, *, channels: str | Sequence[str] | None = None) -> np.ndarray:
-    """The offline render's RGB, ``(H, W, 3)`` float32, from an EXR.
-
-    ``channels``: a pass name (``"Combined"``: Blender's ``<layer>.Combined.R/G/B``), three channel names
-    (``"R,G,B"`` or a list), or None: Blender's Combined pass if there is one, else ``R, G, B``."""
-    path = pathlib.Path(path)
-    chans, _, _ = read_channels(path)
-    names = list(chans)
-    if isinstance(channels, str) and "," in channels:
-        channels = [c.strip() for c in channels.split(",")]
-    if channels is None or isinstance(channels, str):
-        passname = channels or "Combined"
-        picked = []
-        for c in "RGB":
-            hits = [n for n in names if n.endswith(f".{passname}.{c}") or n == f"{passname}.{c}"]
-            picked.append(hits[0] if hits else None)
-        if not all(picked):
-            if channels is None and all(c in chans for c in "RGB"):
-                picked = ["R", "G", "B"]
-            else:
-                raise SSSInputError(f"{path}: no {passname} pass (R, G, B); channels found: {', '.join(names[:24])}")
-    else:
-        picked = list(channels)
-        if len(picked) != 3:
-            raise SSSInputError(f"{path}: truth channels must name three channels (R, G, B), got {picked}")
-        missing = [c for c in picked if c not in chans]
-        if missing:
-            raise SSSInputError(f"{path}: truth channel(s) {missing} missing; channels found: {', '.join(names[:24])}")
-    rgb = np.stack([chans[c] for c in picked], axis=-1).astype(np.float32)
-    if not np.all(np.isfinite(rgb)):
-        raise SSSInputError(f"{path}: truth has {int(np.sum(~np.isfinite(rgb)))} non-finite values")
-    return rgb
-
-
 def load_match_frame(render: str | os.PathLike, truth: str | os.PathLike, *, truth_channels=None, channel_map=None,
                      focal_px: float | None = None, mm_per_unit: float | None = None, depth_kind: str = "planar",
                      use_albedo_pass: bool = True) -> MatchFrame:
@@ -150,7 +117,7 @@ def load_match_frame(render: str | os.PathLike, truth: str | os.PathLike, *, tru
     if frame.focal_px is None:
         raise SSSInputError(f"{render}: no focal length: give focal_px (--focal-px), the EXR header "
                             "sss_jax:focal_px or a sidecar JSON with camera.focal_px")
-    rgb = read_truth(truth, channels=truth_channels, frame=frame)
+    rgb = read_truth(truth, truth_channels, frame=frame)  # the report's reader: one rule for a truth
     camera = Camera(frame.focal_px, frame.mm_per_unit if frame.mm_per_unit is not None else 1.0)
     return match_frame(frame.to_buffers(use_albedo=use_albedo_pass), camera, rgb, name=pathlib.Path(render).name)
 
