@@ -319,7 +319,8 @@ def evaluate_frames(
     if truths and len(truths) != len(paths):
         raise SSSInputError(f"{len(truths)} truth file(s) for {len(paths)} input frame(s): give one per input")
     if len(set(map(str, paths))) != len(paths):
-        raise SSSInputError("an input frame is given twice")
+        twice = sorted({str(p) for p in paths if list(map(str, paths)).count(str(p)) > 1})
+        raise SSSInputError(f"an input frame is given twice: {', '.join(twice)}")
 
     frames: list[Frame] = []
     for p in paths:
@@ -346,6 +347,15 @@ def evaluate_frames(
             configs += [(t.replace(**{t.count_option: n}), m, n) for n in counts[t.count_option]]
         else:
             configs.append((t, m, None))
+    # two runs of one technique and count (e.g. hdrp at two quality levels) are told apart by their options; checked before
+    # any frame is computed
+    plain = [t.name if n is None else f"{t.name} {n}" for t, _, n in configs]
+    tags = [" ".join(f"{k}={v}" for k, v in changed_options(t).items()) if plain.count(p) > 1 else ""
+            for p, (t, _, _) in zip(plain, configs)]
+    labels = [p + (f" {g}" if g else "") for p, g in zip(plain, tags)]
+    if len(set(labels)) != len(labels):
+        twice = sorted({lab for lab in labels if labels.count(lab) > 1})
+        raise SSSInputError(f"technique run(s) given twice (--techniques, --taps or --samples): {', '.join(twice)}")
     bar = tqdm(total=len(frames) * (1 + len(configs)), desc="sss-jax report", unit="run", file=sys.stderr,
                disable=not progress, dynamic_ncols=True)
     reading = {"channel_map": json.dumps(channel_map, sort_keys=True, default=str) if channel_map else None,
@@ -402,14 +412,6 @@ def evaluate_frames(
     finally:
         bar.close()
 
-    # two runs of one technique and count (e.g. hdrp at two quality levels) are told apart by their options
-    plain = [t.name if n is None else f"{t.name} {n}" for t, _, n in configs]
-    tags = [" ".join(f"{k}={v}" for k, v in changed_options(t).items()) if plain.count(p) > 1 else ""
-            for p, (t, _, _) in zip(plain, configs)]
-    labels = [p + (f" {g}" if g else "") for p, g in zip(plain, tags)]
-    if len(set(labels)) != len(labels):
-        twice = sorted({lab for lab in labels if labels.count(lab) > 1})
-        raise SSSInputError(f"technique run(s) given twice: {', '.join(twice)}")
     runs = tuple(TechniqueRun(t.name, n, 1e3 * float(np.mean(seconds[k])), tuple(images[k]),
                               options=changed_options(t), conserves_energy=t.conserves_energy,
                               cost_per_pixel=_pooled_cost(costs[k]), tag=tags[k])

@@ -376,3 +376,21 @@ def test_a_report_folder_shows_its_latest_report_and_a_users_json_is_kept(tmp_pa
     assert main(["report", *base, "--taps", "9", "--out", str(mine)]) == 2
     assert "holds a report.json that is not an sss-jax report" in capsys.readouterr().err
     assert (mine / "report.json").read_text() == '{"my": "notes"}'
+
+
+def test_a_run_given_twice_is_refused_before_any_frame_is_computed(tmp_path, monkeypatch):
+    # it was found after the reference and every run had been computed (20 s on the fuzz's 96x64 crop)
+    import sss_jax._techniques as techniques
+
+    frame = _tiny_exr(tmp_path / "in.exr")
+
+    def computed(*args, **kwargs):
+        raise AssertionError("a frame was computed first")
+
+    monkeypatch.setattr(techniques, "reference_radius_px", computed)
+    with pytest.raises(sj.SSSInputError, match=r"given twice \(--techniques, --taps or --samples\): separable 9"):
+        sj.evaluate_frames([frame], sj.BurleyMaterial((0.8,) * 3, (1.0,) * 3), techniques=["separable", "separable"],
+                           taps=(9,), radius_px=None, repeats=0, progress=False)
+    with pytest.raises(sj.SSSInputError, match=r"an input frame is given twice: .*in.exr"):
+        sj.evaluate_frames([frame, frame], sj.BurleyMaterial((0.8,) * 3, (1.0,) * 3), techniques=["separable"],
+                           progress=False)

@@ -18,7 +18,11 @@ is the radius holding 0.997 of the widest channel's energy). Per SSS pixel:
   skipped, and the weights renormalised over the rest: ``albedo * sum(w E) / sum(w)``.
 
 ``d_mm`` is HDRP's scattering distance (``1 / shapeParam``, the exact conversion of ``engines.Hdrp``); a channel
-with ``d = 0`` keeps its own irradiance (HDRP would divide by ``FLT_MIN``). ``frames=K`` averages K frames, each
+with ``d = 0`` keeps its own irradiance (HDRP would divide by ``FLT_MIN``). Otherwise what HDRP renders is kept where
+it is not flat light: a pixel whose samples all land off the frame or on pixels without SSS (a 1x1 frame, a sliver
+of skin at the frame's edge), and a channel whose weights all underflow in float32 (a d thousands of times below
+the widest channel's), come out black, as ``albedo * totalIrradiance / max(totalWeight, FLT_MIN)`` does in the
+engine (sss_jax's ``burley`` keeps the pixel's own light there). ``frames=K`` averages K frames, each
 with its own rotation hash (what TAA converges to).
 """
 
