@@ -306,8 +306,12 @@ def test_fit_command_writes_a_new_artist_preset(tmp_path, capsys):
 @pytest.mark.parametrize("argv, message", [
     (["--name", "x", "--albedo", "0.5,0.5,0.5"], "needs all of --name, --albedo R,G,B and --d-mm R,G,B"),
     (["--name", "skin", "--albedo", "0.5,0.5,0.5", "--d-mm", "1,1,1"], "'skin' is a built-in material"),
-    (["--name", "x", "--albedo", "1.5,0.5,0.5", "--d-mm", "1,1,1", "--photons", "10"], r"x: albedo must be 3 values in \[0, 1\)"),
-    (["--name", "x", "--albedo", "0.5,0.5,0.5", "--d-mm", "1,0,1", "--photons", "10"], "x: d_mm must be 3 finite values > 0"),
+    (["--name", "x", "--albedo", "1.5,0.5,0.5", "--d-mm", "1,1,1", "--photons", "10"], r"x: albedo must be 3 values in \(0, 1\)"),
+    (["--name", "x", "--albedo", "0.5,0.5,0.5", "--d-mm", "1,0,1", "--photons", "10"], r"x: d_mm must be 3 values in \(0, 10000\] mm"),
+    # an albedo of 0 wrote a preset whose engine errors were -1.5e17 (a ratio to a black reference); a d of 1e30
+    # failed after the Monte Carlo with "Residuals are not finite in the initial point"
+    (["--name", "x", "--albedo", "0,0,0", "--d-mm", "1,1,1", "--photons", "10"], r"x: albedo must be 3 values in \(0, 1\)"),
+    (["--name", "x", "--albedo", "0.5,0.5,0.5", "--d-mm", "1e30,1,1", "--photons", "10"], r"x: d_mm must be 3 values in"),
     (["--material", "skin", "--photons", "0"], "--photons must be a positive integer"),
     (["--material", "skin", "--taps", "0"], "--taps must be a positive integer"),
     # checked before any work (before: --taps 4 failed each material after its Monte Carlo, --photons 5 said
@@ -355,16 +359,49 @@ def test_measured_csv_errors_name_the_file_and_row(tmp_path):
     bad = tmp_path / "m.csv"
     bad.write_text("name,sigma_s_prime_r,sigma_s_prime_g,sigma_s_prime_b,sigma_a_r,sigma_a_g,sigma_a_b\n"
                    "goo,1,1,1,0.1,0.1\n")
-    with pytest.raises(_io.SSSInputError, match=r"m.csv: row 2 lacks sigma_a_b"):
+    with pytest.raises(_io.SSSInputError, match=r"m.csv: line 2 lacks sigma_a_b"):
         FP.measured_materials(bad)
     bad.write_text("name,sigma_s_prime_r,sigma_s_prime_g,sigma_s_prime_b,sigma_a_r,sigma_a_g,sigma_a_b\n"
                    "goo,1,1,1,0.1,-0.1,0.1\n")
-    with pytest.raises(_io.SSSInputError, match=r"row 2 \(goo\): coefficients must be finite, >= 0"):
+    with pytest.raises(_io.SSSInputError, match=r"line 2 \(goo\): coefficients must be finite and >= 0"):
         FP.measured_materials(bad)
     # a header and no rows: an error, not an empty list of materials (`fit --list` printed "measured:", exit 0)
     bad.write_text("name,sigma_s_prime_r,sigma_s_prime_g,sigma_s_prime_b,sigma_a_r,sigma_a_g,sigma_a_b\n")
     with pytest.raises(_io.SSSInputError, match=r"m.csv: no materials"):
         FP.measured_materials(bad)
+
+
+HEADER = "name,sigma_s_prime_r,sigma_s_prime_g,sigma_s_prime_b,sigma_a_r,sigma_a_g,sigma_a_b"
+
+
+@pytest.mark.parametrize("text, message", [
+    # a row's name became the preset's file name unchecked: "../../evil" wrote outside --out
+    (f"{HEADER}\n../../evil,1,1,1,0.1,0.1,0.1\n", r"line 2: preset name '../../evil': use letters"),
+    (f"{HEADER}\nfoo,1,1,1,0.1,0.1,0.1\nfoo,2,2,2,0.1,0.1,0.1\n", r"line 3: material 'foo' is given twice"),
+    (f"{HEADER}\nskin,1,1,1,0.1,0.1,0.1\n", r"line 2: 'skin' is an artist material's name"),
+    (f"{HEADER}\nfoo,1,1,1,0.1,0.1,0.1,7\n", r"line 2 has 1 value\(s\) more than the header's columns"),
+    # a header without the columns was "row 2 lacks name, ..."; line numbers counted without the comments
+    ("material,s_r,s_g,s_b,a_r,a_g,a_b\nfoo,1,1,1,0.1,0.1,0.1\n", r"the header \(line 1\) lacks name, .* it has "
+     r"'material', 's_r'"),
+    (f"# Jensen 2001\n#\n{HEADER}\nfoo,1,1,1,0.1,0.1,0.1\nbar,x1,1,1,0.1,0.1,0.1\n", r"line 5 \(bar\): could not"),
+    (f"{HEADER}\nfoo,0,0,0,0.1,0.1,0.1\n", r"line 2 \(foo\): .*sigma_s' > 0 per channel"),
+])
+def test_measured_csv_rows_are_checked_where_they_are(tmp_path, text, message):
+    path = tmp_path / "m.csv"
+    path.write_text(text)
+    with pytest.raises(_io.SSSInputError, match=message):
+        FP.measured_materials(path)
+
+
+def test_measured_csv_as_spreadsheets_write_it(tmp_path):
+    # Excel's "CSV UTF-8" starts with a byte-order mark ("row 2 lacks name" before); Latin-1 text named the codec
+    # but not the file; spaces after the commas
+    path = tmp_path / "m.csv"
+    path.write_bytes(("\ufeff" + HEADER.replace(",", ", ") + "\r\nfoo, 1, 1, 1, 0.1, 0.1, 0.1\r\n").encode("utf-8"))
+    assert FP.measured_materials(path) == {"foo": {"sigma_s_prime": [1.0] * 3, "sigma_a": [0.1] * 3}}
+    path.write_bytes((HEADER + "\ncr\xe8me,1,1,1,0.1,0.1,0.1\n").encode("latin-1"))
+    with pytest.raises(_io.SSSInputError, match=r"m.csv: not UTF-8 text"):
+        FP.measured_materials(path)
 
 
 def test_engine_table_covers_every_preset_and_engine():

@@ -32,6 +32,8 @@ from ._errors import _burley_vs_mc, engine_errors, image_errors, kernel_errors, 
 from ._files import plot_preset, write_presets_readme
 from ._references import fit_burley_d, montecarlo_medium_slabs, montecarlo_profiles, montecarlo_slabs
 from ._sources import (
+    RESERVED_NAMES,
+    check_preset_name,
     ARTIST_MATERIALS,
     DEFAULT_PHOTONS,
     MEDIUM_SLAB_PHOTONS_FRACTION,
@@ -165,22 +167,6 @@ def _fit_preset(name, *, photons, seed, solver, taps, cache_dir, measured_csv, a
 
 def _json_bytes(data: Any) -> bytes:
     return (json.dumps(data, indent=2) + "\n").encode()
-
-
-_PRESET_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
-RESERVED_NAMES = ("schema",)  # files of a presets folder that are not presets (schema.json)
-
-
-def check_preset_name(name: str) -> str:
-    """``name`` if it can name a preset file ``<out_dir>/<name>.json``: letters, digits, ``_``, ``.`` and ``-``,
-    starting with a letter or digit (no folder, no hidden file), and not a file the folder holds besides the
-    presets (``schema``); else ``ValueError`` saying why."""
-    if not isinstance(name, str) or not _PRESET_NAME.fullmatch(name) or ".." in name:
-        raise ValueError(f"preset name {name!r}: use letters, digits, '_', '.' and '-', starting with a letter or "
-                         "digit (it names the file <out>/<name>.json)")
-    if name.lower() in RESERVED_NAMES:
-        raise ValueError(f"preset name {name!r} is reserved: <out>/{name}.json is the presets' JSON schema")
-    return name
 
 
 def fit_presets(names: Iterable[str] | None = None, *, out_dir: str | os.PathLike = "fits",

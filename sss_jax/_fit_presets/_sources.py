@@ -7,6 +7,7 @@ import csv
 import math
 import os
 import pathlib
+import re
 from importlib import resources
 from typing import Any
 
@@ -45,35 +46,78 @@ IMAGE_PX_PER_D = 2.0  # image-space errors: the widest channel's d spans 2 pixel
 # ------------------------------------------------------------------------------------------------------------------
 
 
+_PRESET_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
+RESERVED_NAMES = ("schema",)  # files of a presets folder that are not presets (schema.json)
+
+
+def check_preset_name(name: str) -> str:
+    """``name`` if it can name a preset file ``<out_dir>/<name>.json``: letters, digits, ``_``, ``.`` and ``-``,
+    starting with a letter or digit (no folder, no hidden file), and not a file the folder holds besides the
+    presets (``schema``); else ``ValueError`` saying why."""
+    if not isinstance(name, str) or not _PRESET_NAME.fullmatch(name) or ".." in name:
+        raise ValueError(f"preset name {name!r}: use letters, digits, '_', '.' and '-', starting with a letter or "
+                         "digit (it names the file <out>/<name>.json)")
+    if name.lower() in RESERVED_NAMES:
+        raise ValueError(f"preset name {name!r} is reserved: <out>/{name}.json is the presets' JSON schema")
+    return name
+
+
 def measured_materials(path: str | os.PathLike | None = None) -> dict[str, dict[str, list[float]]]:
     """The measured coefficients (``sigma_s_prime``, ``sigma_a`` in 1/mm, (3,) each) by name; default: the copy of
-    Jensen et al. 2001, Table 2 shipped in ``sss_jax/data``."""
+    Jensen et al. 2001, Table 2 shipped in ``sss_jax/data``. A file of one's own is read as spreadsheets write CSV
+    (UTF-8 with or without Excel's byte-order mark; ``#`` lines are comments); its errors name the file and the line:
+    a header without the columns (the columns it has), a value that is not a number, a row with more values than
+    the header, a name that cannot name a preset file (``check_preset_name``: no folders), a name given twice or
+    taken by an artist material."""
     if path is None:
         text = resources.files("sss_jax").joinpath("data/measured_materials.csv").read_text()
         where = "sss_jax/data/measured_materials.csv"
     else:
         try:
-            text = pathlib.Path(path).read_text()
+            text = pathlib.Path(path).read_text(encoding="utf-8-sig")
         except OSError as exc:
             raise SSSInputError(f"{path}: cannot read measured materials ({exc.strerror})") from None
+        except UnicodeDecodeError as exc:
+            raise SSSInputError(f"{path}: not UTF-8 text (byte {exc.start}): save the CSV as UTF-8") from None
         where = str(path)
-    rows = csv.DictReader(line for line in text.splitlines() if line.strip() and not line.startswith("#"))
-    out = {}
+    numbered = [(k, line) for k, line in enumerate(text.splitlines(), start=1)
+                if line.strip() and not line.lstrip().startswith("#")]
+    rows = csv.DictReader(line for _, line in numbered)
     need = [f"{k}_{c}" for k in ("sigma_s_prime", "sigma_a") for c in "rgb"]
-    for i, row in enumerate(rows, start=2):
-        missing = [k for k in ["name", *need] if not row.get(k)]
+    header = [h.strip() for h in (rows.fieldnames or [])]
+    absent = [k for k in ["name", *need] if k not in header]
+    if numbered and absent:
+        raise SSSInputError(f"{where}: the header (line {numbered[0][0]}) lacks {', '.join(absent)}; it has "
+                            f"{', '.join(map(repr, header)) or 'nothing'} (a comma-separated header: name, sigma_s_prime_r, ...)")
+    rows.fieldnames = header
+    out: dict[str, dict[str, list[float]]] = {}
+    for row in rows:
+        line = numbered[rows.line_num - 1][0]
+        if None in row:
+            raise SSSInputError(f"{where}: line {line} has {len(row[None])} value(s) more than the header's columns")
+        missing = [k for k in ["name", *need] if not (row.get(k) or "").strip()]
         if missing:
-            raise SSSInputError(f"{where}: row {i} lacks {', '.join(missing)}")
+            raise SSSInputError(f"{where}: line {line} lacks {', '.join(missing)}")
+        name = row["name"].strip()
+        try:
+            check_preset_name(name)
+        except ValueError as exc:
+            raise SSSInputError(f"{where}: line {line}: {exc}") from None
+        if name in out:
+            raise SSSInputError(f"{where}: line {line}: material {name!r} is given twice")
+        if name in ARTIST_MATERIALS:
+            raise SSSInputError(f"{where}: line {line}: {name!r} is an artist material's name; give it another")
         try:
             vals = {k: float(row[k]) for k in need}
         except ValueError as exc:
-            raise SSSInputError(f"{where}: row {i} ({row['name']}): {exc}") from None
+            raise SSSInputError(f"{where}: line {line} ({name}): {exc}") from None
         s = [vals[f"sigma_s_prime_{c}"] for c in "rgb"]
         a = [vals[f"sigma_a_{c}"] for c in "rgb"]
-        if not all(math.isfinite(v) and v >= 0 for v in s + a) or not all(x + y > 0 for x, y in zip(s, a)):
-            raise SSSInputError(f"{where}: row {i} ({row['name']}): coefficients must be finite, >= 0, "
-                                f"with sigma_s' + sigma_a > 0 per channel; got sigma_s'={s}, sigma_a={a}")
-        out[row["name"]] = {"sigma_s_prime": s, "sigma_a": a}
+        if not all(math.isfinite(v) and v >= 0 for v in s + a) or not all(x > 0 for x in s):
+            raise SSSInputError(f"{where}: line {line} ({name}): coefficients must be finite and >= 0, with "
+                                f"sigma_s' > 0 per channel (a medium that does not scatter has no diffusion "
+                                f"profile to fit); got sigma_s'={s}, sigma_a={a}")
+        out[name] = {"sigma_s_prime": s, "sigma_a": a}
     if not out:
         raise SSSInputError(f"{where}: no materials (a header and one row per material: name, sigma_s_prime_r/g/b, "
                             "sigma_a_r/g/b)")
@@ -121,6 +165,9 @@ def albedo_from_surface_albedo(A: float) -> float:
     return 0.5 * (lo + hi)
 
 
+MAX_D_MM = 1e4  # 10 m: the largest artist d a preset is fitted for
+
+
 def material_source(name: str, *, measured_csv: str | os.PathLike | None = None,
                     artist: dict[str, Any] | None = None) -> dict[str, Any]:
     """The ``source`` block of a preset: where the material comes from, its parameters and units, and the medium
@@ -129,10 +176,12 @@ def material_source(name: str, *, measured_csv: str | os.PathLike | None = None,
         spec = artist if artist is not None else ARTIST_MATERIALS[name]
         A = np.asarray(spec["albedo"], np.float64)
         d = np.asarray(spec["d_mm"], np.float64)
-        if A.shape != (3,) or not np.all((A >= 0) & (A < 1)):
-            raise SSSInputError(f"{name}: albedo must be 3 values in [0, 1), got {A.tolist()}")
-        if d.shape != (3,) or not np.all(np.isfinite(d) & (d > 0)):
-            raise SSSInputError(f"{name}: d_mm must be 3 finite values > 0, got {d.tolist()}")
+        # an albedo of 0 reflects nothing (the Monte Carlo reference is black, every ratio to it infinite); a d
+        # past 10 m is no material's (the reference's walks and the fits overflow)
+        if A.shape != (3,) or not np.all((A > 0) & (A < 1)):
+            raise SSSInputError(f"{name}: albedo must be 3 values in (0, 1), got {A.tolist()}")
+        if d.shape != (3,) or not np.all(np.isfinite(d) & (d > 0) & (d <= MAX_D_MM)):
+            raise SSSInputError(f"{name}: d_mm must be 3 values in (0, {MAX_D_MM:g}] mm, got {d.tolist()}")
         alpha = [albedo_from_surface_albedo(float(a)) for a in A]
         mfp = (d * np.asarray(scaling_searchlight(A))).tolist()
         return {"kind": "artist", "albedo": A.tolist(), "d_mm": d.tolist(), "units": {"albedo": "1", "d_mm": "mm"},

@@ -51,7 +51,7 @@ def register(subparsers) -> None:
     which.add_argument("--list", action="store_true", help="list the known materials and exit")
     p.add_argument("--name", help="a new artist material's name (with --albedo and --d-mm)")
     p.add_argument("--albedo", type=rgb_triple, help="new artist material (or with --render: the starting material): "
-                   "surface albedo R,G,B in [0,1)")
+                   "surface albedo R,G,B in (0,1)")
     p.add_argument("--d-mm", type=rgb_triple, help="new artist material (or with --render: the starting material): "
                    "Burley d R,G,B in mm")
     p.add_argument("--out", type=pathlib.Path, default=pathlib.Path("fits"), help="output directory (default fits)")
