@@ -121,8 +121,12 @@ def run(args) -> int:
     try:
         if args.mm_per_unit is not None and not (0 < args.mm_per_unit < float("inf")):
             raise ValueError(f"--mm-per-unit must be a finite positive number, got {args.mm_per_unit}")
-        if args.json is not None and not args.json.parent.is_dir():
-            raise ValueError(f"--json: directory {args.json.parent} does not exist")
+        if args.json is not None:  # a folder, a path under a file, a read-only place: refused now, not at the write
+            if not args.json.parent.is_dir():
+                raise ValueError(f"--json: directory {args.json.parent} does not exist")
+            from .._io import check_writable
+
+            check_writable(args.json, create_dirs=False)
         ignored = [f.flag for f in _flags().values() if values.get(f.dest) is not None
                    and f.dest not in params_of | options_of]
         if ignored:  # a flag neither engine of this conversion reads would be dropped without a word
