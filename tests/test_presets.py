@@ -313,6 +313,7 @@ def test_fit_command_writes_a_new_artist_preset(tmp_path, capsys):
     (["--name", "x", "--albedo", "0,0,0", "--d-mm", "1,1,1", "--photons", "10"], r"x: albedo must be 3 values in \(0, 1\)"),
     (["--name", "x", "--albedo", "0.5,0.5,0.5", "--d-mm", "1e30,1,1", "--photons", "10"], r"x: d_mm must be 3 values in"),
     (["--material", "skin", "--photons", "0"], "--photons must be a positive integer"),
+    (["--material", "skin", "--seed", "-1"], r"--seed must be an integer in \[0, 2\*\*32\), got -1"),
     (["--material", "skin", "--taps", "0"], "--taps must be a positive integer"),
     # checked before any work (before: --taps 4 failed each material after its Monte Carlo, --photons 5 said
     # "got 0", a preset named schema was overwritten by the schema, a/b failed after its Monte Carlo was written)

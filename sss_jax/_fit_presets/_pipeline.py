@@ -209,7 +209,7 @@ def fit_presets(names: Iterable[str] | None = None, *, out_dir: str | os.PathLik
             preset_from_data(json.loads(data), path)
         except (SSSInputError, ValueError, ArithmeticError, RuntimeError) as exc:
             failed[name] = f"{type(exc).__name__}: {exc}"
-            if photons < DEFAULT_PHOTONS:
+            if photons < DEFAULT_PHOTONS and not isinstance(exc, SSSInputError):  # not an input's own error
                 failed[name] += f" (with {photons} photons; the default is {DEFAULT_PHOTONS})"
             log(f"  failed: {failed[name]}")
             continue

@@ -117,6 +117,8 @@ def run(args) -> int:
             raise ValueError(f"--photons must be a positive integer, got {photons}")
         if photons < 10:
             raise ValueError(f"--photons must be at least 10 (the medium's slabs run a tenth each), got {photons}")
+        if not 0 <= args.seed < 2**32:  # checked here, not after the first material's walks have begun
+            raise ValueError(f"--seed must be an integer in [0, 2**32), got {args.seed}")
         if args.taps < 1:
             raise ValueError(f"--taps must be a positive integer, got {args.taps}")
         if args.taps % 2 == 0:
