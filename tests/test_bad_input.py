@@ -694,3 +694,17 @@ def test_hdrp_runs_a_sequence_whose_frame_seeds_pass_int32(tmp_path):
     with jax.enable_x64(False):
         for tech in (sj.hdrp, sj.eevee_next):
             assert np.all(np.isfinite(np.asarray(tech(sc.buffers, mat, sc.camera, seed=frame_seed(0, 1)))))
+
+
+def test_a_camera_or_buffers_of_another_type_is_named():
+    # None as the camera was "AttributeError: 'NoneType' object has no attribute 'focal_px'" from inside a pass
+    sc = sj.demo_scene(8, 8)
+    mat = sj.BurleyMaterial((0.8,) * 3, (1.0,) * 3)
+    for name, call in (("burley", sj.burley), ("separable", sj.separable), ("reference", sj.reference),
+                       ("jimenez", sj.jimenez)):
+        with pytest.raises(TypeError, match=f"{name}: camera must be a Camera .* got NoneType"):
+            call(sc.buffers, mat, None)
+        with pytest.raises(TypeError, match=f"{name}: buffers must be a Buffers, got ndarray"):
+            call(np.zeros((8, 8, 3)), mat, sc.camera)
+    with pytest.raises(TypeError, match="translucency: camera must be a Camera"):
+        sj.translucency(sc.buffers, sj.STAParams(), None, sc.back_light)

@@ -194,6 +194,8 @@ def tile_options(function: Callable, buffers: Buffers, origin: tuple[int, int],
     """The keyword options that place ``buffers`` in the whole frame, for ``function``: none where the buffer is the
     whole frame; ``origin``/``frame_shape`` where the function takes them; else a ``TilePlacementError`` (it cannot
     place a tile)."""
+    if not isinstance(buffers, Buffers):  # before the first read of it
+        raise TypeError(f"{function.__name__}: buffers must be a Buffers, got {type(buffers).__name__}")
     shape = tuple(buffers.depth.shape[-2:])
     origin, frame_shape = check_tile(shape, origin, frame_shape)  # the one check of a tile's place
     if origin == (0, 0) and frame_shape == shape:

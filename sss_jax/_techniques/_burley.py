@@ -184,7 +184,8 @@ def burley(
     buffers on an accelerator nothing is read back: call ``validate_buffers`` there.
     """
     _check_albedo_mode(albedo_mode)
-    check_one_image("burley", buffers, material.count if isinstance(material, BurleyMaterial) else None)
+    check_one_image("burley", buffers, material.count if isinstance(material, BurleyMaterial) else None,
+                    camera=camera)
     if interpolation not in ("bilinear", "nearest"):
         raise ValueError(f"interpolation={interpolation!r} is not one of ('bilinear', 'nearest')")
     if not isinstance(material, BurleyMaterial):

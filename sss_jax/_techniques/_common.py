@@ -11,6 +11,7 @@ when present, else from the material. Work happens in at least float32 and the r
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import equinox as eqx
 import jax
@@ -18,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from .._scene import Buffers, on_host, passed, surface_mask, validate_buffers
+from .._scene import Buffers, Camera, on_host, passed, surface_mask, validate_buffers
 
 ALBEDO_MODES = ("post", "pre_post")
 
@@ -32,12 +33,18 @@ def _check_albedo_mode(mode: str) -> None:
         raise ValueError(f"albedo_mode={mode!r} is not one of {ALBEDO_MODES}")
 
 
-def check_one_image(name: str, buffers: Buffers, materials: int | None = None) -> None:
+def check_one_image(name: str, buffers: Buffers, materials: int | None = None, *, camera: Any = Camera) -> None:
     """What every technique checks before tracing: one image (a batch is vmapped), not an empty one, and, where the
     buffers are concrete and on the host (reading them costs no transfer and no wait), the values that would make the
     result wrong without a word (``validate_buffers(..., physical=False)``: a NaN irradiance would spread to every
     pixel that reads it, an id past the ``materials`` rows take the last row's parameters). Under ``jit``/``vmap``
-    and on an accelerator nothing is read back: call ``validate_buffers`` there."""
+    and on an accelerator nothing is read back: call ``validate_buffers`` there. ``camera``, where given: a
+    ``Camera`` (a TypeError naming the argument, not an AttributeError from inside)."""
+    if not isinstance(buffers, Buffers):
+        raise TypeError(f"{name}: buffers must be a Buffers, got {type(buffers).__name__}")
+    if camera is not Camera and not isinstance(camera, Camera):
+        raise TypeError(f"{name}: camera must be a Camera (focal length in px, mm per scene unit), got "
+                        f"{type(camera).__name__}")
     if buffers.irradiance.ndim != 3:
         raise ValueError(f"{name} takes one image (H, W, 3); vmap for a batch, got {buffers.irradiance.shape}")
     if 0 in buffers.depth.shape:

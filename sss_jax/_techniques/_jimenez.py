@@ -220,8 +220,8 @@ class JimenezPass(AbstractTechnique):
     def __call__(self, buffers: Buffers, material, camera: Camera, *, origin: tuple[int, int] = (0, 0),
                  frame_shape: tuple[int, int] | None = None) -> Float[Array, "H W 3"]:
         _check_albedo_mode(self.albedo_mode)
+        check_one_image("jimenez", buffers, getattr(material, "count", None), camera=camera)
         params = self.params(material, camera)
-        check_one_image("jimenez", buffers, getattr(material, "count", None))
         return _jimenez_impl(buffers, params, camera, int(self.taps), bool(self.follow_surface), self.albedo_mode,
                              tuple(int(o) for o in origin), None if frame_shape is None else tuple(frame_shape))
 

@@ -187,7 +187,7 @@ def reference(
     """
     _check_border(border)
     _check_albedo_mode(albedo_mode)
-    check_one_image("reference", buffers, getattr(material, "count", None))
+    check_one_image("reference", buffers, getattr(material, "count", None), camera=camera)
     if not isinstance(material, (BurleyMaterial, ProfileMaterial)):
         raise TypeError(f"reference needs a BurleyMaterial or ProfileMaterial, got {type(material).__name__}")
     h, w = buffers.depth.shape[-2:]

@@ -507,7 +507,7 @@ def separable(
     """
     _check_border(border)
     _check_albedo_mode(albedo_mode)
-    check_one_image("separable", buffers, getattr(material, "count", None))
+    check_one_image("separable", buffers, getattr(material, "count", None), camera=camera)
     if not isinstance(material, AbstractMaterial):
         raise TypeError("separable needs a TwoGaussianMaterial, BurleyMaterial or ProfileMaterial, got "
                         + type(material).__name__)

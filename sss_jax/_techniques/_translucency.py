@@ -192,7 +192,7 @@ def translucency(
     """
     if model not in TRANSLUCENCY_MODELS:
         raise ValueError(f"model={model!r} is not one of {TRANSLUCENCY_MODELS}")
-    check_one_image("translucency", buffers, getattr(params, "count", None))
+    check_one_image("translucency", buffers, getattr(params, "count", None), camera=camera)
     # the same ranges the batch and the CLI check: out of range, the added light explodes (7e16 from albedo 40)
     if albedo is not None and _is_concrete(albedo):
         a = np.asarray(albedo, np.float64)
