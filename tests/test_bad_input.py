@@ -708,3 +708,16 @@ def test_a_camera_or_buffers_of_another_type_is_named():
             call(np.zeros((8, 8, 3)), mat, sc.camera)
     with pytest.raises(TypeError, match="translucency: camera must be a Camera"):
         sj.translucency(sc.buffers, sj.STAParams(), None, sc.back_light)
+
+
+def test_an_empty_item_in_a_list_of_counts_or_thicknesses_is_refused(capsys):
+    # "--taps 9,,17" ran 9 and 17, "--thickness-mm 1,,2" 1 and 2: the typo went unseen
+    from sss_jax.cli._options import comma_separated_counts
+
+    import argparse as _argparse
+
+    with pytest.raises(_argparse.ArgumentTypeError, match="expected comma-separated positive integers, got '9,,17'"):
+        comma_separated_counts("9,,17")
+    assert comma_separated_counts("9, 17") == (9, 17)
+    assert run_cli(["transmit", "--preset", "skin1", "--thickness-mm", "1,,2"]) == 2
+    assert "expected comma-separated thicknesses in mm, got '1,,2'" in capsys.readouterr().err

@@ -70,8 +70,8 @@ class OptionSpec:
 
 def comma_separated_counts(text: str) -> tuple[int, ...]:
     """``--taps 9,25`` and the like: comma-separated positive integers (argparse's ``type=``)."""
-    try:
-        values = tuple(int(v) for v in text.split(",") if v.strip())
+    try:  # an empty item ("9,,17") is a typo, not nothing
+        values = tuple(int(v) for v in text.split(","))
     except ValueError:
         values = ()
     if not values or min(values) < 1:

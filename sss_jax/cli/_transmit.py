@@ -23,7 +23,7 @@ JSON: {"preset": NAME, "transmittance": [{"thickness_mm": t, "rgb": [R, G, B]}, 
 
 def _thicknesses(text: str) -> list[float]:
     try:
-        values = [float(v) for v in text.split(",") if v.strip()]
+        values = [float(v) for v in text.split(",")]  # an empty item ("1,,2") is a typo, refused
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected comma-separated thicknesses in mm, got {text!r}") from None
     if not values or not all(math.isfinite(v) and v >= 0 for v in values):
