@@ -67,7 +67,8 @@ def _check_range(name: str, x: Array, lo: float, hi: float | None = None, *, lo_
         ok &= v <= hi
     if not np.all(ok):  # NaN fails both comparisons
         bad = v[~ok].ravel()[:3]
-        bound = f"({lo}, {hi}]" if lo_open else f"[{lo}, {'inf' if hi is None else hi}]"
+        top = "inf" if hi is None else hi  # (an open bound below reads "(0.0, None]" no more)
+        bound = f"({lo}, {top}]" if lo_open else f"[{lo}, {top}]"
         raise ValueError(f"{name} must lie in {bound} (and not be NaN); got {bad.tolist()}")
 
 

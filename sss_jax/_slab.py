@@ -566,7 +566,9 @@ def _table_log_T(table: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
     for c in range(t.shape[1]):
         good = np.flatnonzero(ok[:, c])
         if good.size < 2 or not np.all(good == np.arange(good.size)):
-            raise ValueError(f"medium table: channel {'RGB'[c]} needs resolved nodes from t = 0 on, got {ok[:, c]}")
+            unresolved = [float(x) for x in t[~ok[:, c], c]][:6]
+            raise ValueError(f"medium table: channel {'RGB'[c]} needs resolved transmittance from t = 0 on (finite, "
+                             f"> 0, resolved) at two nodes at least; unresolved at t = {unresolved} mm")
         last, prev = good[-1], good[-2]
         rate = min((logT[last, c] - logT[prev, c]) / (t[last, c] - t[prev, c]), 0.0)
         logT[last + 1:, c] = logT[last, c] + rate * (t[last + 1:, c] - t[last, c])

@@ -198,6 +198,12 @@ def fit_presets(names: Iterable[str] | None = None, *, out_dir: str | os.PathLik
             failed[name] = f"unknown material {name!r}; known: {', '.join(sorted(known))}"
             log(f"  failed: {failed[name]}")
             continue
+        try:  # the material's own values first: their errors are the input's, not the photon count's
+            material_source(name, measured_csv=measured_csv, artist=artist.get(name))
+        except (SSSInputError, ValueError) as exc:
+            failed[name] = f"{type(exc).__name__}: {exc}"
+            log(f"  failed: {failed[name]}")
+            continue
         try:
             preset = fit_preset(name, photons=photons, seed=seed, solver=solver, taps=taps,
                                 cache_dir=out / "montecarlo", measured_csv=measured_csv, artist=artist.get(name),
@@ -209,7 +215,7 @@ def fit_presets(names: Iterable[str] | None = None, *, out_dir: str | os.PathLik
             preset_from_data(json.loads(data), path)
         except (SSSInputError, ValueError, ArithmeticError, RuntimeError) as exc:
             failed[name] = f"{type(exc).__name__}: {exc}"
-            if photons < DEFAULT_PHOTONS and not isinstance(exc, SSSInputError):  # not an input's own error
+            if photons < DEFAULT_PHOTONS:
                 failed[name] += f" (with {photons} photons; the default is {DEFAULT_PHOTONS})"
             log(f"  failed: {failed[name]}")
             continue
