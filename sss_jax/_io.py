@@ -817,12 +817,18 @@ def check_writable(path: str | os.PathLike, *, create_dirs: bool = True) -> path
             raise SSSInputError(f"{directory}: cannot create the output directory ({exc.strerror})") from None
     if not directory.is_dir():
         raise SSSInputError(f"{directory}: output directory does not exist")
+    check_writable_folder(directory)
+    return path
+
+
+def check_writable_folder(directory: pathlib.Path) -> None:
+    """That ``directory`` (an existing folder) accepts a new file: a temporary created and removed there, so it is
+    true where permission bits are not (root, read-only mounts, ACLs, pseudo filesystems)."""
     try:
         with tempfile.TemporaryFile(prefix=".sss_jax_probe.", dir=directory):
             pass
     except OSError as exc:
         raise SSSInputError(f"{directory}: output directory is not writable ({exc.strerror})") from None
-    return path
 
 
 def temporary_prefix(path: str | os.PathLike) -> str:

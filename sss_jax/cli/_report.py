@@ -219,11 +219,9 @@ def _check_out(out: pathlib.Path) -> None:
         place = place.parent
     if not place.is_dir():
         raise ValueError(f"--out {out}: {place} is a file, not a directory")
-    try:
-        with tempfile.TemporaryFile(prefix=".sss_jax_probe.", dir=place):
-            pass
-    except OSError as exc:
-        raise ValueError(f"--out {out}: cannot write in {place} ({exc.strerror})") from None
+    from .._io import check_writable_folder
+
+    check_writable_folder(place)
 
 
 def _a_report(out: pathlib.Path) -> bool:
