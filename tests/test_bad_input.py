@@ -712,9 +712,9 @@ def test_a_camera_or_buffers_of_another_type_is_named():
 
 def test_an_empty_item_in_a_list_of_counts_or_thicknesses_is_refused(capsys):
     # "--taps 9,,17" ran 9 and 17, "--thickness-mm 1,,2" 1 and 2: the typo went unseen
-    from sss_jax.cli._options import comma_separated_counts
-
     import argparse as _argparse
+
+    from sss_jax.cli._options import comma_separated_counts
 
     with pytest.raises(_argparse.ArgumentTypeError, match="expected comma-separated positive integers, got '9,,17'"):
         comma_separated_counts("9,,17")

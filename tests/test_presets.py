@@ -382,8 +382,8 @@ HEADER = "name,sigma_s_prime_r,sigma_s_prime_g,sigma_s_prime_b,sigma_a_r,sigma_a
     (f"{HEADER}\nskin,1,1,1,0.1,0.1,0.1\n", r"line 2: 'skin' is an artist material's name"),
     (f"{HEADER}\nfoo,1,1,1,0.1,0.1,0.1,7\n", r"line 2 has 1 value\(s\) more than the header's columns"),
     # a header without the columns was "row 2 lacks name, ..."; line numbers counted without the comments
-    ("material,s_r,s_g,s_b,a_r,a_g,a_b\nfoo,1,1,1,0.1,0.1,0.1\n", r"the header \(line 1\) lacks name, .* it has "
-     r"'material', 's_r'"),
+    ("material,s_r,s_g,s_b,a_r,a_g,a_b\nfoo,1,1,1,0.1,0.1,0.1\n", (r"the header \(line 1\) lacks name, .* it has "
+                                                                  r"'material', 's_r'")),
     (f"# Jensen 2001\n#\n{HEADER}\nfoo,1,1,1,0.1,0.1,0.1\nbar,x1,1,1,0.1,0.1,0.1\n", r"line 5 \(bar\): could not"),
     (f"{HEADER}\nfoo,0,0,0,0.1,0.1,0.1\n", r"line 2 \(foo\): .*sigma_s' > 0 per channel"),
 ])

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import os
 import pathlib
-import re
 import sys
 import time
 from collections.abc import Callable, Iterable
@@ -32,7 +31,6 @@ from ._errors import _burley_vs_mc, engine_errors, image_errors, kernel_errors, 
 from ._files import plot_preset, write_presets_readme
 from ._references import fit_burley_d, montecarlo_medium_slabs, montecarlo_profiles, montecarlo_slabs
 from ._sources import (
-    RESERVED_NAMES,
     check_preset_name,
     ARTIST_MATERIALS,
     DEFAULT_PHOTONS,

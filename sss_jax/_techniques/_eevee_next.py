@@ -38,7 +38,15 @@ from .._materials import BurleyMaterial
 from .._profiles import burley_inverse_ccdf
 from .._scene import Buffers, Camera
 from ._base import AbstractTechnique, option
-from ._common import ALBEDO_MODES, _as_seed, _finish, _prepare, _safe_sqrt, _work_dtype, check_seed
+from ._common import (
+    ALBEDO_MODES,
+    _as_seed,
+    _finish,
+    _prepare,
+    _safe_sqrt,
+    _work_dtype,
+    check_seed,
+)
 from ._engine_frame import check_count, frame_geometry, nearest_fetch, pass_arguments
 
 EEVEE_SAMPLE_LEN = 16  # SubsurfaceModule::end_sync, data_.sample_len (EEVEE Next, 4.2 and later)
