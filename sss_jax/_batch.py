@@ -86,7 +86,7 @@ import numpy as np
 from jaxtyping import Array
 
 from ._io import (EXR_MAGIC, Frame, SSSInputError, Window, _frame_from_decoded, _read_image, check_writable,
-                  exr_is_complete, read_header, write_exr, write_json_atomic, write_png_preview)
+                  exr_is_complete, load_channel_map, read_header, write_exr, write_json_atomic, write_png_preview)
 from ._kernels import separable_kernel_from_profile, two_gaussian_kernel
 from ._materials import BurleyMaterial, DirectionalLight, ProfileMaterial, STAParams, TwoGaussianMaterial
 from ._profiles import BurleyProfile
@@ -166,14 +166,16 @@ class Interrupted(KeyboardInterrupt):
 
 
 def expand_inputs(inputs: str | pathlib.Path | Iterable[str | pathlib.Path]) -> list[pathlib.Path]:
-    """Paths from a list of paths and/or glob patterns, in order; a pattern matching nothing is an error."""
+    """Paths from a list of paths and/or glob patterns, in order; a pattern matching nothing is an error. A file that
+    exists is itself even where its name holds a pattern's characters (``shot[v2].exr``); ``**`` matches any depth
+    of folders, as in a shell with globstar."""
     if isinstance(inputs, (str, pathlib.Path)):
         inputs = [inputs]
     out: list[pathlib.Path] = []
     for item in inputs:
         s = str(item)
-        if any(ch in s for ch in "*?["):
-            matches = sorted(glob.glob(s))
+        if any(ch in s for ch in "*?[") and not os.path.isfile(s):
+            matches = sorted(glob.glob(s, recursive=True))
             if not matches:
                 raise SSSInputError(f"no files match {s!r}")
             out.extend(pathlib.Path(m) for m in matches)
@@ -1308,6 +1310,7 @@ class _Batch:
         self.call_warnings = _CallWarnings()
         self.records: dict[_Job, tuple[dict[str, str], str]] = {}
         self.windows: dict[_Job, Window | None] = {}  # each frame's windows from its read to its write
+        self.read_said: dict[_Job, list[str]] = {}  # what reading each frame warned, for its result
         self.seeded = _has_seed(tech)
         self.tiles_allowed = True
         self.base_seed = int(np.asarray(tech.seed)) if self.seeded else 0
@@ -1335,6 +1338,7 @@ class _Batch:
         """The job's record dropped: the frame is written, failed or skipped."""
         self.records.pop(job, None)
         self.windows.pop(job, None)
+        self.read_said.pop(job, None)
 
     # -- results
     def finish(self, r: FrameResult) -> None:
@@ -1376,7 +1380,12 @@ class _Batch:
         """The frame's files, handed to the writer thread (it writes them while the next frame computes); the
         frame before it is collected first (its files written, its result recorded), so one frame at most is in
         flight and the results and the manifest keep the frames' order."""
+        preview = job.dst.with_suffix(".png")
+        if not self.png and preview.exists():  # not removed (it may be the user's), but never paired in silence
+            warned = [*warned, f"{preview}: a preview of an earlier output, not of this one (png=True, --png, "
+                               "replaces it)"]
         self.warned.frame(job.src, warned)  # the notes (the clamp) were said before the frame ran
+        read = self.read_said.pop(job, [])  # and so were the reader's (no pixel to scatter, ...): in its warnings
         options = _technique_options(tech)
         rules = {k: v for k, v in options.items() if k != "technique"}
         attrs = {**self.header, **self.record(job)[0], "sss_jax:technique": options["technique"],
@@ -1390,7 +1399,7 @@ class _Batch:
         window = self.windows.get(job)
         self.forget(job)
         done = FrameResult(str(job.src), str(job.dst), "done", "; ".join(notes + warned), seconds=seconds,
-                           warnings=notes + warned)
+                           warnings=read + notes + warned)
         self.collect()
         if self.writer is None:
             self.writer = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="sss_jax-write")
@@ -1478,6 +1487,8 @@ class _Batch:
             read, error, said = self.decode(job, read_options, use_albedo)
         for message, category in said:
             warnings.warn(message, category, stacklevel=4)
+        if error is None:  # what reading the frame said is the frame's too (its result, the manifest)
+            self.read_said[job] = [message for message, _ in said]
         if error is not None:
             raise error
         return read
@@ -1698,6 +1709,13 @@ def process_frames(
                                                                              ("mm_per_unit", mm_per_unit)))
     if not (isinstance(tile_pixels, (int, np.integer)) and tile_pixels >= 1):
         raise ValueError(f"tile_pixels must be a positive integer, got {tile_pixels!r}")
+    # the reading options, the same for every frame: checked once, before any frame (each frame failed alone)
+    if depth_kind not in ("planar", "distance"):
+        raise SSSInputError(f"depth_kind={depth_kind!r} is not one of ('planar', 'distance')")
+    if channel_map is not None:
+        load_channel_map(channel_map)
+    if out_dir is not None and not str(out_dir).strip():
+        raise ValueError("out_dir is empty: give the outputs' folder ('.' for the current one)")
     call_seconds()  # the work bound from the environment, checked before any frame
 
     paths = expand_inputs(inputs)
@@ -1774,8 +1792,8 @@ def _positive_option(name: str, value) -> float | None:
     """A length option as a Python float (a NumPy scalar too: it goes into the resume record's JSON), or None."""
     if value is None:
         return None
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, Real) or not value > 0:
-        raise ValueError(f"{name} must be a positive number, got {value!r}")
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, Real) or not 0 < value < math.inf:
+        raise ValueError(f"{name} must be a positive number (finite), got {value!r}")
     return float(value)
 
 

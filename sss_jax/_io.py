@@ -428,6 +428,9 @@ def load_channel_map(source: str | os.PathLike | Mapping[str, Any]) -> dict[str,
     if isinstance(source, Mapping):
         data = dict(source)
         origin = "channel map"
+    elif not isinstance(source, (str, os.PathLike)):
+        raise SSSInputError(f"channel map: a dict of buffer name -> channel name(s), or a .json/.toml file's path; "
+                            f"got a {type(source).__name__}")
     else:
         p = pathlib.Path(source)
         origin = str(p)

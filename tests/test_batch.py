@@ -1175,3 +1175,61 @@ def test_frames_of_a_sequence_get_their_own_reproducible_rotation(frames, tmp_pa
                            progress=False, devices=jax.devices()[:1])
     assert alone.ok
     np.testing.assert_array_equal(read_rgb(tmp_path / "alone" / "a.0002.exr"), two)
+
+
+def test_the_batch_fuzz_of_stop_51(tmp_path, capsys, as_users_run_it):
+    # reading options that hold for every frame were checked per frame (each frame failed alone, a manifest
+    # written); a list as the channel map failed inside pathlib; a file named with a pattern's characters was
+    # "no files match"; "**" matched one level only; a frame without SSS pixels recorded only its clamp
+    import warnings as _warnings
+
+    from sss_jax._batch import expand_inputs
+
+    sc = sj.demo_scene(12, 16)
+    e, z = np.asarray(sc.buffers.irradiance), np.asarray(sc.buffers.depth)
+    chans = {"R": e[..., 0], "G": e[..., 1], "B": e[..., 2], "Z": np.where(np.isfinite(z), z, -1.0)}
+    attrs = {"sss_jax:focal_px": float(sc.camera.focal_px), "sss_jax:mm_per_unit": 10.0}
+    src = tmp_path / "in"
+    (src / "sub").mkdir(parents=True)
+    _io.write_exr(src / "shot[v2].exr", chans, attributes=attrs)
+    _io.write_exr(src / "sub" / "f1.exr", chans, attributes=attrs)
+    assert expand_inputs(str(src / "shot[v2].exr")) == [src / "shot[v2].exr"]
+    assert expand_inputs(str(src / "**" / "*.exr")) == [src / "shot[v2].exr", src / "sub" / "f1.exr"]
+    mat = sj.BurleyMaterial((0.8, 0.5, 0.4), (3.0, 1.4, 0.8))
+    for kwargs, message in ((dict(depth_kind="bogus"), "depth_kind='bogus' is not one of"),
+                            (dict(channel_map=["R", "G", "B"]), "channel map: a dict of buffer name"),
+                            (dict(channel_map={"irradience": "R"}), "irradience"),
+                            (dict(focal_px=float("inf")), r"focal_px must be a positive number \(finite\)"),
+                            (dict(out_dir=""), "out_dir is empty")):
+        out = tmp_path / "out"
+        with pytest.raises((ValueError, TypeError), match=message):
+            sj.process_frames(str(src / "sub" / "*.exr"), "burley", mat, **{"out_dir": out, **kwargs},
+                              progress=False)
+        assert not out.exists()
+    # no SSS pixel: what the reader said is the frame's record too
+    _io.write_exr(src / "bg.exr", {**chans, "Z": np.full_like(z, -1.0)}, attributes=attrs)
+    with _warnings.catch_warnings():
+        _warnings.simplefilter("ignore")
+        r = sj.process_frames(str(src / "bg.exr"), "burley", mat, out_dir=tmp_path / "o2", progress=False)
+    assert r.frames[0].status == "done"
+    assert any("no pixel to scatter" in w for w in r.frames[0].warnings), r.frames[0].warnings
+
+
+def test_a_preview_left_from_an_earlier_run_is_said(tmp_path):
+    # an output recomputed without png kept the earlier run's preview beside it without a word (other pixels)
+    import warnings as _warnings
+
+    sc = sj.demo_scene(12, 16)
+    e, z = np.asarray(sc.buffers.irradiance), np.asarray(sc.buffers.depth)
+    _io.write_exr(tmp_path / "f1.exr", {"R": e[..., 0], "G": e[..., 1], "B": e[..., 2],
+                                        "Z": np.where(np.isfinite(z), z, -1.0)},
+                  attributes={"sss_jax:focal_px": float(sc.camera.focal_px), "sss_jax:mm_per_unit": 10.0})
+    first = sj.process_frames(str(tmp_path / "f1.exr"), "burley", sj.BurleyMaterial((0.8,) * 3, (1.0,) * 3),
+                              out_dir=tmp_path / "out", png=True, progress=False)
+    assert first.ok and (tmp_path / "out" / "f1.png").exists()
+    with _warnings.catch_warnings():
+        _warnings.simplefilter("ignore")
+        again = sj.process_frames(str(tmp_path / "f1.exr"), "burley", sj.BurleyMaterial((0.5,) * 3, (2.0,) * 3),
+                                  out_dir=tmp_path / "out", progress=False)
+    assert again.frames[0].status == "done"
+    assert any("f1.png: a preview of an earlier output" in w for w in again.frames[0].warnings)
