@@ -1233,3 +1233,16 @@ def test_a_preview_left_from_an_earlier_run_is_said(tmp_path):
                                   out_dir=tmp_path / "out", progress=False)
     assert again.frames[0].status == "done"
     assert any("f1.png: a preview of an earlier output" in w for w in again.frames[0].warnings)
+
+
+@pytest.mark.parametrize("make", [lambda: sj.HdrpPass(frames=10**6), lambda: sj.EeveeNextPass(frames=10**6)])
+def test_a_long_engine_average_is_planned_in_pieces(make):
+    # apply --technique eevee-next --frames 1e9 ran as one call: no progress, SIGINT and SIGTERM unheard for as long
+    # as it ran (EEVEE Next's cost ignored its frames; neither pass split its frames)
+    from sss_jax._batch import TILE_PIXELS, _Cost, _plan_frame
+
+    sc = sj.demo_scene(24, 32)
+    plan = _plan_frame(make(), sc.buffers, sj.BurleyMaterial((0.8, 0.5, 0.4), (3.0, 1.4, 0.8)), sc.camera,
+                       TILE_PIXELS, _Cost())
+    assert plan.pieces is not None and len(plan.pieces) > 10 and plan.layout is None
+    assert sum(w for _, w in plan.pieces) == pytest.approx(1.0)

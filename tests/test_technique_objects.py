@@ -326,3 +326,19 @@ def test_translucency_reuses_its_object_for_the_same_light_and_never_keeps_a_tra
     assert len(_base._BUILT) == kept
     assert not any(isinstance(leaf, jax.core.Tracer) for fields, _ in _base._BUILT.values()
                    for leaf in jax.tree.leaves(fields))
+
+
+@pytest.mark.parametrize("make", [lambda: sj.HdrpPass(quality="low", frames=5, seed=7),
+                                  lambda: sj.EeveeNextPass(frames=5, seed=7)])
+def test_engine_passes_average_their_frames_in_pieces(make):
+    # a long TAA average (apply --frames 1e9) was one call: no progress, and SIGINT/SIGTERM waited for its end; its
+    # pieces (groups of consecutive frames, each with the seed of its first frame) weighted give the same pixels
+    tech = make()
+    sc = sj.demo_scene(16, 20)
+    mat = sj.BurleyMaterial((0.8, 0.5, 0.4), (3.0, 1.4, 0.8))
+    whole = np.asarray(tech(sc.buffers, mat, sc.camera), np.float64)
+    pieces = tech.pieces(2)
+    assert [p.frames for p, _ in pieces] == [3, 2] and sum(w for _, w in pieces) == pytest.approx(1.0)
+    summed = sum(w * np.asarray(p(sc.buffers, mat, sc.camera), np.float64) for p, w in pieces)
+    np.testing.assert_allclose(summed, whole, rtol=1e-5, atol=1e-6)
+    assert tech.replace(frames=1).pieces(4) is None

@@ -32,6 +32,7 @@ from typing import Any, ClassVar
 
 import equinox as eqx
 import jax
+import numpy as np
 from jaxtyping import Array, Float
 
 from .._errors import TilePlacementError
@@ -187,6 +188,24 @@ def call_options(technique: AbstractTechnique, material: Any) -> dict[str, Any]:
     cls = type(technique)
     cls.check_material(technique, material)
     return {name: getattr(technique, name) for name in _option_names(cls)}
+
+
+def frame_pieces(technique: "AbstractTechnique", count: int, seed_of_frame: Callable[[int, int], int]):
+    """``pieces`` of a technique that averages ``frames`` frames, each frame's pattern a function of (seed, frame):
+    about ``count`` groups of consecutive frames, each a call with fewer frames and the seed under which its first
+    frame is the group's first (``seed_of_frame(seed, first)``), weighted by its share of the frames: the same
+    pixels to rounding. ``None`` for one frame, one piece, or a seed that is not a concrete integer."""
+    frames = int(technique.frames)
+    try:  # a concrete integer seed (not a tracer)
+        whole = np.ndim(technique.seed) == 0 and float(np.asarray(technique.seed)) == int(np.asarray(technique.seed))
+    except (TypeError, ValueError, jax.errors.ConcretizationTypeError):
+        whole = False
+    if frames < 2 or count < 2 or not whole:
+        return None
+    seed = int(np.asarray(technique.seed))
+    size = -(-frames // min(int(count), frames))  # groups of one size (the last one smaller): two programs at most
+    return tuple((technique.replace(frames=min(size, frames - a), seed=seed_of_frame(seed, a)),
+                  min(size, frames - a) / frames) for a in range(0, frames, size))
 
 
 def tile_options(function: Callable, buffers: Buffers, origin: tuple[int, int],

@@ -6,7 +6,6 @@ import inspect
 import math
 from typing import ClassVar
 
-import jax
 import numpy as np
 from jaxtyping import Array, Float
 
@@ -15,7 +14,7 @@ from .._materials import BurleyMaterial
 from .._scene import Buffers, Camera
 from . import _burley
 from ._burley_spec import unit_radius
-from ._base import AbstractTechnique, built, call_options, default_of, option, tile_options
+from ._base import AbstractTechnique, built, call_options, default_of, frame_pieces, option, tile_options
 from ._common import ALBEDO_MODES, BORDERS, check_seed
 from ._dispatch import IMPLS
 
@@ -117,13 +116,9 @@ class Burley(AbstractTechnique):
         that gives it those frames' rotations (``seed_of_frame``), weighted by its share of the frames: the same
         pixels to rounding. ``None`` for one frame, and for the fixed spiral (its frame 0 is unturned whatever the
         seed, so a later group cannot start there)."""
-        frames = int(self.frames)
-        if self.pattern != "rotated" or frames < 2 or count < 2 or not _is_int(self.seed):
+        if self.pattern != "rotated":
             return None
-        size = -(-frames // min(int(count), frames))  # groups of one size (the last one smaller): two programs at most
-        seed = int(np.asarray(self.seed))
-        return tuple((self.replace(frames=min(size, frames - a), seed=seed_of_frame(seed, a)),
-                      min(size, frames - a) / frames) for a in range(0, frames, size))
+        return frame_pieces(self, count, seed_of_frame)
 
     def spread(self, count: int) -> "Burley":
         """Samples moved into frames (halved per doubling of the frames, each frame its own rotation: the same
@@ -141,14 +136,6 @@ class Burley(AbstractTechnique):
         self.check_material(material)
         return burley_sampling_warnings(buffers, material, camera, samples=int(self.samples),
                                         frames=int(self.frames), min_footprint_px=float(self.min_footprint_px))
-
-
-def _is_int(seed) -> bool:
-    """A concrete integer seed (not a tracer)."""
-    try:
-        return np.ndim(seed) == 0 and float(np.asarray(seed)) == int(np.asarray(seed))
-    except (TypeError, ValueError, jax.errors.ConcretizationTypeError):
-        return False
 
 
 def burley(buffers: Buffers, material: BurleyMaterial, camera: Camera, *,

@@ -37,7 +37,7 @@ from .._checks import checked
 from .._materials import BurleyMaterial
 from .._profiles import burley_inverse_ccdf
 from .._scene import Buffers, Camera
-from ._base import AbstractTechnique, option
+from ._base import AbstractTechnique, frame_pieces, option
 from ._common import (
     ALBEDO_MODES,
     _as_seed,
@@ -205,6 +205,11 @@ class EeveeNextPass(AbstractTechnique):
                                              material.count)
         return _eevee_next_impl(buffers, material, camera, int(self.frames), self.albedo_mode,
                                 _as_seed(check_seed(self.name, self.seed)), origin, frame_shape)
+
+    def pieces(self, count: int) -> tuple[tuple["EeveeNextPass", float], ...] | None:
+        """The ``frames`` in about ``count`` calls of consecutive TAA samples (sample k of seed s is ``k + 1 + s``
+        of the sequence: a group from sample a takes seed ``s + a``), weighted by their share."""
+        return frame_pieces(self, count, lambda seed, first: (seed + first) & 0xFFFFFFFF)
 
     def reach_px(self, buffers: Buffers, material: BurleyMaterial, camera: Camera) -> int:
         """The farthest sample (``x < 1 + 1/16`` of the truncated CDF, at most 16 d0 max radius) at the nearest

@@ -42,7 +42,7 @@ from .._materials import BurleyMaterial
 from .._profiles import burley_inverse_ccdf
 from .._scene import Buffers, Camera
 from .._units import px_per_mm
-from ._base import AbstractTechnique, option
+from ._base import AbstractTechnique, frame_pieces, option
 from ._burley import spiral_rotation
 from ._burley_spec import unit_radius
 from ._common import _as_seed, _finish, _prepare, _safe_sqrt, _work_dtype, ALBEDO_MODES, check_seed
@@ -172,6 +172,14 @@ class HdrpPass(AbstractTechnique):
         # the seed as a uint32 array (traced: a sequence's seeds share one program; a Python int would be static)
         return _hdrp_impl(buffers, material, camera, self.samples, int(self.frames), self.albedo_mode,
                           _as_seed(check_seed(self.name, self.seed)), origin, frame_shape)
+
+    def pieces(self, count: int) -> tuple[tuple["HdrpPass", float], ...] | None:
+        """The ``frames`` in about ``count`` calls of consecutive frames (each frame's rotation hashes the seed and
+        the frame as ``burley``'s does: ``seed_of_frame``), weighted by their share: a long average runs in pieces
+        a batch can show progress between and stop at."""
+        from ._burley_technique import seed_of_frame
+
+        return frame_pieces(self, count, seed_of_frame)
 
     def reach_px(self, buffers: Buffers, material: BurleyMaterial, camera: Camera) -> int:
         """The farthest sample: the radius of sample ``n-1`` (``u = 1 - 0.5/n``) at the nearest SSS pixel."""
