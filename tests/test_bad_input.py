@@ -599,6 +599,8 @@ MITSUBA = pathlib.Path(__file__).parent / "data" / "mitsuba"
      "--technique", "burley", "--preset", "skin1", "--max-steps", "1"],
     # convert checked only the folder: a folder as --json ended in IsADirectoryError's traceback
     ["convert", "--from", "sss_jax", "--to", "blender", "--albedo", "0.8,0.6,0.5", "--d-mm", "1,1,1"],
+    # bench ran its whole benchmark first, then IsADirectoryError's traceback lost the results
+    ["bench", "--quick", "--technique", "sta"],
 ])
 @pytest.mark.parametrize("where", ["a folder", "under a file"])
 def test_a_json_output_that_cannot_be_a_file_is_refused_before_the_work(tmp_path, capsys, argv, where):

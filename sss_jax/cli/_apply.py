@@ -44,7 +44,7 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "apply",
         help="apply a technique to EXR frames",
-        description="Apply STA, separable, Burley or the reference to one or more EXR frames.",
+        description="Apply STA, separable, Burley, the reference or an engine's own pass (hdrp, eevee-next, jimenez) to one or more EXR frames.",
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -52,7 +52,7 @@ def register(subparsers) -> None:
     where = p.add_mutually_exclusive_group(required=True)
     where.add_argument("-o", "--output", type=pathlib.Path, help="output EXR (one input; must end in .exr)")
     where.add_argument("--out-dir", type=pathlib.Path, help="output directory: each output is named after its input")
-    p.add_argument("--technique", required=True, help="sta, separable, burley or reference")
+    p.add_argument("--technique", required=True, help="sta, separable, burley, reference, hdrp, eevee-next or jimenez")
     p.add_argument("--albedo", type=rgb_triple, help="surface albedo R,G,B in [0,1] (overrides an albedo pass)")
     p.add_argument("--d-mm", type=rgb_triple, help="Burley scattering distance d per channel, mm")
     p.add_argument("--mfp-mm", type=rgb_triple, help="mean free path per channel, mm (d = mfp / s(A), diffuse-transmission fit)")
