@@ -209,7 +209,8 @@ def test_invalid_channel_maps(tmp_path, capsys):
         cmap = tmp_path / "map.json"
         cmap.write_text(text)
         out = tmp_path / "o.exr"
-        assert run_cli(["apply", str(inp), "-o", str(out), "--channel-map", str(cmap)] + MATERIAL) == 1
+        # a bad map is the whole batch's input: refused before any frame, status 2 (it failed each frame: 1)
+        assert run_cli(["apply", str(inp), "-o", str(out), "--channel-map", str(cmap)] + MATERIAL) == 2
         assert re.search(message, capsys.readouterr().err)
         assert not out.exists()
 
