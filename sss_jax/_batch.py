@@ -85,8 +85,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from ._io import (EXR_MAGIC, Frame, SSSInputError, Window, _frame_from_decoded, _read_image, check_writable,
-                  exr_is_complete, load_channel_map, read_header, write_exr, write_json_atomic, write_png_preview)
+from ._io import (EXR_MAGIC, Frame, SSSInputError, Window, _frame_from_decoded, _read_image, check_depth_kind,
+                  check_writable, exr_is_complete, load_channel_map, read_header, write_exr, write_json_atomic,
+                  write_png_preview)
 from ._kernels import separable_kernel_from_profile, two_gaussian_kernel
 from ._materials import BurleyMaterial, DirectionalLight, ProfileMaterial, STAParams, TwoGaussianMaterial
 from ._profiles import BurleyProfile
@@ -1710,8 +1711,7 @@ def process_frames(
     if not (isinstance(tile_pixels, (int, np.integer)) and tile_pixels >= 1):
         raise ValueError(f"tile_pixels must be a positive integer, got {tile_pixels!r}")
     # the reading options, the same for every frame: checked once, before any frame (each frame failed alone)
-    if depth_kind not in ("planar", "distance"):
-        raise SSSInputError(f"depth_kind={depth_kind!r} is not one of ('planar', 'distance')")
+    check_depth_kind(depth_kind)
     if channel_map is not None:
         load_channel_map(channel_map)
     if out_dir is not None and not str(out_dir).strip():

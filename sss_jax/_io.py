@@ -423,6 +423,15 @@ def _scanline_chunks_intact(data: bytes) -> bool | None:
     return end == len(data)
 
 
+DEPTH_KINDS = ("planar", "distance")
+
+
+def check_depth_kind(depth_kind: str) -> None:
+    """``depth_kind`` is one of ``DEPTH_KINDS`` (the depth along the view axis, or the distance to the camera)."""
+    if depth_kind not in DEPTH_KINDS:
+        raise SSSInputError(f"depth_kind={depth_kind!r} is not one of {DEPTH_KINDS}")
+
+
 def load_channel_map(source: str | os.PathLike | Mapping[str, Any]) -> dict[str, Any]:
     """A channel map from a dict or a ``.json`` / ``.toml`` file: buffer name -> channel name(s)."""
     if isinstance(source, Mapping):
@@ -669,8 +678,7 @@ def read_frame(
     with ``focal_px``). ``depth_path``: depth from a separate single-channel file of the same resolution.
     """
     path = pathlib.Path(path)
-    if depth_kind not in ("planar", "distance"):
-        raise SSSInputError(f"depth_kind={depth_kind!r} is not one of ('planar', 'distance')")
+    check_depth_kind(depth_kind)
     return _frame_from_decoded(path, _read_image(path), channel_map=channel_map, depth_kind=depth_kind,
                                focal_px=focal_px, mm_per_unit=mm_per_unit, principal_point=principal_point,
                                depth_path=depth_path)
@@ -684,8 +692,7 @@ def _frame_from_decoded(path: pathlib.Path, decoded, *, channel_map, depth_kind:
     current one computes, and says them in the main thread: the warnings module's state is not thread-safe)."""
     if warn is None:
         warn = lambda message, category: warnings.warn(message, category, stacklevel=4)
-    if depth_kind not in ("planar", "distance"):
-        raise SSSInputError(f"depth_kind={depth_kind!r} is not one of ('planar', 'distance')")
+    check_depth_kind(depth_kind)
     channels, integers, metadata, shape, window = decoded
     if principal_point is None and window is not None and not window.plain(shape):
         principal_point = window.principal_point()  # an overscan margin: the framed image's centre
