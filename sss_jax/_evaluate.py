@@ -8,6 +8,7 @@ version), so a second report on the same frame reads it back.
 
 from __future__ import annotations
 
+import collections
 import hashlib
 import io
 import json
@@ -105,8 +106,9 @@ def _check_truth(path, rgb: np.ndarray, frame: Frame) -> None:
         return
     on = rgb[mask]
     if not np.any(on > 0):
-        raise SSSInputError(f"{path}: the truth is black on every SSS pixel of {pathlib.Path(frame.path).name if frame.path else 'the frame'} "
-                            f"({int(mask.sum())} pixels): nothing to compare with (the right pass, layer or file?)")
+        name = pathlib.Path(frame.path).name if frame.path else "the frame"
+        raise SSSInputError(f"{path}: the truth is black on every SSS pixel of {name} ({int(mask.sum())} pixels): "
+                            "nothing to compare with (the right pass, layer or file?)")
     negative = on < -1e-3 * float(np.max(np.abs(on)))
     if negative.any():
         warnings.warn(f"{path}: {int(np.sum(np.any(negative, axis=-1)))} SSS pixel(s) of the truth are negative (down "
@@ -319,7 +321,7 @@ def evaluate_frames(
     if truths and len(truths) != len(paths):
         raise SSSInputError(f"{len(truths)} truth file(s) for {len(paths)} input frame(s): give one per input")
     if len(set(map(str, paths))) != len(paths):
-        twice = sorted({str(p) for p in paths if list(map(str, paths)).count(str(p)) > 1})
+        twice = sorted(p for p, n in collections.Counter(map(str, paths)).items() if n > 1)
         raise SSSInputError(f"an input frame is given twice: {', '.join(twice)}")
 
     frames: list[Frame] = []
@@ -329,7 +331,7 @@ def evaluate_frames(
             raise SSSInputError(f"{p}: no focal length (pass --focal-px / focal_px, put sss_jax:focal_px in the "
                                 f"header, or camera.focal_px in the sidecar {pathlib.Path(p).with_suffix('.json')})")
         ids = f.material_id if f.material_id is not None else np.ones(f.shape, np.int32)
-        mask = (ids > 0) & np.isfinite(f.depth)
+        mask = frame_sss_mask(f)
         if not mask.any():
             raise SSSInputError(f"{p}: no pixel with subsurface scattering (material id > 0 on a surface)")
         rows = np.asarray(material.albedo).reshape(-1, 3).shape[0]
@@ -370,7 +372,7 @@ def evaluate_frames(
             b = f.to_buffers(use_albedo=use_albedo_pass)
             cam = Camera(f.focal_px, f.mm_per_unit if f.mm_per_unit is not None else 1.0)
             ids = f.material_id if f.material_id is not None else np.ones(f.shape, np.int32)
-            mask = (ids > 0) & np.isfinite(f.depth)
+            mask = frame_sss_mask(f)
             albedo = (f.albedo if use_albedo_pass and f.albedo is not None else _material_albedo(material, ids))
             shaded = np.where(mask[..., None], albedo * f.irradiance,
                               f.irradiance * (f.albedo if f.albedo is not None else 1.0)).astype(np.float32)

@@ -477,9 +477,9 @@ def _blender_layers(names: list[str], path, layer: str | None = None, *, choose:
     """``{pass.channel: full name}`` of one view layer of Blender's ``<layer>.<pass>.<channel>`` channels, every pass
     taken from that layer (a frame is never put together from two layers' passes: each layer has its own Depth):
     ``layer`` where named, else the layer with the diffuse light passes and Depth, else with Combined and Depth, else
-    with Depth, else with Combined, else the first. Two layers that both fit the first of these that any fits are ambiguous (one may be
-    lit and the other black): ``SSSInputError`` naming them, and how to choose (``choose``; by default a channel
-    map's ``layer``)."""
+    with Depth, else with Combined, else the first. Two layers that both fit the first of these that any fits are
+    ambiguous (one may be lit and the other black): ``SSSInputError`` naming them, and how to choose (``choose``; by
+    default a channel map's ``layer``)."""
     layers: dict[str, dict[str, str]] = {}
     for n in names:
         parts = n.split(".")
@@ -826,9 +826,23 @@ def check_writable(path: str | os.PathLike, *, create_dirs: bool = True) -> path
         except OSError as exc:
             raise SSSInputError(f"{directory}: cannot create the output directory ({exc.strerror})") from None
     if not directory.is_dir():
-        raise SSSInputError(f"{directory}: output directory does not exist")
+        raise SSSInputError(f"{directory}: " + ("a file, not an output directory" if directory.exists()
+                                                else "output directory does not exist"))
     check_writable_folder(directory)
     return path
+
+
+def check_output_folder(folder: pathlib.Path, flag: str) -> None:
+    """Before any work: ``folder`` is a folder or can become one (its nearest existing ancestor is a folder that takes
+    files): a path under a file, a read-only place or a pseudo filesystem is refused, naming ``flag``."""
+    if folder.exists() and not folder.is_dir():
+        raise SSSInputError(f"{flag} {folder} exists and is not a directory")
+    place = folder.absolute()
+    while not place.exists():
+        place = place.parent
+    if not place.is_dir():
+        raise SSSInputError(f"{flag} {folder}: {place} is a file, not a directory")
+    check_writable_folder(place)
 
 
 def check_writable_folder(directory: pathlib.Path) -> None:

@@ -99,6 +99,17 @@ def _active_stats(buffers: Buffers, material: BurleyMaterial, camera: Camera, mi
     return jnp.count_nonzero(active), jnp.max(jnp.where(active, d_max * ppm, 0.0)), active, planes
 
 
+def check_burley_counts(samples, frames, min_footprint_px, seed) -> None:
+    """``burley``'s counts (positive integers, not bools), its footprint floor (>= 0) and its seed (``check_seed``):
+    what the function checks before it runs and a ``Burley`` object when it is made."""
+    for name, value in (("samples", samples), ("frames", frames)):
+        if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
+            raise ValueError(f"burley: {name} must be a positive integer, got {value!r}")
+    if not float(min_footprint_px) >= 0:
+        raise ValueError(f"burley: min_footprint_px must be >= 0, got {min_footprint_px!r}")
+    check_seed("burley", seed)
+
+
 def burley(
     buffers: Buffers,
     material: BurleyMaterial,
@@ -190,16 +201,11 @@ def burley(
         raise ValueError(f"interpolation={interpolation!r} is not one of ('bilinear', 'nearest')")
     if not isinstance(material, BurleyMaterial):
         raise TypeError(f"burley needs a BurleyMaterial, got {type(material).__name__}")
-    if not isinstance(samples, (int, np.integer)) or samples < 1:
-        raise ValueError(f"samples must be a positive integer, got {samples!r}")
-    if not (float(min_footprint_px) >= 0):
-        raise ValueError(f"min_footprint_px must be >= 0, got {min_footprint_px!r}")
+    check_burley_counts(samples, frames, min_footprint_px, seed)
     _check_border(border)
     if pattern not in BURLEY_PATTERNS:
         raise ValueError(f"pattern={pattern!r} is not one of {BURLEY_PATTERNS}")
-    if not isinstance(frames, (int, np.integer)) or isinstance(frames, bool) or frames < 1:
-        raise ValueError(f"frames must be a positive integer, got {frames!r}")
-    seed = _as_seed(check_seed("burley", seed))
+    seed = _as_seed(seed)
     h, w = buffers.depth.shape[-2:]
     origin, frame_shape = check_tile((h, w), origin, frame_shape)
     options = dict(pattern=pattern, border=border, frames=int(frames), interpolation=interpolation)

@@ -15,7 +15,7 @@ from .._scene import Buffers, Camera
 from . import _burley
 from ._burley_spec import unit_radius
 from ._base import AbstractTechnique, built, call_options, default_of, frame_pieces, option, tile_options
-from ._common import ALBEDO_MODES, BORDERS, check_seed
+from ._common import ALBEDO_MODES, BORDERS
 from ._dispatch import IMPLS
 
 _f = _burley.burley
@@ -86,13 +86,7 @@ class Burley(AbstractTechnique):
     def __check_init__(self):
         # checked when the object is made, not only when it runs: reach_px, pieces and spread (a batch's halos and
         # pieces) read them first
-        for name in ("samples", "frames"):
-            value = getattr(self, name)
-            if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
-                raise ValueError(f"burley: {name} must be a positive integer, got {value!r}")
-        if not float(self.min_footprint_px) >= 0:
-            raise ValueError(f"burley: min_footprint_px must be >= 0, got {self.min_footprint_px!r}")
-        check_seed("burley", self.seed)
+        _burley.check_burley_counts(self.samples, self.frames, self.min_footprint_px, self.seed)
 
     def __call__(self, buffers: Buffers, material: BurleyMaterial, camera: Camera, *,
                  origin: tuple[int, int] = (0, 0),

@@ -204,7 +204,7 @@ class EeveeNextPass(AbstractTechnique):
         origin, frame_shape = pass_arguments(self.name, self.albedo_mode, buffers, origin, frame_shape,
                                              material.count)
         return _eevee_next_impl(buffers, material, camera, int(self.frames), self.albedo_mode,
-                                _as_seed(check_seed(self.name, self.seed)), origin, frame_shape)
+                                _as_seed(self.seed), origin, frame_shape)
 
     def pieces(self, count: int) -> tuple[tuple["EeveeNextPass", float], ...] | None:
         """The ``frames`` in about ``count`` calls of consecutive TAA samples (sample k of seed s is ``k + 1 + s``

@@ -169,9 +169,10 @@ class HdrpPass(AbstractTechnique):
         self.check_material(material)
         origin, frame_shape = pass_arguments(self.name, self.albedo_mode, buffers, origin, frame_shape,
                                              material.count)
-        # the seed as a uint32 array (traced: a sequence's seeds share one program; a Python int would be static)
+        # the seed (checked when the object was made) as a uint32 array: traced, a sequence's seeds share one
+        # program (a Python int would be static)
         return _hdrp_impl(buffers, material, camera, self.samples, int(self.frames), self.albedo_mode,
-                          _as_seed(check_seed(self.name, self.seed)), origin, frame_shape)
+                          _as_seed(self.seed), origin, frame_shape)
 
     def pieces(self, count: int) -> tuple[tuple["HdrpPass", float], ...] | None:
         """The ``frames`` in about ``count`` calls of consecutive frames (each frame's rotation hashes the seed and

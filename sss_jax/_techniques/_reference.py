@@ -153,6 +153,17 @@ def _reference_impl(buffers: Buffers, material, camera: Camera, radius_px: int, 
     return _finish(buffers, prep, scattered)
 
 
+def check_reference_counts(radius_px, near_subsamples) -> None:
+    """``reference``'s window (a non-negative integer; None: the default, read from the frame) and its near
+    subsamples (a positive integer): what the function checks and a ``Reference`` object when it is made."""
+    for name, value, least, what in (("radius_px", radius_px, 0, "non-negative"),
+                                     ("near_subsamples", near_subsamples, 1, "positive")):
+        if value is None and name == "radius_px":
+            continue
+        if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < least:
+            raise ValueError(f"reference: {name} must be a {what} integer, got {value!r}")
+
+
 def reference(
     buffers: Buffers,
     material: BurleyMaterial | ProfileMaterial,
@@ -203,10 +214,7 @@ def reference(
                              "buffers and the material, traced here): e.g. Reference().reach_px(buffers, material, "
                              "camera) outside the transformation")
         radius_px = reference_radius_px(buffers, material, camera)
-    if not isinstance(radius_px, (int, np.integer)) or isinstance(radius_px, bool) or radius_px < 0:
-        raise ValueError(f"radius_px must be a non-negative integer, got {radius_px!r}")
-    if not isinstance(near_subsamples, (int, np.integer)) or isinstance(near_subsamples, bool) or near_subsamples < 1:
-        raise ValueError(f"near_subsamples must be a positive integer, got {near_subsamples!r}")
+    check_reference_counts(radius_px, near_subsamples)
     # a window past the frame reaches no further pixel (every pixel of the frame lies within max(H, W) - 1 along
     # each axis): the same result, without a window of (2 radius_px + 1)^2 offsets
     radius_px = min(int(radius_px), max(frame_shape) - 1)

@@ -5,7 +5,6 @@ from __future__ import annotations
 import inspect
 from typing import ClassVar
 
-import numpy as np
 from jaxtyping import Array, Float
 
 from .._errors import ReferenceWindowWarning
@@ -50,12 +49,7 @@ class Reference(AbstractTechnique):
 
     def __check_init__(self):
         # checked when the object is made: reach_px (a batch's halo) reads radius_px before any call
-        for name, least, what in (("radius_px", 0, "non-negative"), ("near_subsamples", 1, "positive")):
-            value = getattr(self, name)
-            if value is None and name == "radius_px":
-                continue
-            if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < least:
-                raise ValueError(f"reference: {name} must be a {what} integer, got {value!r}")
+        _reference.check_reference_counts(self.radius_px, self.near_subsamples)
 
     def __call__(self, buffers: Buffers, material: BurleyMaterial | ProfileMaterial, camera: Camera, *,
                  origin: tuple[int, int] = (0, 0),

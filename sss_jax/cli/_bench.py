@@ -77,23 +77,13 @@ def run(args) -> int:
     from .._bench import plot_pareto, run_bench
     from .._io import write_bytes_atomic, write_json_atomic
 
-    from .._io import SSSInputError, check_writable, check_writable_folder
+    from .._io import SSSInputError, check_output_folder, check_writable
 
     try:  # the outputs' places checked before the benchmark runs (a folder as --json failed at its end)
         if args.json is not None:
-            if not args.json.parent.is_dir():
-                raise SSSInputError(f"--json {args.json}: {args.json.parent} "
-                                    + ("is a file, not a directory" if args.json.parent.exists() else "does not exist"))
             check_writable(args.json, create_dirs=False)
         if args.out_dir is not None:
-            if args.out_dir.exists() and not args.out_dir.is_dir():
-                raise SSSInputError(f"--out-dir {args.out_dir} exists and is not a directory")
-            place = args.out_dir.absolute()
-            while not place.exists():
-                place = place.parent
-            if not place.is_dir():
-                raise SSSInputError(f"--out-dir {args.out_dir}: {place} is a file, not a directory")
-            check_writable_folder(place)
+            check_output_folder(args.out_dir, "--out-dir")
     except SSSInputError as exc:
         print(f"sss-jax bench: {exc}", file=sys.stderr)
         return 2

@@ -208,20 +208,13 @@ def _check_out(out: pathlib.Path) -> None:
     """Before any work: ``out`` is a folder or can become one, and a file can be written where it goes (the report
     is staged beside it): a path under a file, a read-only place or a pseudo filesystem is refused now, not after
     the frames have been computed."""
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {out} exists and is not a directory")
+    from .._io import check_output_folder
+
+    check_output_folder(out, "--out")
     for name in ("report.json", "report.html"):
         if (out / name).exists() and not _a_report(out):
             raise ValueError(f"--out {out} holds a {name} that is not an sss-jax report: the report would replace "
                              "it; give a new or empty folder, or the folder of an earlier report")
-    place = out.absolute() if out.is_dir() else out.absolute().parent
-    while not place.exists():
-        place = place.parent
-    if not place.is_dir():
-        raise ValueError(f"--out {out}: {place} is a file, not a directory")
-    from .._io import check_writable_folder
-
-    check_writable_folder(place)
 
 
 def _a_report(out: pathlib.Path) -> bool:
