@@ -406,7 +406,7 @@ def evaluate_frames(
                 bar.update(1)
             frame_images.append(FrameImages(name=name, shaded=shaded, reference=ref_images[-1], material_id=ids,
                                             truth=truth_images[len(frame_images)] if truth_images else None,
-                                            mask=mask))
+                                            mask=mask, window=f.window))
             inputs_info.append({"path": str(f.path), "name": name, "width": f.shape[1], "height": f.shape[0],
                                 "layout": f.layout, "focal_px": f.focal_px, "mm_per_unit": float(f.mm_per_unit if f.mm_per_unit is not None else 1.0),
                                 "sss_pixels": int(mask.sum()), "reference_radius_px": int(radius),

@@ -394,3 +394,24 @@ def test_a_run_given_twice_is_refused_before_any_frame_is_computed(tmp_path, mon
     with pytest.raises(sj.SSSInputError, match=r"an input frame is given twice: .*in.exr"):
         sj.evaluate_frames([frame, frame], sj.BurleyMaterial((0.8,) * 3, (1.0,) * 3), techniques=["separable"],
                            progress=False)
+
+
+def test_a_report_of_an_overscan_frame_writes_its_images_with_the_frames_windows(tmp_path):
+    # the report's images of a frame rendered with an overscan margin (data window (-2, -1)-(11, 8) over the
+    # display window 10x8) were written at (0, 0) with a display window of the data's size: shifted by the margin
+    # over the input in a compositor (the batch's outputs kept both windows)
+    from sss_jax._io import write_exr
+
+    h, w = 10, 14
+    chans = {"R": np.full((h, w), 0.5), "G": np.full((h, w), 0.5), "B": np.full((h, w), 0.5),
+             "Z": np.full((h, w), 2.0), "id": np.ones((h, w))}
+    window = sj._io.Window(-2, -1, (0, 0, 10, 8))
+    write_exr(tmp_path / "in.exr", chans, attributes={"sss_jax:focal_px": 100.0, "sss_jax:mm_per_unit": 10.0},
+              window=window)
+    assert main(["report", str(tmp_path / "in.exr"), "--d-mm", "1,1,1", "--no-progress", "--repeats", "0",
+                 "--techniques", "separable", "--taps", "9", "--out", str(tmp_path / "rep")]) == 0
+    images = sorted((tmp_path / "rep" / "images" / "in").glob("*.exr"))
+    assert images
+    for path in images:  # the reference and the technique
+        frame = sj._io.read_frame(path, channel_map={"irradiance": ["R", "G", "B"], "depth": "R"})
+        assert frame.window == window and frame.depth.shape == (h, w), path

@@ -30,7 +30,8 @@ class FrameImages:
     ``shaded``: the frame without subsurface scattering (albedo times irradiance), shown as the input.
     ``reference``: the dense reference. ``truth``: an offline render of the same view (e.g. Cycles' Combined) or
     None. ``material_id``: 0 where there is no SSS; the metrics use the pixels with id > 0 and finite depth
-    (``mask``, computed by the caller; defaults to id > 0)."""
+    (``mask``, computed by the caller; defaults to id > 0). ``window``: the input's windows, which the report's
+    images keep (an overscan frame's lie over it in a compositor)."""
 
     name: str
     shaded: np.ndarray
@@ -38,6 +39,7 @@ class FrameImages:
     material_id: np.ndarray
     truth: np.ndarray | None = None
     mask: np.ndarray | None = None
+    window: Any = None  # the input's data and display windows (``_io.Window``; an overscan margin), or None
 
     def __post_init__(self):
         ref = _rgb(f"{self.name}: reference", self.reference)
