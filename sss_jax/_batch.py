@@ -452,15 +452,15 @@ def _hashable(value):
 
 def _technique_object(technique, options: dict[str, Any], material):
     """The technique object a batch runs and its material: one given (an ``AbstractTechnique``), or the one
-    registered under a name with ``options`` (the named counts a technique does not have are not its own: the CLI
-    passes every count); the error lists the valid names. A ``(params, light)`` pair gives a technique with a
+    registered under a name with ``options`` (one it does not have is refused: ``taps`` for burley, ``sta_albedo``
+    for anything but sta); the error lists the valid names. A ``(params, light)`` pair gives a technique with a
     ``light`` field its light."""
     if isinstance(technique, str):
         cls = get_technique(technique)
         fields = {f.name for f in dataclasses.fields(cls)}
         if isinstance(material, tuple) and len(material) == 2 and "light" in fields:
             material, options = material[0], {**options, "light": material[1]}
-        tech = make_technique(technique, **{k: v for k, v in options.items() if k in fields or k not in _NAMED})
+        tech = make_technique(technique, **options)  # an option it does not have (taps for burley) is refused
     else:
         if not isinstance(technique, AbstractTechnique):
             raise TypeError(f"technique must be a technique name or object, got {type(technique).__name__}")
@@ -489,9 +489,6 @@ def _check_ranges(tech) -> None:
     t = getattr(tech, "thickness", None)
     if t is not None and not np.all(np.asarray(t, np.float64) >= 0):
         raise ValueError(f"{tech.name}: thickness must be >= 0 scene units (inf: infinitely thick), got {t}")
-
-
-_NAMED = ("samples", "taps", "radius_px", "albedo", "thickness")
 
 
 def _technique_options(tech) -> dict[str, Any]:
@@ -889,6 +886,8 @@ class _Job:
 
 
 def _targets(paths, out_dir, outputs) -> list[pathlib.Path]:
+    if outputs is not None and out_dir is not None:
+        raise ValueError("give out_dir or outputs, not both (outputs name every file; out_dir is their folder)")
     if outputs is not None:
         if len(outputs) != len(paths):
             raise ValueError(f"{len(outputs)} outputs for {len(paths)} inputs")
@@ -931,10 +930,11 @@ def _existing_outputs(jobs: list[_Job], overwrite: bool) -> dict[pathlib.Path, d
 
 
 def _check_folders(paths: list[pathlib.Path], create_dirs: bool) -> None:
-    probed = set()
-    for path in paths:
+    for path in paths:  # every path first: a refusal leaves no folder made for the others
         if path.is_dir():
             raise SSSInputError(f"{path}: output path is a directory")
+    probed = set()
+    for path in paths:
         if path.parent not in probed:  # --out-dir's folders are made; a typo in -o's folder is not
             check_writable(path, create_dirs=create_dirs)
             probed.add(path.parent)
@@ -1186,6 +1186,24 @@ def _run_tiled(tech, frame: Frame, use_albedo: bool, material, camera: Camera, p
     return out
 
 
+class _CallbackRaised(Exception):
+    """What a caller's callback raised, carried past the handlers that fail one frame for an ``OSError`` or a
+    ``ValueError`` (the callback's error is not the frame's) to ``process_frames``, which raises the original."""
+
+    def __init__(self, name: str, original: Exception):
+        super().__init__(name, original)
+        self.name, self.original = name, original
+
+
+def _call_back(name: str, fn: Callable, *args) -> None:
+    """A caller's callback (``on_frame_done``, ``on_progress``): whatever it raises stops the batch (see
+    ``process_frames``), never fails a frame in its place."""
+    try:
+        fn(*args)
+    except Exception as exc:  # re-raised as it was by process_frames
+        raise _CallbackRaised(name, exc) from exc
+
+
 class _FrameProgress:
     """Progress inside a frame that runs in several calls (tiles, pieces): a tqdm bar under the batch's, or lines
     for ``on_progress`` (at most one every ``PROGRESS_EVERY_S``, the time left from the calls so far)."""
@@ -1200,8 +1218,9 @@ class _FrameProgress:
 
             self.bar = tqdm(total=self.total, unit="call", desc=name, leave=False)
         if self.printer is not None and self.total > 1:
-            self.printer(f"{name}: {self.total} calls ({plan.tiles} tile(s) x {self.total // plan.tiles} "
-                         f"piece(s)), about {_seconds_text(plan.estimate_s)} by the estimate")
+            _call_back("on_progress", self.printer,
+                       f"{name}: {self.total} calls ({plan.tiles} tile(s) x {self.total // plan.tiles} piece(s)), "
+                       f"about {_seconds_text(plan.estimate_s)} by the estimate")
 
     def tick(self) -> None:
         self.done += 1
@@ -1215,8 +1234,9 @@ class _FrameProgress:
             elapsed = now - self.t0
             per_call = (now - self.first) / (self.done - 1) if self.done > 1 else elapsed
             left = per_call * (self.total - self.done)
-            self.printer(f"{self.name}: {self.done} of {self.total} calls ({100 * self.done // self.total}%), "
-                         f"{_seconds_text(elapsed)}, about {_seconds_text(left)} left")
+            _call_back("on_progress", self.printer,
+                       f"{self.name}: {self.done} of {self.total} calls ({100 * self.done // self.total}%), "
+                       f"{_seconds_text(elapsed)}, about {_seconds_text(left)} left")
             self.last = now
 
     def close(self) -> None:
@@ -1366,7 +1386,7 @@ class _Batch:
             if r.status == "failed":
                 self.bar.write(f"FAILED {r.input}: {r.message}")
         if self.on_frame_done is not None:
-            self.on_frame_done(r)
+            _call_back("on_frame_done", self.on_frame_done, r)
 
     def fail(self, job: _Job, exc: BaseException, path: pathlib.Path | None = None) -> None:
         self.forget(job)
@@ -1692,6 +1712,10 @@ def process_frames(
       the work bound runs as the technique's pieces (``AbstractTechnique.pieces``), so a signal lands within seconds.
     - ``on_progress``: called with a line of text as a frame that runs in several calls progresses (the calls done,
       the time so far and left), at most every two seconds; without it, ``progress`` shows a bar per frame.
+    - ``on_frame_done``: called with each frame's ``FrameResult`` once it is recorded, in the frames' order.
+      Whatever a callback raises stops the batch and reaches the caller as it was raised (a note names the callback
+      and the frames finished); it never fails a frame in its place. The frames recorded stay on disk and in the
+      manifest (state ``interrupted``), so a rerun with ``resume`` goes on from there.
 
     Every file is written atomically (a temporary beside it, fsync, verified: the EXR from its chunk table, the PNG
     decoded; renamed); temporaries that killed runs left beside this run's outputs are removed first. Counts beyond
@@ -1717,6 +1741,10 @@ def process_frames(
     if out_dir is not None and not str(out_dir).strip():
         raise ValueError("out_dir is empty: give the outputs' folder ('.' for the current one)")
     call_seconds()  # the work bound from the environment, checked before any frame
+    if devices is not None:
+        devices = list(devices)
+        if not devices or not all(isinstance(d, jax.Device) for d in devices):
+            raise ValueError(f"devices must be jax devices (at least one; None: every device), got {devices!r}")
 
     paths = expand_inputs(inputs)
     targets = _targets(paths, None if out_dir is None else pathlib.Path(out_dir), outputs)
@@ -1778,6 +1806,13 @@ def process_frames(
             finally:
                 run.close()  # the last frame's files and entry (also when interrupted: the manifest is the disk)
         state = "complete"
+    except _CallbackRaised as raised:  # the caller's own error, as it raised it, with what the batch did
+        exc = raised.original
+        where = f"; {manifest} lists the frames finished" if manifest is not None else ""
+        if hasattr(exc, "add_note"):  # Python >= 3.11
+            exc.add_note(f"raised by process_frames' {raised.name} callback: the batch stopped after "
+                         f"{len(run.results)} frame(s){where}")
+        raise exc from None
     finally:
         with contextlib.suppress(OSError, ValueError):
             book.close(state)

@@ -6,6 +6,7 @@ import os
 import pathlib
 import re
 import signal
+import sys
 import types
 
 import jax
@@ -1246,3 +1247,55 @@ def test_a_long_engine_average_is_planned_in_pieces(make):
                        TILE_PIXELS, _Cost())
     assert plan.pieces is not None and len(plan.pieces) > 10 and plan.layout is None
     assert sum(w for _, w in plan.pieces) == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("callback", ["on_frame_done", "on_progress"])
+def test_a_callback_that_raises_stops_the_batch_with_its_own_error(frames, tmp_path, monkeypatch, callback):
+    # on_progress raising a ValueError failed the frame under the input's name and the batch went on; on_frame_done
+    # raising one inside the next frame's settle failed that frame instead. One rule now: the caller's error stops
+    # the batch and reaches the caller as raised; what was recorded stays on disk and in the manifest.
+    if callback == "on_progress":
+        monkeypatch.setenv("SSS_JAX_CALL_SECONDS", "1e-4")  # every frame in several calls: on_progress is called
+
+    class Mine(ValueError):
+        pass
+
+    told = []
+
+    def boom(what):
+        told.append(what)
+        if callback == "on_progress" or len(told) == 2:  # the second frame's: the frames after it compute by then
+            raise Mine("the caller's own bug")
+
+    with pytest.raises(Mine, match="the caller's own bug") as caught:
+        process_frames(str(frames / "*.exr"), "burley", MAT, out_dir=tmp_path / "run", samples=4,
+                       progress=False, devices=jax.devices()[:1], **{callback: boom})
+    if sys.version_info >= (3, 11):  # add_note: the callback named, and how far the batch went
+        assert any(f"process_frames' {callback} callback: the batch stopped after" in n
+                   for n in caught.value.__notes__), caught.value.__notes__
+    book = json.loads((tmp_path / "run" / MANIFEST_NAME).read_text())
+    assert book["state"] == "interrupted"
+    assert "failed" not in [f["status"] for f in book["frames"]]  # no frame took the callback's error as its own
+    if callback == "on_frame_done":  # the frames it was told of are recorded and written
+        assert [f["status"] for f in book["frames"][:2]] == ["done", "done"] and (tmp_path / "run" / "f1.exr").exists()
+
+
+def test_options_outputs_and_devices_a_batch_cannot_use_are_refused_before_any_frame(frames, tmp_path, as_users_run_it):
+    # a named option the technique lacks was dropped without a word (taps for burley ran burley's default), both
+    # outputs and out_dir wrote the manifest into out_dir, devices=[] ran on the default device, and a manifest
+    # path that is a folder was refused after the outputs' folder was made
+    src = str(frames / "f0.exr")
+    for kwargs, error, message in (
+            ({"taps": 9}, TypeError, "technique 'burley' has no option.*taps"),
+            ({"sta_albedo": (0.5, 0.5, 0.5)}, TypeError, "technique 'burley' has no option.*albedo"),
+            ({"outputs": [tmp_path / "x.exr"]}, ValueError, "give out_dir or outputs, not both"),
+            ({"devices": []}, ValueError, "devices must be jax devices"),
+            ({"devices": ["cpu"]}, ValueError, "devices must be jax devices")):
+        with pytest.raises(error, match=message):
+            process_frames(src, "burley", MAT, out_dir=tmp_path / "out", samples=4, progress=False, **kwargs)
+        assert not (tmp_path / "out").exists() and not (tmp_path / "x.exr").exists()
+    (tmp_path / "book").mkdir()
+    with pytest.raises(sj.SSSInputError, match="output path is a directory"):
+        process_frames(src, "burley", MAT, out_dir=tmp_path / "out", manifest=tmp_path / "book", samples=4,
+                       progress=False)
+    assert not (tmp_path / "out").exists()

@@ -245,17 +245,21 @@ def _run_batch(process_frames, inputs, args, options, material, light, report):
         common["tile_pixels"] = args.tile_pixels
     common = {k: v for k, v in common.items() if k in accepted}
     named = material if light is None else (material, light)
+    # the counts (their defaults) go to the technique that has them; --albedo and --thickness are the frame's for
+    # every technique and STA's options as well: passed on as STA's only to STA (a batch refuses an option its
+    # technique lacks)
+    takes = {f.name for f in TECHNIQUES[args.technique].option_fields()}
+    counts = {k: v for k, v in counts.items() if k in takes}
+    sta = {"sta_albedo": args.albedo if "albedo" in takes else None,
+           "sta_thickness": args.thickness if "thickness" in takes else None}
     if "technique_options" in accepted:  # it computes the technique's warnings for every frame itself
         _check_frames(inputs, args, material, light, counts, technique_checks=False)
-        return process_frames(inputs, args.technique, named, sta_albedo=args.albedo, sta_thickness=args.thickness,
-                              technique_options=options, **counts, **common)
+        return process_frames(inputs, args.technique, named, technique_options=options, **sta, **counts, **common)
     if "Technique" in str(accepted["technique"].annotation):
         from .._techniques import technique
 
-        cls = TECHNIQUES[args.technique]
-        fields = {f.name for f in cls.option_fields()}
         own = dict(counts, albedo=args.albedo, thickness=args.thickness)
-        options = {**{k: v for k, v in own.items() if k in fields and v is not None}, **options}
+        options = {**{k: v for k, v in own.items() if k in takes and v is not None}, **options}
         _check_frames(inputs, args, material, light, counts, technique_checks=False)
         return process_frames(inputs, technique(args.technique, **({"light": light} if light is not None else {}),
                                                 **options), material, **common)
@@ -263,8 +267,7 @@ def _run_batch(process_frames, inputs, args, options, material, light, report):
         raise ValueError(f"{', '.join('--' + k.replace('_', '-') for k in options)}: this version's batch takes a "
                          "technique's name and its counts only, not its other options")
     _check_frames(inputs, args, material, light, counts, technique_checks=True)
-    return process_frames(inputs, args.technique, named, sta_albedo=args.albedo, sta_thickness=args.thickness,
-                          **counts, **common)
+    return process_frames(inputs, args.technique, named, **sta, **counts, **common)
 
 
 def _check_frames(inputs, args, material, light, counts, *, technique_checks: bool) -> None:
