@@ -121,7 +121,7 @@ def _count_cost(t, buffers, material, camera, active=None) -> dict[str, Any]:
 
 def _burley_cost(t, buffers, material, camera) -> dict[str, Any]:
     """Burley: the count model on the pixels whose 99%-energy radius reaches ``min_footprint_px``."""
-    from ._techniques._burley import BURLEY_R99
+    from ._techniques._burley_spec import BURLEY_R99
 
     _, depth, rows = _sss_pixels(buffers)
     d_px = _rows(material.d_mm, rows).max(-1) * _per_mm(camera, depth)

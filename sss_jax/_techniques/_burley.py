@@ -16,7 +16,6 @@ from .._scene import Buffers, Camera
 from ._burley_gpu import _burley_impl as _burley_impl
 from ._burley_spec import (
     BURLEY_R95,
-    BURLEY_R99,
     active_footprint,
     burley_reach_px,
     needs_truncation,
@@ -42,7 +41,6 @@ from ._dispatch import check_tile, resolve_impl
 from ._pallas import burley_pallas_impl
 
 BURLEY_PATTERNS = ("rotated", "fixed")
-_BURLEY_R99 = BURLEY_R99
 
 
 def compaction_capacity(active_count: int, pixels: int, *, minimum: int = 256) -> int | None:
