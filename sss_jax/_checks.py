@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import math
+
 import equinox as eqx
+import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array
 
 
@@ -15,3 +19,29 @@ def checked(x: Array, name: str, *, positive: bool = False, finite: bool = True)
         bad = bad | ~jnp.isfinite(x)
     what = ("finite and " if finite else "") + ("> 0" if positive else ">= 0")
     return eqx.error_if(x, bad, f"{name} must be {what}")
+
+
+def check_host_range(x, name: str, *, low: float = 0.0, high: float = math.inf, low_open: bool = False,
+                     finite: bool = True) -> None:
+    """An error naming ``name`` where ``x``, known on the host (Python, NumPy, a concrete JAX array), is not finite
+    (``finite=False``: +inf allowed, NaN never) and in ``[low, high]`` (``(low, high]`` with ``low_open``). Traced
+    values (under jit, vmap, grad) pass: their callers check them with ``checked``. For the public builders
+    (kernels, profiles, transmittances) that a user calls directly."""
+    if isinstance(x, jax.core.Tracer):
+        return
+    try:
+        v = np.asarray(x, np.float64)
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be a number or an array of numbers, got {x!r}") from None
+    ok = (np.isfinite(v) if finite else ~np.isnan(v)) & ((v > low) if low_open else (v >= low)) & (v <= high)
+    if not np.all(ok):
+        bound = f"{'>' if low_open else '>='} {low:g}" + (f" and <= {high:g}" if high < math.inf else "")
+        shown = v.tolist() if v.size <= 8 else f"{v.size} values, {int(np.sum(~ok))} of them outside"
+        raise ValueError(f"{name} must be {'finite and ' if finite else ''}{bound}, got {shown}")
+
+
+def check_host_count(x, name: str) -> int:
+    """``x`` as a positive Python integer (NumPy integers too; bools and floats refused), or an error naming it."""
+    if isinstance(x, (bool, np.bool_)) or not isinstance(x, (int, np.integer)) or x < 1:
+        raise ValueError(f"{name} must be a positive integer, got {x!r}")
+    return int(x)

@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._checks import check_host_range
 from ._custom_types import ParamLike
 from ._profiles import (
     AbstractProfile,
@@ -70,6 +71,7 @@ def unit_tap_offsets(taps: int, *, exponent: float = 2.0) -> np.ndarray:
     spaced in [-1, 1], ``sign(o) |o|^exponent`` (Jimenez's ``SeparableSSS::calculateKernel``). Every kernel is its
     reach times this pattern, which is what lets the separable pass share one set of shifts between materials."""
     _check_taps(taps)
+    check_host_range(exponent, "exponent", low_open=True)
     o = np.linspace(-1.0, 1.0, taps) if taps > 1 else np.zeros(1)
     return np.sign(o) * np.abs(o) ** exponent
 
@@ -87,6 +89,7 @@ def tap_offsets(taps: int, range_mm: ParamLike, *, exponent: float = 2.0) -> tup
     [-range, range] with boundaries half way between neighbouring taps, the outer ones extended to +-infinity so
     the taps together hold all of the kernel's energy before normalisation.
     """
+    check_host_range(range_mm, "range_mm")
     range_mm = jnp.asarray(range_mm)
     dtype = jnp.result_type(range_mm.dtype, jnp.float32)
     sorted_offsets = range_mm * jnp.asarray(unit_tap_offsets(taps, exponent=exponent), dtype)
@@ -132,7 +135,10 @@ def _marginal_cdf(profile: AbstractProfile, x: Array) -> Array:
 
 def _profile_range(profile: AbstractProfile, range_mm: ParamLike | None) -> Array:
     """A profile kernel's reach: ``range_mm``, by default the radius holding 99% of the widest channel's energy."""
-    return jnp.max(profile.radius_for_energy(0.99)) if range_mm is None else jnp.asarray(range_mm)
+    if range_mm is None:
+        return jnp.max(profile.radius_for_energy(0.99))
+    check_host_range(range_mm, "range_mm")
+    return jnp.asarray(range_mm)
 
 
 def profile_half_masses(profile: AbstractProfile, unit_x: np.ndarray, *, range_mm: ParamLike | None = None) -> Array:
@@ -156,6 +162,9 @@ def _gauss_cdf(x: Array, sigma: Array) -> Array:
 
 
 def _two_gaussian_parameters(w: ParamLike, sigma_near_mm: ParamLike, sigma_far_mm: ParamLike):
+    check_host_range(w, "w", high=1.0)
+    check_host_range(sigma_near_mm, "sigma_near_mm")
+    check_host_range(sigma_far_mm, "sigma_far_mm")
     w = jnp.asarray(w)
     dtype = jnp.result_type(w.dtype, jnp.float32)
     w = w.astype(dtype)
@@ -239,6 +248,8 @@ def spiral_samples(n: int, *, dtype=jnp.float32) -> SpiralSamples:
     """``n`` samples: radius by stratified inverse-CDF sampling of the Burley profile, angle ``i * golden angle``."""
     if not isinstance(n, (int, np.integer)) or isinstance(n, bool) or n < 1:
         raise ValueError(f"samples must be a positive integer, got {n!r}")
+    if jnp.dtype(dtype) not in (jnp.dtype(jnp.float32), jnp.dtype(jnp.float64)):  # float16's tiny clips every radius
+        raise ValueError(f"dtype must be float32 or float64, got {jnp.dtype(dtype).name}")
     cdf, angles = spiral_sample(jnp.arange(int(n), dtype=dtype), int(n))
     return SpiralSamples(cdf=cdf, angles=angles)
 

@@ -195,6 +195,8 @@ class TwoGaussianMaterial(AbstractMaterial):
         _check_range("w", self.w, 0.0, 1.0)
         _check_range("sigma_near_mm", self.sigma_near_mm, 0.0)
         _check_range("sigma_far_mm", self.sigma_far_mm, 0.0)
+        _check_finite("sigma_near_mm", self.sigma_near_mm)  # an inf sigma failed later, inside the pass's jit
+        _check_finite("sigma_far_mm", self.sigma_far_mm)
 
     def _kernel_rows(self, dtype) -> tuple[Array, Array, Array]:
         """``w`` (clipped to [0, 1]), ``sigma_near_mm`` and ``sigma_far_mm`` (checked) as the kernels take them."""

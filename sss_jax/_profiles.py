@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._checks import check_host_count, check_host_range
 from ._custom_types import ParamLike
 
 __all__ = [
@@ -152,6 +153,8 @@ def d_from_mfp(albedo: ParamLike, mfp_mm: ParamLike, *, fit: str = "diffuse_tran
     """
     if fit not in SCALING_FITS:
         raise ValueError(f"fit={fit!r} is not one of {sorted(SCALING_FITS)}")
+    check_host_range(albedo, "albedo", high=1.0)
+    check_host_range(mfp_mm, "mfp_mm")
     mfp = _float(mfp_mm)
     return mfp / SCALING_FITS[fit](jnp.asarray(albedo, dtype=mfp.dtype))
 
@@ -210,6 +213,9 @@ class BurleyProfile(AbstractProfile):
     surface_albedo: Float[Array, " C"]
 
     def __init__(self, d_mm: ParamLike, albedo: ParamLike | None = None):
+        check_host_range(d_mm, "d_mm")  # (traced values, as the passes build profiles, are their materials')
+        if albedo is not None:
+            check_host_range(albedo, "albedo", high=1.0)
         d = _float(d_mm)
         if d.ndim != 1:
             raise ValueError(f"d_mm must have shape (C,), got {d.shape}")
@@ -274,6 +280,8 @@ class GaussianSumProfile(AbstractProfile):
     variances_mm2: Float[Array, "K C"]
 
     def __init__(self, weights: ParamLike, variances_mm2: ParamLike):
+        check_host_range(weights, "weights")
+        check_host_range(variances_mm2, "variances_mm2")
         w = _float(weights)
         v = jnp.asarray(variances_mm2, dtype=w.dtype)
         if w.ndim == 1:
@@ -362,6 +370,14 @@ class TabulatedProfile(AbstractProfile):
         dtype = jnp.asarray(R).dtype if jnp.issubdtype(jnp.asarray(R).dtype, jnp.floating) else jnp.float32
         self.r_mm = jnp.asarray(r, dtype=dtype)
         self.R = jnp.asarray(table, dtype=dtype)
+        # checked again as stored (float32 unless x64): a value past its range is inf, radii closer than its
+        # resolution collapse
+        if not np.all(np.diff(np.asarray(self.r_mm)) > 0):
+            raise ValueError(f"r_mm must be strictly increasing in {jnp.dtype(dtype).name}: neighbouring radii "
+                             f"closer than its resolution collapse")
+        if not (np.all(np.isfinite(np.asarray(self.R))) and np.all(np.isfinite(np.asarray(self.albedo)))):
+            raise ValueError(f"R overflows {jnp.dtype(dtype).name} (its values or their integral, the total "
+                             f"reflectance): the largest is {float(np.max(table)):g} 1/mm^2")
 
     def _knots(self) -> tuple[Array, Array]:
         """Knots including r = 0 (value held from the first sample) and the cumulative energy at each knot."""
@@ -407,14 +423,23 @@ class TabulatedProfile(AbstractProfile):
         return jnp.stack(out, axis=-1)
 
     def inverse_cdf(self, u: ParamLike) -> Array:
-        """Inverse of the normalised CDF by interpolation on a fine radius grid (monotone, exact at the knots)."""
+        """Inverse of the normalised CDF: per-channel bisection on the exact piecewise-cubic ``cdf`` over [0, the
+        last radius] (60 halvings: below float64 resolution of the bracket), so ``cdf(inverse_cdf(u)) = u`` at the
+        knots, between them and below the first sample (where the CDF is quadratic: R held constant)."""
         u = _float(u, self.R)
-        grid = jnp.concatenate(
-            [jnp.zeros((1,), self.r_mm.dtype), jnp.linspace(self.r_mm[0], self.r_mm[-1], 4 * self.r_mm.shape[0])]
-        )
-        cdf = self.cdf(grid)
-        cols = [jnp.interp(u, cdf[:, c], grid) for c in range(self.R.shape[1])]
-        return jnp.stack(cols, axis=-1)
+        target = u[..., None]
+        lo = jnp.zeros(u.shape + (self.R.shape[1],), dtype=u.dtype)
+        hi = jnp.full(lo.shape, self.r_mm[-1], dtype=u.dtype)
+
+        def body(_, bracket):
+            lo, hi = bracket
+            mid = 0.5 * (lo + hi)
+            c = jnp.diagonal(self.cdf(mid), axis1=-2, axis2=-1)  # channel c's CDF at channel c's midpoint
+            below = c < target
+            return jnp.where(below, mid, lo), jnp.where(below, hi, mid)
+
+        lo, hi = jax.lax.fori_loop(0, 60, body, (lo, hi))
+        return 0.5 * (lo + hi)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -432,7 +457,10 @@ def preintegrate(profile: AbstractProfile, x_mm: ParamLike, *, segments: int = 8
     ``[0, acosh(r_max/|x|)]``, ``r_max`` holding all but 1e-9 of the energy of the widest channel. ``x = 0`` diverges
     for profiles with a 1/r peak (Burley); the kernel taps integrate over intervals instead (``marginal_cdf``).
     """
+    segments = check_host_count(segments, "segments")
     x = jnp.abs(_float(x_mm, profile.albedo))
+    far = jnp.isinf(x)  # a_p(inf) = 0 (the integrand's r is inf there: computed at 0 and dropped)
+    x = jnp.where(far, 0.0, x)
     r_max = jnp.max(profile.inverse_cdf(jnp.asarray(1 - 1e-9, x.dtype)))
     x_safe = jnp.maximum(x, r_max * 1e-12)
     t_max = jnp.arccosh(jnp.maximum(r_max / x_safe, 1.0 + 1e-12))
@@ -447,7 +475,8 @@ def preintegrate(profile: AbstractProfile, x_mm: ParamLike, *, segments: int = 8
     t = t_max[..., None] * u.reshape(lead + u.shape)  # (..., S*Q)
     r = x_safe[..., None] * jnp.cosh(t)
     integrand = profile.radial(r) * (2 * r)[..., None]  # (..., S*Q, C); 2|x|cosh t = 2 r
-    return jnp.sum(integrand * (t_max[..., None] * wq.reshape(lead + wq.shape))[..., None], axis=-2)
+    out = jnp.sum(integrand * (t_max[..., None] * wq.reshape(lead + wq.shape))[..., None], axis=-2)
+    return jnp.where(far[..., None], 0.0, out)
 
 
 # The trapezoid rule in t over [0, 36] at steps h = 1/6 for ``marginal_half_mass``: the integrand G(x cosh t) / cosh t
@@ -488,6 +517,7 @@ def marginal_cdf(profile: AbstractProfile, x_mm: ParamLike, *, quantiles: int = 
     redistributes the quantiles, ``F(+inf) = 1`` exactly: the tap weights built from it keep the paper's Eq. 2,
     ``||a_p||_1 = ||R||_1``.
     """
+    quantiles = check_host_count(quantiles, "quantiles")
     x = _float(x_mm, profile.albedo)
     u = (jnp.arange(quantiles, dtype=x.dtype) + 0.5) / quantiles
     radii = profile.inverse_cdf(u)  # (Q, C)

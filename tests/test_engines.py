@@ -264,6 +264,16 @@ def test_bad_parameters_name_the_parameter():
         sj.to_engine("unreal", ALBEDO, D_MM, opacity=0.0)  # a zero multiplier renders no width: no profile gives d
     with pytest.raises(ValueError, match="blender_version must look like"):
         sj.to_engine("blender", ALBEDO, D_MM, blender_version="latest")
+    # a negative scale or multiplier read back as a negative d (to_engine refuses them; Cycles clamps radius x scale
+    # at 0); a subnormal mask overflowed d / mask into a ZeroDivisionError
+    for engine in ("blender", "eevee", "eevee-next"):
+        with pytest.raises(ValueError, match="subsurface_scale must be >= 0.0"):
+            sj.from_engine(engine, {"Subsurface Color": ALBEDO, "Subsurface Radius": [1, 1, 1],
+                                    "Subsurface Scale": -1})
+    with pytest.raises(ValueError, match="multiplier must be >= 0.0"):
+        sj.from_engine("hdrp", {"Base Color": ALBEDO, "Scattering Color": [1, 1, 1], "Multiplier": -2})
+    with pytest.raises(ValueError, match="subsurface_mask 1e-320 is too small"):
+        sj.to_engine("hdrp", ALBEDO, D_MM, subsurface_mask=1e-320)
 
 
 # --- thin-object transmission ----------------------------------------------------------------------------------------

@@ -171,3 +171,69 @@ def test_the_pre_integrated_kernels_taps_are_the_exact_masses_of_the_marginal_ov
         assert np.abs(np.asarray(k32.weights)[order] - exact).max() < 5e-7
 
 
+
+
+def test_tabulated_inverse_cdf_inverts_the_tables_own_cdf_everywhere():
+    # it interpolated on a linspace grid that held none of the knots: 3.6% off at a knot and ~1.8x too small below
+    # the first sample (where R is held constant, so the CDF is pi r^2 R0 / total: quadratic). Independent check:
+    # the table's model (constant below r0, linear between samples, 0 beyond) integrated by NumPy on a fine grid
+    r_k, R_k = np.array([0.5, 0.6, 3.0, 10.0]), np.array([1.0, 0.9, 0.1, 0.001])
+    t = sj.TabulatedProfile(r_k, R_k)
+    grid = np.linspace(0.0, 10.0, 2_000_001)
+    R = np.interp(grid, r_k, R_k, left=R_k[0])
+    cdf = si.cumulative_trapezoid(2 * np.pi * grid * R, grid, initial=0.0)
+    cdf /= cdf[-1]
+    u = np.array([1e-4, 0.01, float(np.interp(0.6, grid, cdf)), 0.3, 0.5, 0.9, 0.999])
+    want = np.interp(u, cdf, grid)
+    np.testing.assert_allclose(np.asarray(t.inverse_cdf(jnp.asarray(u)))[:, 0], want, rtol=1e-5)
+    # below the first sample: r = r0 sqrt(u / CDF(r0)) (written out)
+    c0 = np.pi * 0.25 * 1.0 / si.trapezoid(2 * np.pi * grid * R, grid)
+    np.testing.assert_allclose(float(t.inverse_cdf(jnp.asarray([0.01]))[0, 0]), 0.5 * np.sqrt(0.01 / c0), rtol=1e-5)
+
+
+def test_profile_and_kernel_builders_refuse_what_they_cannot_build(as_users_run_it):
+    # each returned a plausible result (negative or unnormalised weights, NaN read as 0 or 1, albedo 2) or failed
+    # later inside a jitted pass
+    p = sj.BurleyProfile(jnp.array([0.5, 1.0, 2.0]))
+    cases = [
+        (lambda: sj.separable_kernel_from_profile(p, range_mm=-1.0), "range_mm must be finite and >= 0"),
+        (lambda: sj.two_gaussian_kernel([0.5] * 3, [0.1] * 3, [1.0] * 3, range_mm=-1.0), "range_mm must be"),
+        (lambda: sj.two_gaussian_kernel([0.5] * 3, [np.nan] * 3, [1.0] * 3), "sigma_near_mm must be finite"),
+        (lambda: sj.two_gaussian_kernel([0.5] * 3, [0.1] * 3, [np.inf] * 3), "sigma_far_mm must be finite"),
+        (lambda: sj.two_gaussian_kernel([2.0] * 3, [0.1] * 3, [1.0] * 3), r"w must be finite and >= 0 and <= 1"),
+        (lambda: sj.tap_offsets(5, np.inf), "range_mm must be finite"),
+        (lambda: sj.tap_offsets(5, 1.0, exponent=-1.0), "exponent must be finite and > 0"),
+        (lambda: sj.tap_offsets(5, 1.0, exponent=0.0), "exponent must be finite and > 0"),
+        (lambda: sj.BurleyProfile([np.nan, 1.0, 1.0]), "d_mm must be finite and >= 0"),
+        (lambda: sj.BurleyProfile([1.0] * 3, [2.0] * 3), "albedo must be finite and >= 0 and <= 1"),
+        (lambda: sj.BurleyProfile.from_mfp([1.5, 0.5, 0.5], [1, 1, 1]), "albedo must be"),
+        (lambda: sj.GaussianSumProfile([[1.0, 1.0, 1.0]], [np.nan]), "variances_mm2 must be finite"),
+        (lambda: sj.GaussianSumProfile([[-1.0, 1, 1], [2.0, 0, 0]], [1.0, 2.0]), "weights must be finite and >= 0"),
+        (lambda: sj.d_from_mfp(2.0, 1.0), "albedo must be"),
+        (lambda: sj.d_from_mfp(0.5, -1.0), "mfp_mm must be finite and >= 0"),
+        (lambda: sj.preintegrate(p, 1.0, segments=0), "segments must be a positive integer"),
+        (lambda: sj.marginal_cdf(p, 1.0, quantiles=1.5), "quantiles must be a positive integer"),
+        (lambda: sj.marginal_cdf(p, 1.0, quantiles=True), "quantiles must be a positive integer"),
+        (lambda: sj.spiral_samples(3, dtype=jnp.float16), "dtype must be float32 or float64"),
+        (lambda: sj.TwoGaussianMaterial([0.5] * 3, [0.5] * 3, [0.1] * 3, [np.inf] * 3), "sigma_far_mm must be finite"),
+        (lambda: sj.px_per_mm(2.0, focal_px=-1.0, mm_per_unit=1.0), "focal_px must be finite and > 0"),
+        (lambda: sj.px_per_mm(2.0, focal_px=1.0, mm_per_unit=0), "mm_per_unit must be finite and > 0"),
+    ]
+    for make, message in cases:
+        with pytest.raises(ValueError, match=message):
+            make()
+    with jax.enable_x64(False):  # stored as float32: an overflow and collapsed radii were kept
+        with pytest.raises(ValueError, match="R overflows float32"):
+            sj.TabulatedProfile([0.0, 1.0], [1e39, 1e39])
+        with pytest.raises(ValueError, match="strictly increasing in float32"):
+            sj.TabulatedProfile([0.0, 1e-46, 1.0], [1.0, 1.0, 1.0])
+    # a_p(inf) is 0 (it was NaN)
+    np.testing.assert_array_equal(np.asarray(sj.preintegrate(p, jnp.asarray([np.inf])))[0], 0.0)
+
+
+def test_lengths_in_pixels_keep_a_fractional_camera_with_an_integer_depth():
+    # an integer depth cast focal_px and mm_per_unit to integers: 0.5 -> 0 gave inf px/mm, 1000.7 -> 1000
+    # px = L / mm_per_unit * focal_px / depth (the module's formula, written out)
+    assert float(sj.px_per_mm(2, focal_px=1000.0, mm_per_unit=0.5)) == pytest.approx(1000.0 / (2 * 0.5))
+    assert float(sj.mm_to_px(1.0, 3, focal_px=1000.7, mm_per_unit=1000.0)) == pytest.approx(1000.7 / 3000.0,
+                                                                                          rel=1e-6)

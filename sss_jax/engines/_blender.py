@@ -251,7 +251,7 @@ class Blender(AbstractEngine):
                 raise ValueError(f"blender parameters need {key!r}")
         albedo = rgb("subsurface_color", params["Subsurface Color"], lo=0.0, hi=1.0)
         radius = rgb("subsurface_radius", params["Subsurface Radius"], lo=0.0)
-        scale = scalar("subsurface_scale", params.get("Subsurface Scale", 1.0), positive=False)
+        scale = scalar("subsurface_scale", params.get("Subsurface Scale", 1.0), positive=False, lo=0.0)
         unit = scalar("mm_per_unit", params.get("mm_per_unit", 1000.0))
         version = parse_version(params.get("blender_version", params.get("cycles", CURRENT_BLENDER)))
         method = _method_from_params(params, version)

@@ -64,7 +64,11 @@ class Hdrp(AbstractEngine):
         albedo, d = material(albedo, d_mm)
         unit = scalar("mm_per_unit", mm_per_unit)
         mask = scalar("subsurface_mask", subsurface_mask, hi=1.0)
-        profile_d = d / mask
+        with np.errstate(over="ignore"):
+            profile_d = d / mask
+        if not np.all(np.isfinite(profile_d)):  # a mask so small that d / mask overflows: no profile holds it
+            raise ValueError(f"subsurface_mask {subsurface_mask!r} is too small for d {d.tolist()} mm: the "
+                             "profile's distance d / mask overflows")
         peak = float(np.max(profile_d))
         if peak > 0:
             factor = 191.0 / peak  # HDUtils.cs, ConvertHDRColorToLDR (k_MaxByteForOverexposedColor)
@@ -90,7 +94,7 @@ class Hdrp(AbstractEngine):
             color = rgb("scattering_color", linear, lo=0.0)
         else:
             color = srgb_decode(rgb("scattering_color_srgb", shown, lo=0.0, hi=1.0))
-        mult = scalar("multiplier", params.get("Multiplier", 1.0), positive=False)
+        mult = scalar("multiplier", params.get("Multiplier", 1.0), positive=False, lo=0.0)
         unit = scalar("mm_per_unit", params.get("mm_per_unit", 1000.0))
         ws = scalar("world_scale", params.get("World Scale", 1.0))
         mask = scalar("subsurface_mask", params.get("Subsurface Mask", 1.0), positive=False, lo=0.0, hi=1.0)
