@@ -35,7 +35,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._checks import check_host_count, check_host_range
 from ._materials import BurleyMaterial, STAParams, TwoGaussianMaterial
+from ._kernels import _check_taps
 from ._profiles import AbstractProfile, BurleyProfile
 from ._scene import Buffers, Camera
 from ._techniques import burley, reference, separable, sta_term, thin_transmittance
@@ -113,7 +115,7 @@ def rendered_kernel_errors(tg: dict, profile: AbstractProfile, pixel_mm, *, half
     with jax.enable_x64(True):
         for c in range(profile.num_channels):
             target = profile_pixel_mass(profile, float(pix[c]), half, sub=8)[..., c]
-            args = [jnp.asarray([float(tg[k][c])], jnp.float64) for k in ("w", "sigma_near_mm", "sigma_far_mm")]
+            args = [jnp.asarray([float(tg[k][c])], _float_dtype()) for k in ("w", "sigma_near_mm", "sigma_far_mm")]
             for key, fn in (("rendered_product", two_gaussian_pixel_mass), ("radial_mix", radial_mix_pixel_mass)):
                 model = np.asarray(fn(*args, float(pix[c]), half))[..., 0]
                 out[key].append(float(np.linalg.norm(model - target) / np.linalg.norm(target)))
@@ -150,11 +152,16 @@ def _solve(residual_fn: Callable, x0: np.ndarray, lower: np.ndarray, upper: np.n
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="JAXopt is no longer maintained", category=DeprecationWarning)
         import jaxopt
-    key = ("jaxopt-solver", residual_fn, max_steps)
+    # the data's arrays go through jaxopt's loop; its other leaves (counts: samples, taps) stay Python values, bound
+    # into the loss (jaxopt carries its arguments as traced values: a count there was a tracer, and burley refused it)
+    arrays, static = eqx.partition(args, eqx.is_array)
+    leaves, shape = jax.tree.flatten(static)
+    key = ("jaxopt-solver", residual_fn, max_steps, shape, tuple(leaves))
     if key not in _WRAPPED:  # one jitted run per residual: jaxopt's own loop is traced anew on every call otherwise
-        opt = jaxopt.LBFGSB(fun=_jaxopt_loss(residual_fn), maxiter=max_steps, tol=1e-9)
-        _WRAPPED[key] = eqx.filter_jit(opt.run)  # non-array data (tap counts) static
-    res = _WRAPPED[key](jnp.asarray(x0), (jnp.asarray(lower), jnp.asarray(upper)), args)
+        loss = _jaxopt_loss(residual_fn)
+        opt = jaxopt.LBFGSB(fun=lambda x, a: loss(x, eqx.combine(a, static)), maxiter=max_steps, tol=1e-9)
+        _WRAPPED[key] = eqx.filter_jit(opt.run)
+    res = _WRAPPED[key](jnp.asarray(x0), (jnp.asarray(lower), jnp.asarray(upper)), arrays)
     it = int(res.state.iter_num)
     # L-BFGS-B stops when its projected gradient's norm is within tol or at maxiter; a NaN norm stops it at once,
     # and the loop's own test then reads as converged: say what happened, as optimistix's result codes do
@@ -167,6 +174,10 @@ def _solve(residual_fn: Callable, x0: np.ndarray, lower: np.ndarray, upper: np.n
 # Wrapped residuals and solver objects, one per residual function (module-level, so the cache stays small): a second
 # fit of the same shape reuses the compiled solver.
 _WRAPPED: dict[tuple, Any] = {}
+
+
+def _float_dtype():  # read when called: float64 under x64, else float32 (no truncation warning)
+    return jnp.result_type(float)
 
 
 def _optx_residual(fn):
@@ -238,6 +249,8 @@ def fit_two_gaussian_profile(profile: AbstractProfile, *, pixel_mm=None, half: i
     Burley profile is a pixel of about d.
     """
     _check_solver(solver)
+    half = check_host_count(half, "half")
+    starts = check_host_count(starts, "starts")
     out = {"w": [], "sigma_near_mm": [], "sigma_far_mm": []}
     records = []
     t0 = time.perf_counter()
@@ -281,7 +294,7 @@ def fit_two_gaussian_to_burley(d_mm, *, pixel_mm=None, solver: str = "optimistix
     so the kernel scales with d."""
     d_mm = _check_d(d_mm)
     with jax.enable_x64(True):
-        return fit_two_gaussian_profile(BurleyProfile(jnp.asarray(d_mm, jnp.float64)),
+        return fit_two_gaussian_profile(BurleyProfile(jnp.asarray(d_mm, _float_dtype())),
                                         pixel_mm=RENDERED_PIXEL_PER_D * d_mm if pixel_mm is None else pixel_mm,
                                         solver=solver)
 
@@ -305,7 +318,7 @@ def image_patterns(size: int = 32, *, depth: float = 10.0) -> list[Buffers]:
     ys, xs = np.mgrid[0:size, 0:size] - size / 2
     curved_z = depth - 0.3 * np.exp(-(xs**2 + ys**2) / (2 * (size / 5) ** 2))
     curved_e = np.clip(0.5 + xs / size, 0, 1)[..., None] * np.ones((1, 1, 3))
-    mk = lambda e, zz: Buffers(irradiance=jnp.asarray(e, jnp.float64), depth=jnp.asarray(zz, jnp.float64))
+    mk = lambda e, zz: Buffers(irradiance=jnp.asarray(e, _float_dtype()), depth=jnp.asarray(zz, _float_dtype()))
     return [mk(edge, z), mk(line, z), mk(point, z), mk(tex, z), mk(curved_e, curved_z)]
 
 
@@ -350,6 +363,12 @@ def fit_two_gaussian_image(target: BurleyMaterial, camera: Camera, *, taps: int 
                            solver: str = "optimistix", size: int = 32) -> dict[str, Any]:
     """Image-space fit: separable with the two-Gaussian kernel against reference with the target (one material)."""
     _check_solver(solver)
+    _check_taps(taps)  # before the references' renders (it was found after them)
+    if check_host_count(size, "size") < 8:
+        raise ValueError(f"size must be at least 8 pixels (the test patterns' features), got {size}")
+    if init is not None and (not isinstance(init, dict) or
+                             not {"w", "sigma_near_mm", "sigma_far_mm"} <= set(init)):
+        raise ValueError(f"init must be a dict with w, sigma_near_mm and sigma_far_mm, got {init!r:.80}")
     patterns = image_patterns(size)
     refs = [reference(b, target, camera) for b in patterns]
     norm = float(np.sqrt(sum(np.sum(np.asarray(r) ** 2) for r in refs)))
@@ -420,10 +439,20 @@ def fit_sta(d_mm, *, solver: str = "jaxopt", transmittance: Callable | None = No
 def _fit_sta(d_mm, solver: str, transmittance: Callable | None, thickness_range) -> dict[str, Any]:
     _check_solver(solver)
     d = _check_d(d_mm)
+    if thickness_range is not None:
+        if np.shape(thickness_range) != (2,):
+            raise ValueError(f"thickness_range must be (lo, hi) in mm, got {thickness_range!r}")
+        check_host_range(thickness_range, "thickness_range", low_open=True)
+        if not thickness_range[0] < thickness_range[1]:
+            raise ValueError(f"thickness_range must be (lo, hi) with lo < hi, got {thickness_range!r}")
     lo, hi = thickness_range or (0.05 * d.min(), 6.0 * d.max())
     t = np.geomspace(lo, hi, 16)
     angles = np.radians([0.0, 30.0, 60.0])
     T = np.asarray(transmittance(t) if transmittance else burley_slab_transmittance(t, d))  # (Nt, 3)
+    if T.shape != (t.size, 3) or not np.all(np.isfinite(T)) or np.any(T < 0):
+        raise ValueError(f"transmittance(t_mm) must return ({t.size}, 3) finite values >= 0 for the {t.size} "
+                         f"thicknesses, got shape {T.shape}"
+                         + ("" if T.shape != (t.size, 3) else " with non-finite or negative values"))
     rows = []
     for tl in angles:
         for tv in angles:
@@ -464,13 +493,23 @@ def fit_burley_from_image(buffers: Buffers, target_image, camera: Camera, *, alb
     """Recover Burley's d per channel (mm) by differentiating ``burley`` (bilinear, smooth in d) against a target
     image of the same frame, e.g. an offline render; ``albedo (3,)`` is known."""
     _check_solver(solver)
+    samples = check_host_count(samples, "samples")  # (2.7 ran 2 samples and fitted d to them)
+    check_host_range(albedo, "albedo", high=1.0)
+    d0 = _check_d(d0_mm)  # the search spans d0 / 20 .. 20 d0: each channel's start must be finite and > 0
+    t = np.asarray(target_image, np.float64)
+    shape = tuple(buffers.irradiance.shape)
+    if t.shape != shape:
+        raise ValueError(f"target_image is {t.shape}, the buffers' irradiance {shape}: the same frame is needed")
+    if not np.all(np.isfinite(t)):
+        raise ValueError(f"target_image has {int(np.sum(~np.isfinite(t)))} non-finite values (NaN or inf)")
+    if not np.sum(t) > 0:
+        raise ValueError("target_image is black (or negative) overall: there is no light to fit d to")
     target = jnp.asarray(target_image)
     norm = float(jnp.linalg.norm(target))
-    alb = jnp.asarray(albedo, jnp.float64)
+    alb = jnp.asarray(albedo, _float_dtype())
 
-    data = (buffers, target, jnp.asarray(norm), alb, camera, int(samples))
+    data = (buffers, target, jnp.asarray(norm), alb, camera, samples)
     residual = lambda x: _burley_image_residual(x, data)
-    d0 = _check_d(d0_mm)  # the search spans d0 / 20 .. 20 d0: each channel's start must be finite and > 0
     t0 = time.perf_counter()
     x, outcome, it = _solve(_burley_image_residual, d0, d0 / 20, d0 * 20, solver, max_steps=200, args=data)
     return {"d_mm": x.tolist(), "fit": {"solver": solver, "outcome": outcome, "iterations": it,

@@ -46,7 +46,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._io import SSSInputError, display_transform, read_frame, write_bytes_atomic
+from ._checks import check_host_count, check_host_range
+from ._io import SSSInputError, check_writable, display_transform, read_frame, write_bytes_atomic
 from ._evaluate import read_truth
 from ._materials import BurleyMaterial, DirectionalLight, STAParams, TwoGaussianMaterial
 from ._scene import Buffers, Camera
@@ -86,9 +87,21 @@ class MatchFrame:
     material_id: np.ndarray
     name: str = "frame"
 
+    def __post_init__(self):  # made directly (not by match_frame): the shapes the fit indexes by, checked
+        if not isinstance(self.buffers, Buffers) or not isinstance(self.camera, Camera):
+            raise TypeError(f"{self.name}: MatchFrame needs Buffers and a Camera, got "
+                            f"{type(self.buffers).__name__} and {type(self.camera).__name__}")
+        shape = tuple(self.buffers.depth.shape)
+        if np.shape(self.truth) != shape + (3,) or np.shape(self.material_id) != shape:
+            raise SSSInputError(f"{self.name}: truth {np.shape(self.truth)} and material_id "
+                                f"{np.shape(self.material_id)} must be {shape + (3,)} and {shape}, as the buffers")
+
 
 def match_frame(buffers: Buffers, camera: Camera, truth, *, name: str = "frame") -> MatchFrame:
     """A ``MatchFrame`` from arrays; ``truth`` is ``(H, W, 3)`` linear RGB of the same view as ``buffers``."""
+    if not isinstance(buffers, Buffers) or not isinstance(camera, Camera):
+        raise TypeError(f"{name}: match_frame needs Buffers and a Camera, got {type(buffers).__name__} and "
+                        f"{type(camera).__name__}")
     truth = np.asarray(truth, np.float32)
     shape = tuple(buffers.depth.shape)
     if truth.shape != shape + (3,):
@@ -102,6 +115,11 @@ def match_frame(buffers: Buffers, camera: Camera, truth, *, name: str = "frame")
         raise SSSInputError(f"{name}: no SSS pixels (finite depth and material id > 0)")
     if ids.max() > _MAX_ID:
         raise SSSInputError(f"{name}: material id {int(ids.max())} is above {_MAX_ID}")
+    # the error is ||out - truth|| / ||truth|| over the SSS pixels: a truth black there (or negative overall) has
+    # nothing to match (the fit "succeeded" without moving, or fitted garbage to -truth)
+    if not np.sum(truth[ids > 0], dtype=np.float64) > 0:
+        raise SSSInputError(f"{name}: truth is black (or negative overall) on the frame's SSS pixels: nothing to "
+                            "match")
     return MatchFrame(buffers, camera, truth, ids, name)
 
 
@@ -204,7 +222,11 @@ class _BurleyFit(_AbstractFit):
     def start(self, material, count):
         if not isinstance(material, BurleyMaterial):
             raise TypeError(f"technique 'burley' starts from a BurleyMaterial, got {type(material).__name__}")
-        return {"log_d_mm": _log(_rows(material.d_mm, count, "d_mm"))}, _rows(material.albedo, count, "albedo")
+        d = _rows(material.d_mm, count, "d_mm")
+        if not np.all(d > 0):  # d = 0 is the identity: no width to move, the fit "succeeded" where it started
+            raise ValueError(f"the start's d must be > 0 in every channel to fit it (d = 0 renders no scattering, "
+                             f"a point the fit cannot leave), got {d.tolist()}")
+        return {"log_d_mm": _log(d)}, _rows(material.albedo, count, "albedo")
 
     def material(self, p):
         return BurleyMaterial(p["albedo"], p["d_mm"])
@@ -648,12 +670,13 @@ def match_render(
         raise ValueError(f"unknown score {score!r}; valid scores: {', '.join(MATCH_SCORES)}")
     if not (0.0 < held_fraction < 1.0):
         raise ValueError(f"held_fraction must lie in (0, 1), got {held_fraction}")
-    if not isinstance(samples, (int, np.integer)) or samples < 1:
-        raise ValueError(f"samples must be a positive integer, got {samples!r}")
-    if not isinstance(taps, (int, np.integer)) or taps < 1 or taps % 2 == 0:
+    samples = check_host_count(samples, "samples")
+    if isinstance(taps, (bool, np.bool_)) or not isinstance(taps, (int, np.integer)) or taps < 1 or taps % 2 == 0:
         raise ValueError(f"taps must be an odd positive integer, got {taps!r}")
-    if not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
-        raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
+    max_steps = check_host_count(max_steps, "max_steps")
+    check_host_range(gain, "gain", low_open=True)  # gain 0 "succeeded" without moving: no step is ever taken
+    check_host_range(rtol, "rtol")
+    check_host_range(atol, "atol")
     named = technique if isinstance(technique, str) else None
     given = dict((technique_options or {}).get(named, {})) if named is not None else {}
     if technique_options and named is None:
@@ -817,6 +840,7 @@ def match_report_html(result: MatchResult, *, max_frames: int = 4, exposure: flo
     """A self-contained HTML fragment (no ``<html>``; images embedded as base64 PNG) for a report section: the
     errors before and after, the fitted parameters beside the start, the solver's outcome, and per frame (up to
     ``max_frames``) the truth, the renders before and after, and their error maps."""
+    check_host_count(max_frames, "max_frames")
     e = result.errors
     rows = []
     for role in ("fitted", "holdout"):
@@ -857,7 +881,11 @@ def match_report_html(result: MatchResult, *, max_frames: int = 4, exposure: flo
 
 
 def write_match_html(path: str | os.PathLike, result: MatchResult, **options) -> pathlib.Path:
-    """A standalone HTML page holding ``match_report_html(result)``. Atomic."""
+    """A standalone HTML page holding ``match_report_html(result)``. Atomic; the path is checked before the page
+    is built."""
+    if not str(path).strip():
+        raise SSSInputError("the page's path is empty")
+    check_writable(path, create_dirs=False)
     title = f"sss-jax fit: {result.technique} matched to the truth render"
     page = ("<!doctype html><html><head><meta charset='utf-8'><title>" + html.escape(title) + "</title><style>"
             "body{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;color:#222}"

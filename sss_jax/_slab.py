@@ -32,6 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
+from ._checks import check_host_range
 from ._materials import BurleyMaterial
 from ._profiles import scaling_searchlight
 
@@ -228,6 +229,7 @@ def slab_transmittance(thickness_mm: ArrayLike, albedo: ArrayLike, d_mm: ArrayLi
     (the profile's CCDF) it follows from transport through the slab. Elementwise with broadcasting; t = 0 gives 1,
     d = 0 gives 0 for t > 0.
     """
+    _check_burley_slab(thickness_mm, albedo, d_mm)
     t, A, d = jnp.broadcast_arrays(*(_as_float(x, thickness_mm, albedo, d_mm) for x in (thickness_mm, albedo, d_mm)))
     return _transmittance_w(_w_from_albedo(A), _tau_of_burley(t, A, d))
 
@@ -235,8 +237,17 @@ def slab_transmittance(thickness_mm: ArrayLike, albedo: ArrayLike, d_mm: ArrayLi
 def slab_optical(thickness_mm: ArrayLike, albedo: ArrayLike, d_mm: ArrayLike) -> tuple[Array, Array]:
     """``(tau, alpha)`` of the index-matched medium rebuilt from a Burley material (A, d), as
     ``slab_transmittance`` rebuilds it: the slab's thickness in mean free paths and the single-scattering albedo."""
+    _check_burley_slab(thickness_mm, albedo, d_mm)
     t, A, d = jnp.broadcast_arrays(*(_as_float(x, thickness_mm, albedo, d_mm) for x in (thickness_mm, albedo, d_mm)))
     return _tau_of_burley(t, A, d), 1.0 - _w_from_albedo(A) ** 4
+
+
+def _check_burley_slab(thickness_mm, albedo, d_mm) -> None:
+    """Host values checked (traced ones are the passes', whose materials are checked): NaN thickness read as 0 (T =
+    1) and an albedo past [0, 1] clipped without a word."""
+    check_host_range(thickness_mm, "thickness_mm", finite=False)
+    check_host_range(albedo, "albedo", high=1.0)
+    check_host_range(d_mm, "d_mm")
 
 
 def _tau_of_burley(t: Array, A: Array, d: Array) -> Array:
@@ -253,6 +264,7 @@ def slab_diffuse_transmittance(thickness_mm: ArrayLike, albedo: ArrayLike, d_mm:
     into the light, so a back-lit surface seen from any other direction shows only this part. Index-matched medium
     rebuilt from (A, d) as ``slab_transmittance``; elementwise; t = 0 gives 0 (nothing has scattered yet), d = 0
     gives 0; never negative (the table's interpolation error near tau = 0 is clamped)."""
+    _check_burley_slab(thickness_mm, albedo, d_mm)
     t, A, d = jnp.broadcast_arrays(*(_as_float(x, thickness_mm, albedo, d_mm) for x in (thickness_mm, albedo, d_mm)))
     tau = _tau_of_burley(t, A, d)
     total = _transmittance_w(_w_from_albedo(A), tau)

@@ -79,6 +79,44 @@ def test_inverse_fit_recovers_d_from_an_image():
     fit = F.fit_burley_from_image(b, target, cam, albedo=[1, 1, 1], d0_mm=[2.0, 2.0, 2.0], samples=16)
     np.testing.assert_allclose(fit["d_mm"], truth, rtol=0.01)
     assert fit["fit"]["error_relative_l2"] < 1e-3
+    # the documented second solver: jaxopt carried the sample count through its loop as a traced value, and burley
+    # refused it ("samples must be a positive integer, got JitTracer"): every call failed
+    fit = F.fit_burley_from_image(b, target, cam, albedo=[1, 1, 1], d0_mm=[2.0, 2.0, 2.0], samples=16,
+                                  solver="jaxopt")
+    np.testing.assert_allclose(fit["d_mm"], truth, rtol=0.01)
+
+
+def test_fits_refuse_what_they_cannot_fit_before_solving(as_users_run_it):
+    # each fitted quietly: a black, NaN or negative target (the start returned, or garbage "successful"), a float
+    # sample count (2.7 ran as 2), a NaN or negative thickness range; others failed deep inside (a target of another
+    # shape, starts=0, half=0, taps=0 after the references' renders, size=0, an init without sigmas)
+    h = w = 12
+    b = sj.Buffers(irradiance=jnp.ones((h, w, 3)), depth=jnp.full((h, w), 10.0))
+    cam = sj.Camera(60.0, 10.0)
+    target = np.ones((h, w, 3))
+    kw = {"albedo": [1, 1, 1], "d0_mm": [2.0, 2.0, 2.0]}
+    for bad, message in ((0 * target, "target_image is black"), (-target, "target_image is black"),
+                         (np.full_like(target, np.nan), "target_image has 432 non-finite values"),
+                         (target[:, :-1], r"target_image is \(12, 11, 3\), the buffers' irradiance \(12, 12, 3\)")):
+        with pytest.raises(ValueError, match=message):
+            F.fit_burley_from_image(b, bad, cam, samples=4, **kw)
+    with pytest.raises(ValueError, match="samples must be a positive integer, got 2.7"):
+        F.fit_burley_from_image(b, target, cam, samples=2.7, **kw)
+    for rng, message in (((np.nan, 2.0), "thickness_range must be finite and > 0"), ((-1.0, 2.0), "finite and > 0"),
+                         ((2.0, 1.0), "lo < hi")):
+        with pytest.raises(ValueError, match=message):
+            sj.fit_sta([1.0, 0.5, 0.3], thickness_range=rng)
+    with pytest.raises(ValueError, match=r"transmittance\(t_mm\) must return \(16, 3\)"):
+        sj.fit_sta([1.0, 0.5, 0.3], transmittance=lambda t: np.ones(t.size))
+    profile = sj.BurleyProfile([1.0, 0.5, 0.3])
+    for kwargs, message in (({"starts": 0}, "starts must be a positive integer"), ({"half": 0}, "half must be")):
+        with pytest.raises(ValueError, match=message):
+            sj.fit_two_gaussian_profile(profile, **kwargs)
+    mat = sj.BurleyMaterial([0.8, 0.6, 0.5], [1.0, 0.5, 0.3])
+    for kwargs, message in (({"taps": 0}, "taps must be an odd positive integer"), ({"size": 0}, "size must be"),
+                            ({"init": {"w": [0.5]}}, "init must be a dict with w, sigma_near_mm and sigma_far_mm")):
+        with pytest.raises(ValueError, match=message):
+            sj.fit_two_gaussian_image(mat, cam, **{"size": 8, **kwargs})
 
 
 def test_sta_fit_reduces_the_error_against_slab_transmission():

@@ -5,6 +5,7 @@ Lambertian render is the input, the Christensen-Burley render's Combined pass th
 frames are decimated 2x (every other pixel; the focal length in pixels halves with it), which keeps the optics.
 """
 
+import contextlib
 import json
 import math
 
@@ -273,3 +274,48 @@ def test_truth_of_another_size_names_the_file(blender, tmp_path, capsys):
                "--d-mm", "1,1,1"])
     assert rc == 2
     assert "small_truth.exr" in capsys.readouterr().err
+
+
+def test_a_match_that_cannot_fit_anything_is_refused_before_the_solver(as_users_run_it, tmp_path, capsys):
+    # each ran: a black truth "succeeded" without moving (its error table empty), -truth fitted a garbage d, gain 0
+    # and a start of d = 0 "succeeded" where they began, samples=True fitted a one-sample Burley, a MatchFrame made
+    # by hand with a short truth failed in the solver's statistics, max_frames=-1 dropped a frame
+    sc = sj.demo_scene(12, 16)
+    b, cam = sc.buffers, sc.camera
+    mat = sj.BurleyMaterial(np.full((3, 3), 0.8), np.full((3, 3), 2.0))
+    truth = np.asarray(sj.burley(b, mat, cam, samples=4))
+    frame = sj.match_frame(b, cam, truth)
+    for bad in (0 * truth, -truth):
+        with pytest.raises(sj.SSSInputError, match="truth is black \\(or negative overall\\) on the frame's SSS"):
+            sj.match_frame(b, cam, bad)
+    with pytest.raises(TypeError, match="match_frame needs Buffers and a Camera, got Buffers and NoneType"):
+        sj.match_frame(b, None, truth)
+    with pytest.raises(sj.SSSInputError, match="truth \\(10, 16, 3\\) and material_id"):
+        sj.MatchFrame(b, cam, truth[:10], frame.material_id)
+    for kwargs, message in (({"gain": 0.0}, "gain must be finite and > 0"), ({"gain": np.nan}, "gain must be"),
+                            ({"rtol": -1.0}, "rtol must be finite and >= 0"), ({"samples": True}, "samples must be"),
+                            ({"max_steps": True}, "max_steps must be a positive integer")):
+        with pytest.raises(ValueError, match=message):
+            sj.match_render(frame, mat, samples=kwargs.pop("samples", 4), max_steps=kwargs.pop("max_steps", 1),
+                            **kwargs)
+    with pytest.raises(ValueError, match="the start's d must be > 0 in every channel"):
+        sj.match_render(frame, sj.BurleyMaterial(np.full((3, 3), 0.8), np.zeros((3, 3))), samples=4, max_steps=1)
+    result = sj.match_render(frame, mat, samples=4, max_steps=1, score="all")
+    with pytest.raises(ValueError, match="max_frames must be a positive integer"):
+        sj.match_report_html(result, max_frames=-1)
+    (tmp_path / "folder").mkdir()
+    for path, message in ((tmp_path / "folder", "output path is a directory"), ("", "the page's path is empty")):
+        with pytest.raises(sj.SSSInputError, match=message):
+            sj.write_match_html(path, result)
+
+
+def test_fit_report_folder_is_checked_before_the_fit(blender, tmp_path, capsys):
+    # --report '' ran the whole fit and wrote report.html, report.json and cache/ into the current folder
+    f = blender["frames"]["f00"]
+    (tmp_path / "afile").write_text("x")
+    for report, message in (("", "--report: empty"), (str(tmp_path / "afile" / "r"), "is a file, not a directory")):
+        with pytest.raises(SystemExit) if report == "" else contextlib.nullcontext():
+            rc = main(["fit", "--render", str(f["render"]), "--truth", str(f["truth"]), "--technique", "burley",
+                       "--d-mm", "1,1,1", "--report", report])
+            assert rc == 2
+        assert message in capsys.readouterr().err

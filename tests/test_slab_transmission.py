@@ -290,3 +290,19 @@ def test_preset_medium_drives_translucency():
         g = jax.grad(lambda x: jnp.sum(f(x)))(jnp.asarray(1.5, jnp.float32))
         assert np.isfinite(float(g))
     assert float(jax.grad(lambda x: jnp.sum(preset.medium.transmittance(x)))(jnp.asarray(1.5, jnp.float32))) < 0
+
+
+def test_transmittances_refuse_a_thickness_or_material_they_cannot_take(as_users_run_it):
+    # NaN thickness read as 0 (T = 1), a negative one as 0, an albedo past [0, 1] clipped: plausible numbers for
+    # impossible slabs. Infinite thickness is a slab no light crosses: 0
+    for call in (lambda t: sj.slab_transmittance(t, 0.5, 1.0), lambda t: sj.slab_diffuse_transmittance(t, 0.5, 1.0),
+                 lambda t: sj.thin_transmittance(t, 1.0)):
+        for t in (np.nan, -1.0):
+            with pytest.raises(ValueError, match="thickness_mm must be >= 0"):
+                call(t)
+        assert float(call(np.inf)) == 0.0
+    for albedo in (-0.5, 1.5, np.nan):
+        with pytest.raises(ValueError, match="albedo must be finite and >= 0 and <= 1"):
+            sj.slab_transmittance(1.0, albedo, 1.0)
+    with pytest.raises(ValueError, match="d_mm must be finite and >= 0"):
+        sj.thin_transmittance(1.0, -1.0)

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._checks import checked
+from .._checks import check_host_range, checked
 from .._custom_types import ParamLike
 from .._materials import BurleyMaterial, DirectionalLight, STAParams
 from .._profiles import burley_cdf
@@ -95,6 +95,8 @@ def thin_transmittance(thickness_mm: ParamLike, d_mm: ParamLike) -> Array:
     material UE's transmission is this curve at a larger d (unverified against a UE render; docs/engines.md). It is
     not UE's diffuse-mean-free-path equivalence. Elementwise in (t, d), both in mm; d = 0 gives 0 for t > 0.
     """
+    check_host_range(thickness_mm, "thickness_mm", finite=False)  # (NaN read as t = 0, T = 1; t < 0 as T = 1)
+    check_host_range(d_mm, "d_mm")
     return 1.0 - burley_cdf(thickness_mm, d_mm)
 
 

@@ -10,6 +10,7 @@ import sys
 from . import rgb_triple
 from ._options import add_sta_flags, add_technique_flags, given_sta_flag_names, given_technique_options
 from ._options import option_arguments, technique_options
+from ._report import check_report_out, report_dir
 
 # the techniques `fit --render` matches
 MATCHED = ("burley", "separable", "sta")
@@ -184,7 +185,7 @@ def _register_match(p) -> None:
     m.add_argument("--json", type=pathlib.Path, metavar="OUT.json", help="write the result as JSON")
     m.add_argument("--html", type=pathlib.Path, metavar="OUT.html",
                    help="write a standalone HTML page: before/after renders, error maps, fitted parameters")
-    m.add_argument("--report", type=pathlib.Path, metavar="DIR",
+    m.add_argument("--report", type=report_dir, metavar="DIR",
                    help="also write the error report (as `sss-jax report` does) of the fitted material on these "
                         "frames against the reference and the truth, with a section showing the fit's before/after "
                         "and the fitted parameters (burley and separable)")
@@ -248,8 +249,8 @@ def _run_match(args) -> int:
         for out in (args.json, args.html):  # before the fit: a folder, a path under a file, a read-only folder
             if out is not None:
                 check_writable(out)
-        if args.report is not None and args.report.exists() and not args.report.is_dir():
-            raise ValueError(f"--report {args.report}: exists and is not a directory")
+        if args.report is not None:  # a path under a file, a read-only place, another's report.json: now
+            check_report_out(args.report, "--report")
         if args.report is not None and args.technique == "sta":
             raise ValueError("--report needs --technique burley or separable (the report's reference is a profile)")
         result = match_render(frames, material, technique=args.technique, holdout=holdout, samples=args.samples,

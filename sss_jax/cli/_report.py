@@ -53,7 +53,7 @@ def register(subparsers) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("inputs", nargs="+", help="input EXR files or glob patterns")
-    p.add_argument("--out", required=True, type=_out_dir, help="output directory (created if missing)")
+    p.add_argument("--out", required=True, type=report_dir, help="output directory (created if missing)")
     p.add_argument("--truth", nargs="+", help="offline render(s) of the same view, one per input")
     p.add_argument("--truth-channels", help="truth pass (Blender: Combined, the default) or R,G,B channel names")
     from .._evaluate import REPORT_TECHNIQUES
@@ -197,23 +197,24 @@ def _warn_sta_thickness(args, params) -> None:
             warnings.warn(f"{path}: {message}", UserWarning, stacklevel=2)
 
 
-def _out_dir(text: str) -> pathlib.Path:
-    """``--out``'s type: a folder's path, not an empty string (which would be the current folder)."""
+def report_dir(text: str) -> pathlib.Path:
+    """A report folder option's type (``report --out``, ``fit --report``): a folder's path, not an empty string
+    (which would be the current folder)."""
     if not text.strip():
         raise argparse.ArgumentTypeError("empty: give the report's folder")
     return pathlib.Path(text)
 
 
-def _check_out(out: pathlib.Path) -> None:
+def check_report_out(out: pathlib.Path, flag: str = "--out") -> None:
     """Before any work: ``out`` is a folder or can become one, and a file can be written where it goes (the report
     is staged beside it): a path under a file, a read-only place or a pseudo filesystem is refused now, not after
     the frames have been computed."""
     from .._io import check_output_folder
 
-    check_output_folder(out, "--out")
+    check_output_folder(out, flag)
     for name in ("report.json", "report.html"):
         if (out / name).exists() and not _a_report(out):
-            raise ValueError(f"--out {out} holds a {name} that is not an sss-jax report: the report would replace "
+            raise ValueError(f"{flag} {out} holds a {name} that is not an sss-jax report: the report would replace "
                              "it; give a new or empty folder, or the folder of an earlier report")
 
 
@@ -239,7 +240,7 @@ def run(args) -> int:
             v = getattr(args, name)
             if v is not None and not (0 < v < float("inf")):
                 raise ValueError(f"--{name.replace('_', '-')} must be a finite positive number, got {v}")
-        _check_out(args.out)
+        check_report_out(args.out)
         mat, sep, sta, info = materials(args)
         shown = WarningPrinter("sss-jax report")
         notes = []
