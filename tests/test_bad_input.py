@@ -724,3 +724,13 @@ def test_an_empty_item_in_a_list_of_counts_or_thicknesses_is_refused(capsys):
     assert comma_separated_counts("9, 17") == (9, 17)
     assert run_cli(["transmit", "--preset", "skin1", "--thickness-mm", "1,,2"]) == 2
     assert "expected comma-separated thicknesses in mm, got '1,,2'" in capsys.readouterr().err
+
+
+def test_the_function_wrappers_name_an_unknown_option_as_the_registry_does():
+    # sj.burley(..., sample=3) raised the constructor's "unexpected keyword argument"; technique("burley", sample=3)
+    # listed the options: one message now
+    sc = sj.demo_scene(6, 8)
+    for fn, name in ((sj.burley, "burley"), (sj.separable, "separable"), (sj.hdrp, "hdrp"),
+                     (sj.eevee_next, "eevee-next")):
+        with pytest.raises(TypeError, match=f"technique '{name}' has no option\\(s\\) sample; its options: "):
+            fn(sc.buffers, sj.BurleyMaterial([[0.8, 0.6, 0.5]] * 3, [[1.0, 0.5, 0.3]] * 3), sc.camera, sample=3)

@@ -155,6 +155,16 @@ _BUILT_LOCK = threading.Lock()
 _BUILT_KEPT = 256
 
 
+def check_option_names(cls: type, options: dict[str, Any]) -> None:
+    """An option the technique does not have is an error that lists the ones it has (the registry's ``technique``
+    and the function wrappers, ``sj.burley(..., sample=3)``, say the same)."""
+    fields = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(options) - fields)
+    if unknown:
+        raise TypeError(f"technique {cls.name!r} has no option(s) {', '.join(unknown)}; its options: "
+                        f"{', '.join(sorted(fields))}")
+
+
 def built(cls: type, options: dict[str, Any], fields: tuple = ()) -> AbstractTechnique:
     """``cls(*fields, **options)``, the same object again for the same hashable options (the wrappers build one per
     call; building an equinox Module costs ~0.01-0.3 ms). Types are part of the key: ``True`` is not ``1``.
@@ -166,6 +176,7 @@ def built(cls: type, options: dict[str, Any], fields: tuple = ()) -> AbstractTec
         key = (cls, tuple(id(f) for f in fields), tuple((k, type(v), v) for k, v in sorted(options.items())))
         hash(key)
     except TypeError:
+        check_option_names(cls, options)
         return cls(*fields, **options)
     if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(fields)):
         return cls(*fields, **options)
@@ -174,6 +185,7 @@ def built(cls: type, options: dict[str, Any], fields: tuple = ()) -> AbstractTec
         if hit is not None:
             _BUILT.move_to_end(key)
             return hit[1]
+    check_option_names(cls, options)  # (a miss only: a kept object's options were checked when it was made)
     technique = cls(*fields, **options)
     with _BUILT_LOCK:
         _BUILT[key] = (fields, technique)

@@ -37,7 +37,7 @@ from .._checks import checked
 from .._materials import BurleyMaterial
 from .._profiles import burley_inverse_ccdf
 from .._scene import Buffers, Camera
-from ._base import AbstractTechnique, frame_pieces, option
+from ._base import AbstractTechnique, built, frame_pieces, option
 from ._common import (
     ALBEDO_MODES,
     _as_seed,
@@ -233,4 +233,4 @@ class EeveeNextPass(AbstractTechnique):
 
 def eevee_next(buffers: Buffers, material: BurleyMaterial, camera: Camera, **options) -> Float[Array, "H W 3"]:
     """EEVEE Next's own subsurface pass: ``EeveeNextPass(**options)(buffers, material, camera)``."""
-    return EeveeNextPass(**options)(buffers, material, camera)
+    return built(EeveeNextPass, options)(buffers, material, camera)

@@ -42,7 +42,7 @@ from .._materials import BurleyMaterial
 from .._profiles import burley_inverse_ccdf
 from .._scene import Buffers, Camera
 from .._units import px_per_mm
-from ._base import AbstractTechnique, frame_pieces, option
+from ._base import AbstractTechnique, built, frame_pieces, option
 from ._burley import spiral_rotation
 from ._burley_spec import unit_radius
 from ._common import _as_seed, _finish, _prepare, _safe_sqrt, _work_dtype, ALBEDO_MODES, check_seed
@@ -210,4 +210,4 @@ def _sample_radius_mm(material: BurleyMaterial, n: int) -> float:
 
 def hdrp(buffers: Buffers, material: BurleyMaterial, camera: Camera, **options) -> Float[Array, "H W 3"]:
     """HDRP's own subsurface pass: ``HdrpPass(**options)(buffers, material, camera)`` (see ``HdrpPass``)."""
-    return HdrpPass(**options)(buffers, material, camera)
+    return built(HdrpPass, options)(buffers, material, camera)

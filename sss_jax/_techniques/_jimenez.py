@@ -33,7 +33,7 @@ from jaxtyping import Array, Float
 
 from .._materials import BurleyMaterial
 from .._scene import Buffers, Camera, surface_mask
-from ._base import AbstractTechnique, option
+from ._base import AbstractTechnique, built, option
 from ._common import (
     ALBEDO_MODES,
     _check_albedo_mode,
@@ -241,4 +241,4 @@ class JimenezPass(AbstractTechnique):
 
 def jimenez(buffers: Buffers, material, camera: Camera, **options) -> Float[Array, "H W 3"]:
     """Jimenez's separable SSS shader: ``JimenezPass(**options)(buffers, material, camera)``."""
-    return JimenezPass(**options)(buffers, material, camera)
+    return built(JimenezPass, options)(buffers, material, camera)

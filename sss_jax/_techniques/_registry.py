@@ -3,10 +3,9 @@ which of them conserve energy (each class says so; ``ENERGY_CONSERVING`` is read
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
-from ._base import AbstractTechnique
+from ._base import AbstractTechnique, check_option_names
 from ._burley_technique import Burley
 from ._eevee_next import EeveeNextPass
 from ._hdrp import HdrpPass
@@ -34,9 +33,5 @@ def technique(name: str, **options: Any) -> AbstractTechnique:
     """The technique registered under ``name`` with ``options`` (its fields: ``technique("burley", samples=64)``);
     an unknown name or option is an error that lists the valid ones."""
     cls = get_technique(name)
-    fields = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(options) - fields)
-    if unknown:
-        raise TypeError(f"technique {name!r} has no option(s) {', '.join(unknown)}; its options: "
-                        f"{', '.join(sorted(fields))}")
+    check_option_names(cls, options)
     return cls(**options)
