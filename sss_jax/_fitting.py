@@ -36,8 +36,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._checks import check_host_count, check_host_range
-from ._materials import BurleyMaterial, STAParams, TwoGaussianMaterial
 from ._kernels import _check_taps
+from ._materials import BurleyMaterial, STAParams, TwoGaussianMaterial
 from ._profiles import AbstractProfile, BurleyProfile
 from ._scene import Buffers, Camera
 from ._techniques import burley, reference, separable, sta_term, thin_transmittance
