@@ -42,6 +42,11 @@ ROOT = os.path.dirname(HERE)
 sys.path.insert(0, ROOT)  # the checkout this script is in, not another installed copy
 
 
+def _count(args) -> dict:
+    """The technique's own count (a batch warns of one its technique does not have)."""
+    return {"samples": args.samples} if args.technique == "burley" else {"taps": args.taps}
+
+
 def rss_mib() -> float:
     """Current resident set size (not the peak), from /proc/self/statm."""
     with open("/proc/self/statm") as f:
@@ -194,7 +199,7 @@ def large_run(args) -> int:
         base = rss_mib()
         t0 = time.perf_counter()
         r = process_frames(path, args.technique, demo_burley_material(), out_dir=os.path.join(tmp, "out"),
-                           progress=True, samples=args.samples, taps=args.taps)
+                           progress=True, **_count(args))
         wall = time.perf_counter() - t0
         out = os.path.join(tmp, "out", f"large{n}.exr")
         complete = r.ok and exr_is_complete(out)
@@ -250,10 +255,10 @@ def vs_pass(args) -> int:
         pass_s = [pass_alone()]
         overlapped_s = pass_overlapped()
         process_frames(paths[:1], args.technique, mat, out_dir=os.path.join(tmp, "warm"), progress=False,
-                       samples=args.samples, taps=args.taps, devices=None)
+                       **_count(args), devices=None)
         t0, c0 = time.perf_counter(), time.process_time()
         r = process_frames(paths, args.technique, mat, out_dir=os.path.join(tmp, "out"), progress=False,
-                           samples=args.samples, taps=args.taps)
+                           **_count(args))
         batch_s, cpu["batch"] = time.perf_counter() - t0, time.process_time() - c0
         # the pass again after the batch: the ratio takes the faster of the two (load that comes or goes during
         # the run never flatters the batch)

@@ -450,22 +450,34 @@ def _hashable(value):
     return tuple(float(v) for v in np.asarray(value, np.float64).ravel())
 
 
-def _technique_object(technique, options: dict[str, Any], material):
+_NAMED_AS = {"albedo": "sta_albedo", "thickness": "sta_thickness"}  # process_frames' names for STA's two options
+
+
+def _technique_object(technique, options: dict[str, Any], material, named: dict[str, Any] | None = None):
     """The technique object a batch runs and its material: one given (an ``AbstractTechnique``), or the one
-    registered under a name with ``options`` (one it does not have is refused: ``taps`` for burley, ``sta_albedo``
-    for anything but sta); the error lists the valid names. A ``(params, light)`` pair gives a technique with a
-    ``light`` field its light."""
+    registered under a name with ``options`` (``technique_options``: one it does not have is refused, the error
+    lists the valid names) and ``named``, the counts and STA options ``process_frames`` takes by name: one the
+    technique does not have (``taps`` for burley) is not used, with a warning (a script may pass every count for
+    whichever technique it runs, as the CLI does). A ``(params, light)`` pair gives a technique with a ``light``
+    field its light."""
+    named = dict(named or {})
     if isinstance(technique, str):
         cls = get_technique(technique)
         fields = {f.name for f in dataclasses.fields(cls)}
+        unused = sorted(k for k in named if k not in fields)
+        if unused:
+            warnings.warn(f"{', '.join(_NAMED_AS.get(k, k) for k in unused)}: not an option of {technique!r}, not "
+                          "used", UserWarning, stacklevel=3)
+        options = {**{k: v for k, v in named.items() if k in fields}, **options}
         if isinstance(material, tuple) and len(material) == 2 and "light" in fields:
             material, options = material[0], {**options, "light": material[1]}
-        tech = make_technique(technique, **options)  # an option it does not have (taps for burley) is refused
+        tech = make_technique(technique, **options)  # an option it does not have is refused
     else:
         if not isinstance(technique, AbstractTechnique):
             raise TypeError(f"technique must be a technique name or object, got {type(technique).__name__}")
-        if options:
-            raise TypeError(f"options {sorted(options)} go on the technique object itself, not to process_frames")
+        if options or named:
+            raise TypeError(f"options {sorted({**named, **options})} go on the technique object itself, not to "
+                            "process_frames")
         tech = technique
     if isinstance(material, (str, pathlib.Path)):  # a preset name or file
         from ._presets import load_preset, material_for
@@ -1729,7 +1741,7 @@ def process_frames(
     """
     named = {k: v for k, v in dict(samples=samples, taps=taps, radius_px=radius_px, albedo=sta_albedo,
                                     thickness=sta_thickness).items() if v is not None}
-    tech, material = _technique_object(technique, {**named, **dict(technique_options or {})}, material)
+    tech, material = _technique_object(technique, dict(technique_options or {}), material, named)
     focal_px, mm_per_unit = (_positive_option(name, value) for name, value in (("focal_px", focal_px),
                                                                              ("mm_per_unit", mm_per_unit)))
     if not (isinstance(tile_pixels, (int, np.integer)) and tile_pixels >= 1):

@@ -1281,19 +1281,23 @@ def test_a_callback_that_raises_stops_the_batch_with_its_own_error(frames, tmp_p
 
 
 def test_options_outputs_and_devices_a_batch_cannot_use_are_refused_before_any_frame(frames, tmp_path, as_users_run_it):
-    # a named option the technique lacks was dropped without a word (taps for burley ran burley's default), both
-    # outputs and out_dir wrote the manifest into out_dir, devices=[] ran on the default device, and a manifest
+    # a named option the technique lacks was dropped without a word (taps for burley), an unknown technique option
+    # is the registry's error; both outputs and out_dir wrote the manifest into out_dir, devices=[] ran on the default device, and a manifest
     # path that is a folder was refused after the outputs' folder was made
     src = str(frames / "f0.exr")
     for kwargs, error, message in (
-            ({"taps": 9}, TypeError, "technique 'burley' has no option.*taps"),
-            ({"sta_albedo": (0.5, 0.5, 0.5)}, TypeError, "technique 'burley' has no option.*albedo"),
+            ({"technique_options": {"taps": 9}}, TypeError, "technique 'burley' has no option.*taps"),
             ({"outputs": [tmp_path / "x.exr"]}, ValueError, "give out_dir or outputs, not both"),
             ({"devices": []}, ValueError, "devices must be jax devices"),
             ({"devices": ["cpu"]}, ValueError, "devices must be jax devices")):
         with pytest.raises(error, match=message):
             process_frames(src, "burley", MAT, out_dir=tmp_path / "out", samples=4, progress=False, **kwargs)
         assert not (tmp_path / "out").exists() and not (tmp_path / "x.exr").exists()
+    # a count or STA option the named technique lacks (a script passing every count): said, not used
+    with pytest.warns(UserWarning, match="sta_albedo, taps: not an option of 'burley', not used"):
+        r = process_frames(src, "burley", MAT, out_dir=tmp_path / "used", samples=4, taps=9,
+                           sta_albedo=(0.5, 0.5, 0.5), progress=False)
+    assert r.ok and json.loads(_io.read_header(tmp_path / "used" / "f0.exr")[0]["sss_jax:rules"])["samples"] == 4
     (tmp_path / "book").mkdir()
     with pytest.raises(sj.SSSInputError, match="output path is a directory"):
         process_frames(src, "burley", MAT, out_dir=tmp_path / "out", manifest=tmp_path / "book", samples=4,
