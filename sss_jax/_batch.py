@@ -1705,7 +1705,9 @@ def process_frames(
     ``technique``: a technique object (its options are its fields) or a registered name with its options
     (``samples`` for burley, ``taps`` for separable, ``radius_px`` for reference (required: one window for the
     sequence), ``sta_albedo (3,)`` in [0, 1] and ``sta_thickness`` >= 0 scene units for sta, any other option of the
-    technique in ``technique_options``, e.g. ``{"pattern": "fixed", "border": "renormalise", "seed": 7}``).
+    technique in ``technique_options``, e.g. ``{"pattern": "fixed", "border": "renormalise", "seed": 7}``; a count
+    the technique does not have, ``taps`` for burley, is said with a warning and not used; an unknown
+    ``technique_options`` key is an error).
     ``material``: a preset name or file (see ``_presets``), the technique's material (rows per material id), or
     ``(STAParams, DirectionalLight)`` for ``"sta"``. A technique with a ``seed`` gets, per frame, the seed mixed with
     the frame number (the last digits of the file name; ``frame_seed``): each frame its own rotation, reproducibly.
