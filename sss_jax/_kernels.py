@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._checks import check_host_range
+from ._checks import check_host_count, check_host_range
 from ._custom_types import ParamLike
 from ._profiles import (
     AbstractProfile,
@@ -246,11 +246,10 @@ class SpiralSamples(eqx.Module):
 
 def spiral_samples(n: int, *, dtype=jnp.float32) -> SpiralSamples:
     """``n`` samples: radius by stratified inverse-CDF sampling of the Burley profile, angle ``i * golden angle``."""
-    if not isinstance(n, (int, np.integer)) or isinstance(n, bool) or n < 1:
-        raise ValueError(f"samples must be a positive integer, got {n!r}")
+    n = check_host_count(n, "samples")
     if jnp.dtype(dtype) not in (jnp.dtype(jnp.float32), jnp.dtype(jnp.float64)):  # float16's tiny clips every radius
         raise ValueError(f"dtype must be float32 or float64, got {jnp.dtype(dtype).name}")
-    cdf, angles = spiral_sample(jnp.arange(int(n), dtype=dtype), int(n))
+    cdf, angles = spiral_sample(jnp.arange(n, dtype=dtype), n)
     return SpiralSamples(cdf=cdf, angles=angles)
 
 
