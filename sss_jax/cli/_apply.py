@@ -246,8 +246,8 @@ def _run_batch(process_frames, inputs, args, options, material, light, report):
     common = {k: v for k, v in common.items() if k in accepted}
     named = material if light is None else (material, light)
     # the counts (their defaults) go to the technique that has them; --albedo and --thickness are the frame's for
-    # every technique and STA's options as well: passed on as STA's only to STA (a batch refuses an option its
-    # technique lacks)
+    # every technique and STA's options as well: passed on as STA's only to STA (a batch warns of one its technique
+    # lacks)
     takes = {f.name for f in TECHNIQUES[args.technique].option_fields()}
     counts = {k: v for k, v in counts.items() if k in takes}
     sta = {"sta_albedo": args.albedo if "albedo" in takes else None,
