@@ -62,7 +62,7 @@ class SeparableKernel(eqx.Module):
 
 
 def _check_taps(taps: int) -> None:
-    if not isinstance(taps, int) or taps < 1 or taps % 2 == 0:
+    if isinstance(taps, (bool, np.bool_)) or not isinstance(taps, (int, np.integer)) or taps < 1 or taps % 2 == 0:
         raise ValueError(f"taps must be an odd positive integer (a centre tap plus symmetric pairs), got {taps!r}")
 
 

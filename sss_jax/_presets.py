@@ -85,6 +85,13 @@ def _triple(data: dict, path: list[str], source: pathlib.Path):
     return node
 
 
+def _numeric(value) -> bool:
+    """Whether ``value`` (from JSON) is a number or a (nested) list of numbers, not a string or a bool."""
+    if isinstance(value, list):
+        return bool(value) and all(_numeric(v) for v in value)
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
 def load_preset(name_or_path: str | os.PathLike) -> Preset:
     """Read and validate a preset by name (``list_presets()``) or path; every error names the file and the field.
 
@@ -118,7 +125,10 @@ def preset_from_data(data: Any, path: pathlib.Path) -> Preset:
         if s is not None:
             if not isinstance(s, dict):
                 raise SSSInputError(f"{path}: sta must be an object of STA parameters")
-            allowed = {"distortion", "power", "scale", "ambient", "thickness_mm"}
+            allowed = ("distortion", "power", "scale", "ambient", "thickness_mm")
+            for k in allowed:
+                if k in s and not _numeric(s[k]):
+                    raise SSSInputError(f"{path}: sta.{k} must be a number or a list of numbers, got {s[k]!r}")
             sta = STAParams(**{k: v for k, v in s.items() if k in allowed})
         medium = None
         if "transmittance" in data:
@@ -143,7 +153,8 @@ def material_for(technique, preset: Preset, *, albedo=None):
     """The material ``technique`` (a technique object, or its registry name: its default options) takes from a
     preset: the first of the preset's STA parameters, two-Gaussian kernel, measured medium and Burley material that
     the technique accepts (so the separable prefers the fitted two-Gaussian kernel to the pre-integrated profile).
-    ``albedo`` (3,) overrides the preset's."""
+    ``albedo`` (3,) overrides the preset's Burley or two-Gaussian albedo; the STA parameters and a measured medium
+    are taken whole (an ``albedo`` given for them is an error, not dropped)."""
     from ._techniques import AbstractTechnique, get_technique
 
     if isinstance(technique, AbstractTechnique):
@@ -162,4 +173,5 @@ def material_for(technique, preset: Preset, *, albedo=None):
         return TwoGaussianMaterial(albedo, material.w, material.sigma_near_mm, material.sigma_far_mm)
     if isinstance(material, BurleyMaterial):
         return BurleyMaterial(albedo, material.d_mm)
-    return material
+    kind = "STA parameters" if isinstance(material, STAParams) else "measured medium"
+    raise ValueError(f"{preset.path}: an albedo does not apply to the preset's {kind}, which {name} takes whole")

@@ -361,7 +361,7 @@ class TabulatedProfile(AbstractProfile):
         table = np.asarray(R, dtype=np.float64)
         if table.ndim == 1:
             table = table[:, None]
-        if r.ndim != 1 or r.shape[0] < 2 or table.shape[0] != r.shape[0]:
+        if r.ndim != 1 or r.shape[0] < 2 or table.ndim != 2 or table.shape[0] != r.shape[0]:
             raise ValueError(f"r_mm must be (N,) with N >= 2 and R (N, C); got r_mm {r.shape}, R {table.shape}")
         if not np.all(np.isfinite(r)) or not np.all(np.diff(r) > 0) or r[0] < 0:
             raise ValueError("r_mm must be finite, non-negative and strictly increasing")

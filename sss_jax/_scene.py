@@ -221,8 +221,25 @@ def _principal_point(camera: Camera, shape: tuple[int, int]) -> tuple[float, flo
     return camera.principal_point if camera.principal_point is not None else (w / 2, h / 2)
 
 
+def _depth_plane(depth, camera: Camera, who: str) -> Array:
+    """``depth`` as an (H, W) floating-point array (an integer plane as the default float), or an error naming
+    ``who`` and what is wrong; ``camera`` must be a ``Camera``."""
+    if not isinstance(camera, Camera):
+        raise TypeError(f"{who}: camera must be a Camera, got {type(camera).__name__}")
+    try:
+        depth = jnp.asarray(depth)
+    except (TypeError, ValueError):
+        raise TypeError(f"{who}: depth must be an (H, W) array of depths, got {type(depth).__name__}") from None
+    if depth.ndim != 2:
+        raise ValueError(f"{who}: depth must be an (H, W) array of depths, got shape {depth.shape}")
+    if not jnp.issubdtype(depth.dtype, jnp.floating):
+        depth = depth.astype(jnp.result_type(float))
+    return depth
+
+
 def camera_positions(depth: Array, camera: Camera) -> Array:
     """Camera-space position ``(H, W, 3)`` of each pixel centre at its planar depth (scene units)."""
+    depth = _depth_plane(depth, camera, "camera_positions")
     h, w = depth.shape
     cx, cy = _principal_point(camera, (h, w))
     dtype = depth.dtype
@@ -235,6 +252,7 @@ def camera_positions(depth: Array, camera: Camera) -> Array:
 def normals_from_depth(depth: Array, camera: Camera) -> Array:
     """Unit camera-space normals from central differences of the reconstructed positions (one-sided at edges and
     next to pixels without a surface); facing the camera where nothing can be derived."""
+    depth = _depth_plane(depth, camera, "normals_from_depth")
     p = camera_positions(depth, camera)
     valid = surface_mask(depth)
 

@@ -734,3 +734,87 @@ def test_the_function_wrappers_name_an_unknown_option_as_the_registry_does():
                      (sj.eevee_next, "eevee-next")):
         with pytest.raises(TypeError, match=f"technique '{name}' has no option\\(s\\) sample; its options: "):
             fn(sc.buffers, sj.BurleyMaterial([[0.8, 0.6, 0.5]] * 3, [[1.0, 0.5, 0.3]] * 3), sc.camera, sample=3)
+
+
+def _preset_with(tmp_path, **sta):
+    """A copy of the skin1 preset with its STA block's fields replaced."""
+    data = json.loads(pathlib.Path(sj.load_preset("skin1").path).read_text())
+    data["sta"] = {**data["sta"], **sta}
+    path = tmp_path / "edited.json"
+    path.write_text(json.dumps(data))
+    return path
+
+
+@pytest.mark.parametrize("call, error, message", [
+    # a count given as a bool or a fraction was taken as 1 or truncated; a NumPy integer was refused
+    (lambda: sj.engines.jimenez_kernel(0.5, 0.5, n_samples=3.9), ValueError, r"n_samples must be an integer >= 3, got 3.9"),
+    (lambda: sj.engines.jimenez_kernel(0.5, 0.5, n_samples=True), ValueError, r"n_samples must be an integer >= 3"),
+    (lambda: sj.to_engine("eevee", (0.8, 0.5, 0.3), (2, 1, 1), samples=0), ValueError,
+     r"samples must be an integer >= 1, got 0"),
+    (lambda: sj.to_engine("jimenez", (0.8, 0.5, 0.3), (2, 1, 1), n_samples=16.5), ValueError,
+     r"n_samples must be an integer >= 3, got 16.5"),
+    # "4.-2" read as (4, -2); a float cannot tell 2.9 from 2.90
+    (lambda: sj.to_engine("eevee-next", (0.8, 0.5, 0.3), (2, 1, 1), blender_version="4.-2"), ValueError,
+     r"blender_version must look like 4.2 or 5.1, got '4.-2'"),
+    (lambda: sj.to_engine("eevee-next", (0.8, 0.5, 0.3), (2, 1, 1), blender_version=4.2), TypeError,
+     r"blender_version must be a string like '4.2'"),
+    # an option sss_jax's own parameters do not take was dropped
+    (lambda: sj.to_engine("sss_jax", (0.8, 0.5, 0.3), (2, 1, 1), foo=1), ValueError,
+     r"sss_jax's parameters take no options, got foo"),
+    # a list for the parameters: "dictionary update sequence element #0"
+    (lambda: sj.from_engine("unreal", [1, 2]), TypeError, r"unreal parameters must be a mapping .* got list"),
+    (lambda: sj.convert("hdrp", "unreal", "x"), TypeError, r"hdrp parameters must be a mapping .* got str"),
+    # an (N, 2, 2) table broadcast against the radii ("Incompatible shapes for broadcasting")
+    (lambda: sj.TabulatedProfile(np.linspace(0.1, 1.0, 5), np.ones((5, 2, 2))), ValueError,
+     r"r_mm must be \(N,\) with N >= 2 and R \(N, C\); got r_mm \(5,\), R \(5, 2, 2\)"),
+    # AttributeError "'list' object has no attribute 'shape'" / "not enough values to unpack"
+    (lambda: sj.normals_from_depth(None, sj.demo_scene(4, 4).camera), TypeError,
+     r"normals_from_depth: depth must be an \(H, W\) array of depths, got NoneType"),
+    (lambda: sj.normals_from_depth(np.ones(5), sj.demo_scene(4, 4).camera), ValueError,
+     r"normals_from_depth: depth must be an \(H, W\) array of depths, got shape \(5,\)"),
+    (lambda: sj.normals_from_depth(np.ones((4, 4)), 100.0), TypeError,
+     r"normals_from_depth: camera must be a Camera, got float"),
+    # 1 == True: a switch given 1 passed for True
+    (lambda: sj.technique("separable", follow_surface=1), ValueError,
+     r"separable: follow_surface=1 is not one of \(True, False\)"),
+    # the engine passes' messages name their technique, as the others' do
+    (lambda: sj.technique("hdrp", budget=0), ValueError, r"^hdrp: budget must be in \[1, 1000\], got 0"),
+    (lambda: sj.technique("hdrp", quality="x"), ValueError, r"^hdrp: quality='x' is not one of"),
+    (lambda: sj.technique("eevee-next", frames=0), ValueError, r"^eevee-next: frames must be in \[1, inf\], got 0"),
+    (lambda: sj.technique("eevee-next", blender_version=4.2), TypeError, r"^eevee-next: blender_version must be a "),
+])
+def test_engine_profile_and_scene_helpers_name_what_is_wrong(call, error, message):
+    with pytest.raises(error, match=message):
+        call()
+
+
+def test_jimenez_kernel_takes_a_numpy_integer_and_tap_offsets_too():
+    # tap_offsets(np.int64(5)) was refused though spiral_samples takes NumPy integers
+    offsets, _, _ = sj.tap_offsets(np.int64(5), 3.0)
+    assert offsets.shape == (5,)
+    assert sj.engines.jimenez_kernel(0.5, 0.5, n_samples=np.int64(11))[0].shape == (11,)
+    with pytest.raises(ValueError, match="taps must be an odd positive integer"):
+        sj.tap_offsets(True, 3.0)
+
+
+def test_a_preset_field_that_is_not_a_number_is_named(tmp_path):
+    # was "invalid preset: Value 'x' with dtype <U1 is not a valid JAX array type"
+    with pytest.raises(sj.SSSInputError, match=r"edited.json: sta.power must be a number or a list of numbers, got 'x'"):
+        sj.load_preset(_preset_with(tmp_path, power="x"))
+    with pytest.raises(sj.SSSInputError, match=r"sta.scale must be a number or a list of numbers, got \[1, 'a', 1\]"):
+        sj.load_preset(_preset_with(tmp_path, scale=[1, "a", 1]))
+
+
+def test_an_albedo_for_a_preset_material_taken_whole_is_refused_not_dropped():
+    # material_for("sta", preset, albedo=...) returned the STA parameters and dropped the albedo
+    preset = sj.load_preset("skin1")
+    with pytest.raises(ValueError, match="an albedo does not apply to the preset's STA parameters, which sta takes"):
+        sj.material_for("sta", preset, albedo=(0.5, 0.5, 0.5))
+    assert isinstance(sj.material_for("burley", preset, albedo=(0.5, 0.5, 0.5)), sj.BurleyMaterial)
+
+
+def test_unreal_says_what_it_renders_for_a_channel_without_scattering():
+    # d = 0 was written as Mean Free Path Color 0 without a word: UE clamps the colour to 0.009 and scatters it
+    out = sj.to_engine("unreal", (0.8, 0.5, 0.3), (2.0, 1.0, 0.0))
+    assert any("channel B has d = 0" in w and "clamps it to 0.009" in w for w in out.get("warnings", []))
+    assert not any("d = 0" in w for w in sj.to_engine("unreal", (0.8, 0.5, 0.3), (2.0, 1.0, 0.5)).get("warnings", []))

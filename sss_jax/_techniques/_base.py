@@ -71,7 +71,7 @@ class AbstractTechnique(eqx.Module):
     def __check_init__(self):
         for name, choices in _choices_of(type(self)):
             value = getattr(self, name)
-            if value not in choices:
+            if not _is_choice(value, choices):
                 raise ValueError(f"{self.name}: {name}={value!r} is not one of {choices}")
 
     @abc.abstractmethod
@@ -142,6 +142,13 @@ class AbstractTechnique(eqx.Module):
 def _option_names(cls: type) -> tuple[str, ...]:
     """The option fields' names of a technique class (cached: asked on every call)."""
     return tuple(f.name for f in dataclasses.fields(cls) if "help" in f.metadata)
+
+
+def _is_choice(value, choices: tuple) -> bool:
+    """Whether ``value`` is one of ``choices``, a bool only as a bool (``1 == True`` in Python: a switch given 1
+    would pass for True and a count given True for 1)."""
+    is_bool = isinstance(value, (bool, np.bool_)) or (getattr(value, "dtype", None) == np.bool_ and np.ndim(value) == 0)
+    return any(isinstance(c, (bool, np.bool_)) == is_bool and value == c for c in choices)
 
 
 @functools.lru_cache(maxsize=None)

@@ -189,13 +189,17 @@ class EeveeNextPass(AbstractTechnique):
     seed: int = option(0, "eevee-next: offset into the TAA sample sequence", static=False)
 
     def __check_init__(self):
-        check_count("frames", self.frames, lo=1)
+        check_count("eevee-next: frames", self.frames, lo=1)
         check_seed("eevee-next", self.seed)
         from ..engines._blender import parse_version
 
-        if parse_version(self.blender_version) < FIRST_VERSION:
-            raise ValueError(f"blender_version {self.blender_version}: EEVEE Next starts with 4.2; earlier versions "
-                             "have EEVEE legacy, whose pass is separable (not this one)")
+        try:
+            version = parse_version(self.blender_version)
+        except (TypeError, ValueError) as e:
+            raise type(e)(f"eevee-next: {e}") from None
+        if version < FIRST_VERSION:
+            raise ValueError(f"eevee-next: blender_version {self.blender_version}: EEVEE Next starts with 4.2; earlier "
+                             "versions have EEVEE legacy, whose pass is separable (not this one)")
 
     def __call__(self, buffers: Buffers, material: BurleyMaterial, camera: Camera, *,
                  origin: tuple[int, int] = (0, 0), frame_shape: tuple[int, int] | None = None

@@ -60,9 +60,9 @@ FILTER_RADIUS_UNITS = unit_radius(1 - HDRP_FILTER_CDF)
 def hdrp_budget(quality: str, budget: int | None) -> int:
     """The sample budget: ``budget`` where given (1..1000, HDRP's custom budget), else the quality level's."""
     if budget is not None:
-        return check_count("budget", budget, lo=1, hi=HDRP_MAX_BUDGET)
+        return check_count("hdrp: budget", budget, lo=1, hi=HDRP_MAX_BUDGET)
     if quality not in HDRP_QUALITY_BUDGETS:
-        raise ValueError(f"quality={quality!r} is not one of {tuple(HDRP_QUALITY_BUDGETS)}")
+        raise ValueError(f"hdrp: quality={quality!r} is not one of {tuple(HDRP_QUALITY_BUDGETS)}")
     return HDRP_QUALITY_BUDGETS[quality]
 
 
@@ -155,7 +155,7 @@ class HdrpPass(AbstractTechnique):
 
     def __check_init__(self):
         hdrp_budget(self.quality, self.budget)
-        check_count("frames", self.frames, lo=1)
+        check_count("hdrp: frames", self.frames, lo=1)
         check_seed("hdrp", self.seed)
 
     @property

@@ -113,10 +113,13 @@ def _material(args):
                 # boundaries and phase function), else its Burley material
                 from .._techniques import Translucency
 
-                material = material_for(Translucency(light=light, model=model), preset, albedo=args.albedo)
-                if args.albedo is not None and not isinstance(material, BurleyMaterial):
-                    raise ValueError(f"--albedo does not apply to {args.preset}'s measured medium (--model {model} "
-                                     "takes it whole); give --d-mm or --mfp-mm with --albedo instead")
+                tech = Translucency(light=light, model=model)
+                material = material_for(tech, preset)
+                if args.albedo is not None:
+                    if not isinstance(material, BurleyMaterial):
+                        raise ValueError(f"--albedo does not apply to {args.preset}'s measured medium (--model {model} "
+                                         "takes it whole); give --d-mm or --mfp-mm with --albedo instead")
+                    material = material_for(tech, preset, albedo=args.albedo)
                 return material, light
             if args.d_mm is not None:
                 return BurleyMaterial(albedo, args.d_mm), light

@@ -136,6 +136,8 @@ class SssJax(AbstractEngine):
     )
 
     def to_engine(self, albedo, d_mm, **options) -> dict[str, Any]:
+        if options:
+            raise ValueError(f"sss_jax's parameters take no options, got {', '.join(sorted(options))}")
         a, d = material(albedo, d_mm)
         return {"albedo": a.tolist(), "d_mm": d.tolist()}
 

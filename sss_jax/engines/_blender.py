@@ -24,6 +24,7 @@ measures it against the project's Monte Carlo of the medium Cycles walks. So wit
 from __future__ import annotations
 
 import math
+import re
 from typing import Any, ClassVar
 
 import numpy as np
@@ -38,15 +39,18 @@ BURLEY_TRUNCATE = 16.0  # bssrdf.h: BURLEY_TRUNCATE, the sampled radius ends at 
 
 
 def parse_version(version) -> tuple[int, int]:
-    """``"4.2"``, ``"4.2.1"``, ``"2.93"`` (or the old ``cycles`` names ``"3.0+"``, ``"2.8"``) as (major, minor)."""
-    text = str(version).strip().rstrip("+")
+    """``"4.2"``, ``"4.2.1"``, ``"2.93"`` (or the old ``cycles`` names ``"3.0+"``, ``"2.8"``) as (major, minor).
+    A string only: a number cannot tell 2.9 from 2.90."""
+    if not isinstance(version, str):
+        raise TypeError(f"blender_version must be a string like '4.2' or '5.1' (a number cannot tell 2.9 from "
+                         f"2.90), got {version!r}")
+    text = version.strip().rstrip("+")
     if text == "2.8":
         return (2, 93)  # the old cycles="2.8" family: 2.80-2.93 share the rules
+    if not re.fullmatch(r"\d+(\.\d+){0,2}", text):
+        raise ValueError(f"blender_version must look like 4.2 or 5.1, got {version!r}")
     parts = text.split(".")
-    try:
-        major, minor = int(parts[0]), int(parts[1]) if len(parts) > 1 else 0
-    except ValueError:
-        raise ValueError(f"blender_version must look like 4.2 or 5.1, got {version!r}") from None
+    major, minor = int(parts[0]), int(parts[1]) if len(parts) > 1 else 0
     if (major, minor) < (2, 80):
         raise ValueError(f"blender_version {version!r}: only Blender 2.80 and later are converted")
     return major, minor

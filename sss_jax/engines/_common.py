@@ -52,6 +52,18 @@ def scalar(name: str, value, *, positive: bool = True, lo: float | None = None, 
     return v
 
 
+def count(name: str, value, *, lo: int = 1) -> int:
+    """An integer parameter (a Python or NumPy integer, or a float with an integer value, as JSON and argparse give
+    them; not a bool) >= ``lo``, as int; the error names the parameter."""
+    try:
+        v = math.nan if isinstance(value, (bool, np.bool_)) else float(value)
+    except (TypeError, ValueError):
+        v = math.nan
+    if not (math.isfinite(v) and v == int(v) and v >= lo):
+        raise ValueError(f"{name} must be an integer >= {lo}, got {value!r}")
+    return int(v)
+
+
 def material(albedo, d_mm) -> tuple[np.ndarray, np.ndarray]:
     """sss_jax's material (albedo in [0, 1], Burley d >= 0 in mm), checked, as float64 (3,) arrays."""
     return rgb("albedo", albedo, lo=0.0, hi=1.0), rgb("d_mm", d_mm, lo=0.0)

@@ -13,7 +13,7 @@ import numpy as np
 
 from ._base import AbstractEngine, Flag
 from ._blender import EEVEE_FLAGS, parse_version
-from ._common import FOUR_PI, material, piecewise_masses, rgb, s_fit, scalar
+from ._common import FOUR_PI, count, material, piecewise_masses, rgb, s_fit, scalar
 
 _EEVEE_EMPIRICAL = 0.6
 EEVEE_DEFAULT_SAMPLES = 7  # scene.eevee.sss_samples default
@@ -74,9 +74,10 @@ class Eevee(AbstractEngine):
         albedo, d = material(albedo, d_mm)
         scale = scalar("subsurface_scale", subsurface_scale)
         unit = scalar("mm_per_unit", mm_per_unit)
+        samples = count("samples", samples)
         radius = d / (scale * unit * _factor())
         return {"Subsurface Color": albedo.tolist(), "Subsurface Radius": radius.tolist(), "Subsurface Scale": scale,
-                "mm_per_unit": unit, "Samples": int(samples)}
+                "mm_per_unit": unit, "Samples": samples}
 
     def from_engine(self, params: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
         for key in ("Subsurface Color", "Subsurface Radius"):
@@ -90,5 +91,5 @@ class Eevee(AbstractEngine):
         return albedo, radius * scale * unit * _factor()
 
     def marginal(self, albedo, d_mm, edges, params=None):
-        samples = EEVEE_DEFAULT_SAMPLES if params is None else int(params.get("Samples", EEVEE_DEFAULT_SAMPLES))
+        samples = EEVEE_DEFAULT_SAMPLES if params is None else count("Samples", params.get("Samples", EEVEE_DEFAULT_SAMPLES))
         return eevee_masses(np.asarray(d_mm, np.float64), samples, edges), np.asarray(albedo)

@@ -14,7 +14,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ._base import ALBEDO_HELP, MM_PER_UNIT, AbstractEngine, Flag
-from ._common import bins, burley_marginal_masses, material, piecewise_masses, relative_l2, rgb, scalar
+from ._common import bins, burley_marginal_masses, count, material, piecewise_masses, relative_l2, rgb, scalar
 
 # SeparableSSS.cpp, SeparableSSS::profile: the red channel of d'Eon et al.'s skin fit for every channel, without the
 # narrowest Gaussian (0.233 at v = 0.0064, "accounted by the strength parameter").
@@ -37,8 +37,8 @@ def jimenez_kernel(strength, falloff, *, n_samples: int = JIMENEZ_DEFAULT_SAMPLE
     """
     strength = rgb("strength", strength, lo=0.0, hi=1.0)
     falloff = rgb("falloff", falloff, lo=0.0, hi=1.0)
-    n = int(n_samples)
-    if n < 3 or n % 2 == 0:
+    n = count("n_samples", n_samples, lo=3)
+    if n % 2 == 0:
         raise ValueError(f"n_samples must be an odd number >= 3, got {n_samples!r}")
     rng = 3.0 if n > 20 else 2.0
     exponent = 2.0
@@ -55,6 +55,11 @@ def jimenez_kernel(strength, falloff, *, n_samples: int = JIMENEZ_DEFAULT_SAMPLE
     weights[0] = (1.0 - strength) + strength * weights[0]
     weights[1:] = weights[1:] * strength
     return offsets, weights
+
+
+def _taps(params: dict[str, Any]) -> int:
+    """A parameter block's ``nSamples`` (the default where it has none), checked."""
+    return count("nSamples", params.get("nSamples", JIMENEZ_DEFAULT_SAMPLES), lo=3)
 
 
 def _world_mm(sss_width: float, mm_per_unit: float) -> float:
@@ -192,6 +197,7 @@ class Jimenez(AbstractEngine):
         albedo, d = material(albedo, d_mm)
         unit = scalar("mm_per_unit", mm_per_unit)
         a = scalar("alpha", alpha, hi=1.0)
+        n_samples = count("n_samples", n_samples, lo=3)
         if not np.all(d > 0):
             raise ValueError(f"jimenez needs d_mm > 0 in every channel, got {d.tolist()}")
         p, sol, err = _fit(albedo, d, unit, n_samples)
@@ -212,7 +218,7 @@ class Jimenez(AbstractEngine):
         albedo = rgb("albedo", params.get("albedo", (1.0, 1.0, 1.0)), lo=0.0, hi=1.0)
         width = scalar("sss_width", params["sssWidth"]) * scalar("alpha", params.get("alpha", 1.0), hi=1.0)
         unit = scalar("mm_per_unit", params.get("mm_per_unit", 1000.0))
-        n_samples = int(params.get("nSamples", JIMENEZ_DEFAULT_SAMPLES))
+        n_samples = _taps(params)
         strength = rgb("strength", params["strength"], lo=0.0, hi=1.0)
         falloff = rgb("falloff", params["falloff"], lo=0.0, hi=1.0)
         k = _world_mm(width, unit)
@@ -247,14 +253,14 @@ class Jimenez(AbstractEngine):
 
         p = self.to_engine(albedo, d_mm) if params is None or "sssWidth" not in params else params
         refit = p.get("rendered_fit") or rendered_fit(albedo, d_mm, mm_per_unit=p["mm_per_unit"],
-                                                      n_samples=int(p.get("nSamples", JIMENEZ_DEFAULT_SAMPLES)),
+                                                      n_samples=_taps(p),
                                                       alpha=float(p.get("alpha", 1.0)))
         out = {}
         for key, q, what in (("jimenez:comb", p, "the fitted kernel's comb"),
                              ("jimenez:comb-refit", refit, "the comb of the parameters fitted through it")):
             width = float(q["sssWidth"]) * float(q.get("alpha", 1.0))
             m = jimenez_comb_masses(q["strength"], q["falloff"], width, q["mm_per_unit"],
-                                    int(q.get("nSamples", JIMENEZ_DEFAULT_SAMPLES)), edges, RENDER_PX_PER_MM)
+                                    _taps(q), edges, RENDER_PX_PER_MM)
             out[key] = (m, np.asarray(albedo), f"Jimenez's pass, {what}, rendered at {RENDER_PX_PER_MM:g} px/mm "
                                                "(bilinear taps)")
         return out
@@ -263,4 +269,4 @@ class Jimenez(AbstractEngine):
         p = self.to_engine(albedo, d_mm) if params is None or "sssWidth" not in params else params
         width = float(p["sssWidth"]) * float(p.get("alpha", 1.0))
         return (jimenez_masses(p["strength"], p["falloff"], width, p["mm_per_unit"],
-                               int(p.get("nSamples", JIMENEZ_DEFAULT_SAMPLES)), edges), np.asarray(albedo))
+                               _taps(p), edges), np.asarray(albedo))

@@ -3,6 +3,7 @@ blocks, ``engine_profile_error``, the report): no caller tests an engine's name.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -41,7 +42,15 @@ def to_engine(engine: str, albedo, d_mm, **options) -> dict[str, Any]:
 
 def from_engine(engine: str, params: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
     """(albedo, d_mm) from an engine's parameters, given by the UI names ``to_engine`` writes."""
-    return get_engine(engine).from_engine(dict(params))
+    return get_engine(engine).from_engine(_params(engine, params))
+
+
+def _params(engine: str, params) -> dict[str, Any]:
+    """An engine's parameters as a new dict (the engine may fill it in), or an error naming what was given."""
+    if not isinstance(params, Mapping):
+        raise TypeError(f"{engine} parameters must be a mapping of its parameter names to values (as to_engine "
+                        f"writes them), got {type(params).__name__}")
+    return dict(params)
 
 
 def convert(source: str, target: str, params: dict[str, Any], **target_options) -> dict[str, Any]:
@@ -49,7 +58,7 @@ def convert(source: str, target: str, params: dict[str, Any], **target_options) 
     {"d_mm"}, target: {...}, "lossy": reason or None, "unverified": reason or None, "sources": {engine: citation}}``
     (JSON-serialisable)."""
     src, dst = get_engine(source), get_engine(target)
-    albedo, d = src.from_engine(dict(params))
+    albedo, d = src.from_engine(_params(source, params))
     out = {"from": source, "to": target, "albedo": albedo.tolist(), "burley": {"d_mm": d.tolist()},
            target: dst.to_engine(albedo, d, **target_options)}
     sides = {source: (src, params), target: (dst, out[target])}  # one entry when source == target

@@ -83,6 +83,11 @@ class Unreal(AbstractEngine):
         if np.any(albedo < _UE_CLAMP) or np.any((color < _UE_CLAMP) & (d > 0)):
             warnings.append("a component of Surface Albedo or Mean Free Path Color is below UE's clamp 0.009: UE "
                             "renders it larger")
+        if dist > 0 and np.any(d == 0):
+            channels = ", ".join("RGB"[c] for c in np.flatnonzero(d == 0))
+            warnings.append(f"channel {channels} has d = 0 (no scattering), written as Mean Free Path Color 0: UE "
+                            f"clamps it to {_UE_CLAMP} and scatters it over {_UE_CLAMP} of the Mean Free Path Distance "
+                            f"({_UE_CLAMP * dist:.3g} cm)")
         if np.any(d_kernel * s_fit("diffuse_mfp", albedo) > _UE_DMFP_MAX_MM):
             warnings.append("the diffuse mean free path exceeds UE's 500 mm encoding range and is clamped")
         out = {"Surface Albedo": albedo.tolist(), "Mean Free Path Color": color.tolist(),
