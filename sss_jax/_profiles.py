@@ -107,9 +107,40 @@ def burley_inverse_ccdf(v: ParamLike, d_mm: ParamLike) -> Array:
 
 
 def burley_inverse_cdf(u: ParamLike, d_mm: ParamLike) -> Array:
-    """Radius r with ``CDF(r) = u`` for u in [0, 1): importance sampling of the Burley profile."""
+    """Radius r with ``CDF(r) = u`` for u in [0, 1): importance sampling of the Burley profile. Full relative
+    precision for small ``u`` too (``unit_radius_for_cdf``): ``burley_inverse_ccdf(1 - u)`` rounds ``1 - u``, which
+    loses ``u`` below the dtype's epsilon (float32: every u <= 1e-8 gave one radius)."""
     u = _float(u)
-    return burley_inverse_ccdf(1 - u, d_mm)
+    d = _float(d_mm, u)
+    return d * unit_radius_for_cdf(u)
+
+
+def _neg_log_1m(s: Array) -> Array:
+    """``-log(1 - s)`` for s in [0, 1) with full relative precision as s -> 0, from log and arithmetic only (what every
+    kernel backend lowers; no log1p): Kahan's ``log1p(x) = log(w) x / (w - 1)`` with ``w = 1 + x`` rounded, which
+    cancels the rounding of w (Goldberg 1991, "What every computer scientist should know about floating-point
+    arithmetic", Theorem 4); ``x`` itself where w rounds to 1."""
+    w = 1 - s
+    same = w == 1
+    return jnp.where(same, s, -jnp.log(jnp.where(same, 0.5, w)) * s / jnp.where(same, 1.0, 1 - w))
+
+
+def unit_radius_for_cdf(u: Array, inverse_ccdf=None) -> Array:
+    """Radius (units of d) holding the fraction ``u`` in [0, 1) of a Burley profile's energy, with full relative
+    precision for tiny ``u`` (a kernel far wider than the image keeps only ~r/(2d) of its energy there; ``1 - u``
+    would round to 1). With ``s = 1 - exp(-r/(3d))`` the CDF is ``(6s - 3s^2 + s^3)/4``: Newton from ``2u/3`` where u
+    is small, then ``r = -3 log(1 - s)`` (``_neg_log_1m``); the closed form of the complementary CDF elsewhere
+    (``inverse_ccdf``, by default ``burley_inverse_ccdf(v, 1)``; a kernel backend passes its own of the same value)."""
+    if inverse_ccdf is None:
+        inverse_ccdf = lambda v: burley_inverse_ccdf(v, 1.0)
+    small = u < 0.5
+    us = jnp.where(small, u, 0.25)
+    s = 2 * us / 3
+    for _ in range(4):  # f' = 3 s^2 - 6 s + 6 >= 3: Newton converges fast from 2u/3 for u < 0.5
+        s = s - (s * (6 - 3 * s + s * s) - 4 * us) / (3 * s * s - 6 * s + 6)
+    near = 3 * _neg_log_1m(s)
+    far = inverse_ccdf(1 - jnp.where(small, 0.75, u))
+    return jnp.where(small, near, far)
 
 
 # ----------------------------------------------------------------------------------------------------------------

@@ -382,3 +382,16 @@ def test_border_renormalise_keeps_flat_light_flat_at_the_border():
         assert np.asarray(run(border="leaves"))[0, 0, 0] < 0.9, name
     with pytest.raises(ValueError, match="border"):
         sj.burley(b, SPOT_MAT, SPOT_CAM, border="clamp")
+
+
+def test_a_kernel_far_wider_than_the_frame_reaches_its_limit_in_float32():
+    # float32, the default border: the samples' radii come from the CDF truncated at the frame's diagonal, u times a
+    # share of ~diagonal / (2 d); its inversion took -3 log(1 - s), which rounds 1 - s: at d = 1e6-1e7 px the step's
+    # jump drifted (0.081, 0.022) and at 1e9 px every radius was 0, so every pixel kept its input (jump 1.0). Past
+    # ~1e4 px the profile over the frame is its r -> 0 form, 1/r (Burley's R ~ 1/(4 pi d r)): the result stops moving
+    cam = sj.Camera(focal_px=1.0, mm_per_unit=1.0)
+    fn = lambda b, m: sj.burley(b, m, cam, samples=32, frames=4)
+    with jax.enable_x64(False):
+        jumps = [step_jump(fn, d) for d in (1e4, 1e5, 1e6, 1e7, 1e9)]
+    assert jumps[0] < 0.2, jumps  # the limit blurs the edge (the input's jump is 1)
+    np.testing.assert_allclose(jumps, jumps[0], atol=1e-3)

@@ -237,3 +237,31 @@ def test_lengths_in_pixels_keep_a_fractional_camera_with_an_integer_depth():
     assert float(sj.px_per_mm(2, focal_px=1000.0, mm_per_unit=0.5)) == pytest.approx(1000.0 / (2 * 0.5))
     assert float(sj.mm_to_px(1.0, 3, focal_px=1000.7, mm_per_unit=1000.0)) == pytest.approx(1000.7 / 3000.0,
                                                                                           rel=1e-6)
+
+
+def _burley_cdf_root(u: float) -> float:
+    """The radius (units of d) holding the fraction u of Burley's energy, by bisection on its CDF written with
+    math.expm1 (``1 - exp(-x)/4 - 3 exp(-x/3)/4``, Christensen & Burley 2015) in float64: not the code under test."""
+    cdf = lambda x: -math.expm1(-x) / 4 - 3 * math.expm1(-x / 3) / 4
+    lo, hi = 0.0, 200.0
+    while True:
+        mid = 0.5 * (lo + hi)
+        if mid in (lo, hi):
+            return mid
+        lo, hi = (mid, hi) if cdf(mid) < u else (lo, mid)
+
+
+@pytest.mark.parametrize("u", [1e-30, 1e-20, 1e-12, 1e-8, 1e-6, 1e-4, 0.01, 0.3, 0.49, 0.51, 0.9, 0.99])
+def test_burley_inverse_cdf_keeps_its_relative_precision_for_small_u(u):
+    # it was burley_inverse_ccdf(1 - u): 1 - u rounds, so float32 gave one radius for every u <= 1e-8 (u = 1e-6 off
+    # by 25%, u = 1e-20 by 9e12 in float32 and 1.7e4 in float64); and the pass's truncated sampling took -3 log(1 - s),
+    # which rounds the same way (radius 0 below u ~ 1e-8 in float32, 1.7% off at 1e-6)
+    from sss_jax._techniques._burley_spec import unit_radius_for_cdf
+
+    r = _burley_cdf_root(u)
+    np.testing.assert_allclose(float(sj.burley_inverse_cdf(np.float64(u), 2.0)), 2 * r, rtol=1e-13)
+    with jax.enable_x64(False):
+        # float32: the closed form near u = 1 is conditioned like 1/(1 - u), a few ulps of it
+        tol = 2e-7 if u < 0.5 else 1e-6
+        np.testing.assert_allclose(float(sj.burley_inverse_cdf(np.float32(u), np.float32(2.0))), 2 * r, rtol=tol)
+        np.testing.assert_allclose(float(unit_radius_for_cdf(jnp.float32(u))), r, rtol=tol)

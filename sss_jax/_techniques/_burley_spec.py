@@ -24,6 +24,7 @@ from jaxtyping import Array, ArrayLike
 from .._checks import checked
 from .._kernels import spiral_sample
 from .._profiles import burley_cdf, burley_inverse_ccdf
+from .._profiles import unit_radius_for_cdf as profile_unit_radius_for_cdf
 from .._units import px_per_mm
 
 
@@ -213,18 +214,9 @@ def unit_inverse_ccdf(v: Array) -> Array:
 
 
 def unit_radius_for_cdf(u: Array, inverse_ccdf=unit_inverse_ccdf) -> Array:
-    """Radius (units of d) holding the fraction ``u`` in (0, 1) of a Burley profile's energy, with full relative
-    precision for tiny ``u`` (a kernel far wider than the image keeps only ~r/(2d) of its energy there; ``1 - u``
-    would round to 1). With ``s = 1 - exp(-r/(3d))`` the CDF is ``(6s - 3s^2 + s^3)/4``: Newton from ``2u/3`` where u
-    is small, the closed form elsewhere."""
-    small = u < 0.5
-    us = jnp.where(small, u, 0.25)
-    s = 2 * us / 3
-    for _ in range(4):  # f' = 3 s^2 - 6 s + 6 >= 3: Newton converges fast from 2u/3 for u < 0.5
-        s = s - (s * (6 - 3 * s + s * s) - 4 * us) / (3 * s * s - 6 * s + 6)
-    near = -3 * jnp.log(1 - s)  # s <= ~0.3 here: no cancellation
-    far = inverse_ccdf(1 - jnp.where(small, 0.75, u))
-    return jnp.where(small, near, far)
+    """``_profiles.unit_radius_for_cdf`` (the one definition: ``burley_inverse_cdf`` is it times d) with the closed
+    form every kernel backend lowers (``unit_inverse_ccdf``)."""
+    return profile_unit_radius_for_cdf(u, inverse_ccdf)
 
 
 def needs_truncation(widest_d_px: float, frame_shape: tuple[int, int]) -> bool:
