@@ -1729,7 +1729,7 @@ def process_frames(
     - ``on_frame_done``: called with each frame's ``FrameResult`` once it is recorded, in the frames' order.
       Whatever a callback raises stops the batch and reaches the caller as it was raised (a note names the callback
       and the frames finished); it never fails a frame in its place. The frames recorded stay on disk and in the
-      manifest (state ``interrupted``), so a rerun with ``resume`` goes on from there.
+      manifest (state ``stopped``: a signal's is ``interrupted``), so a rerun with ``resume`` goes on from there.
 
     Every file is written atomically (a temporary beside it, fsync, verified: the EXR from its chunk table, the PNG
     decoded; renamed); temporaries that killed runs left beside this run's outputs are removed first. Counts beyond
@@ -1821,6 +1821,7 @@ def process_frames(
                 run.close()  # the last frame's files and entry (also when interrupted: the manifest is the disk)
         state = "complete"
     except _CallbackRaised as raised:  # the caller's own error, as it raised it, with what the batch did
+        state = "stopped"  # by the caller's code, not by a signal or an error of the batch
         exc = raised.original
         where = f"; {manifest} lists the frames finished" if manifest is not None else ""
         if hasattr(exc, "add_note"):  # Python >= 3.11
