@@ -85,6 +85,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
+from ._checks import check_host_count
 from ._io import (EXR_MAGIC, Frame, SSSInputError, Window, _frame_from_decoded, _read_image, check_depth_kind,
                   check_writable, exr_is_complete, load_channel_map, read_header, write_exr, write_json_atomic,
                   write_png_preview)
@@ -1746,8 +1747,7 @@ def process_frames(
     tech, material = _technique_object(technique, dict(technique_options or {}), material, named)
     focal_px, mm_per_unit = (_positive_option(name, value) for name, value in (("focal_px", focal_px),
                                                                              ("mm_per_unit", mm_per_unit)))
-    if not (isinstance(tile_pixels, (int, np.integer)) and tile_pixels >= 1):
-        raise ValueError(f"tile_pixels must be a positive integer, got {tile_pixels!r}")
+    check_host_count(tile_pixels, "tile_pixels")
     # the reading options, the same for every frame: checked once, before any frame (each frame failed alone)
     check_depth_kind(depth_kind)
     if channel_map is not None:

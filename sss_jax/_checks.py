@@ -40,8 +40,29 @@ def check_host_range(x, name: str, *, low: float = 0.0, high: float = math.inf, 
         raise ValueError(f"{name} must be {'finite and ' if finite else ''}{bound}, got {shown}")
 
 
-def check_host_count(x, name: str) -> int:
-    """``x`` as a positive Python integer (NumPy integers too; bools and floats refused), or an error naming it."""
-    if isinstance(x, (bool, np.bool_)) or not isinstance(x, (int, np.integer)) or x < 1:
-        raise ValueError(f"{name} must be a positive integer, got {x!r}")
-    return int(x)
+def check_host_count(x, name: str, *, lo: int = 1, hi: int | None = None, whole_floats: bool = False) -> int:
+    """``x`` as a Python integer in ``[lo, hi]`` (``hi=None``: no upper bound), or an error naming it. Python and
+    NumPy integers and 0-d integer arrays pass; bools never (``True == 1``); floats only with ``whole_floats`` and
+    an integer value (a count read from JSON, 17.0). Every count of the library's public functions, techniques and
+    engine conversions is checked here, with one message."""
+    v = _as_count(x, whole_floats)
+    if v is None or v < lo or (hi is not None and v > hi):
+        what = ("a positive integer" if lo == 1 and hi is None else f"an integer >= {lo}" if hi is None
+                else f"an integer in [{lo}, {hi}]")
+        raise ValueError(f"{name} must be {what}, got {x!r}")
+    return v
+
+
+def _as_count(x, whole_floats: bool) -> int | None:
+    """``check_host_count``'s reading of ``x`` as an integer, or None."""
+    if isinstance(x, (bool, np.bool_)):
+        return None
+    if isinstance(x, (int, np.integer)):
+        return int(x)
+    if whole_floats and isinstance(x, (float, np.floating)):
+        return int(x) if math.isfinite(x) and x == int(x) else None
+    dtype = getattr(x, "dtype", None)
+    if (dtype is not None and not isinstance(x, jax.core.Tracer) and np.ndim(x) == 0
+            and np.issubdtype(dtype, np.integer)):
+        return int(x)
+    return None

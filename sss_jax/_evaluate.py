@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from ._checks import check_host_count
 from ._io import Frame, SSSInputError, Window, _blender_layers, _read_image, read_frame, write_bytes_atomic
 from ._machine import machine_info
 from ._materials import BurleyMaterial, DirectionalLight, ProfileMaterial, STAParams, TwoGaussianMaterial
@@ -303,8 +304,8 @@ def evaluate_frames(
               if any(t.count_option == opt for t in objects)}
     if not isinstance(repeats, (int, np.integer)) or repeats < 0:
         raise ValueError(f"repeats must be a non-negative integer, got {repeats!r}")
-    if radius_px is not None and (not isinstance(radius_px, (int, np.integer)) or radius_px < 1):
-        raise ValueError(f"radius_px must be a positive integer, got {radius_px!r}")
+    if radius_px is not None:
+        check_host_count(radius_px, "radius_px")
     sep_material = material if separable_material is None else separable_material
     # the material each technique takes: the separable's own kernels and the STA's parameters where given
     own = {"separable": sep_material, "sta": sta}

@@ -750,7 +750,7 @@ def _preset_with(tmp_path, **sta):
     (lambda: sj.engines.jimenez_kernel(0.5, 0.5, n_samples=3.9), ValueError, r"n_samples must be an integer >= 3, got 3.9"),
     (lambda: sj.engines.jimenez_kernel(0.5, 0.5, n_samples=True), ValueError, r"n_samples must be an integer >= 3"),
     (lambda: sj.to_engine("eevee", (0.8, 0.5, 0.3), (2, 1, 1), samples=0), ValueError,
-     r"samples must be an integer >= 1, got 0"),
+     r"samples must be a positive integer, got 0"),
     (lambda: sj.to_engine("jimenez", (0.8, 0.5, 0.3), (2, 1, 1), n_samples=16.5), ValueError,
      r"n_samples must be an integer >= 3, got 16.5"),
     # "4.-2" read as (4, -2); a float cannot tell 2.9 from 2.90
@@ -778,9 +778,9 @@ def _preset_with(tmp_path, **sta):
     (lambda: sj.technique("separable", follow_surface=1), ValueError,
      r"separable: follow_surface=1 is not one of \(True, False\)"),
     # the engine passes' messages name their technique, as the others' do
-    (lambda: sj.technique("hdrp", budget=0), ValueError, r"^hdrp: budget must be in \[1, 1000\], got 0"),
+    (lambda: sj.technique("hdrp", budget=0), ValueError, r"^hdrp: budget must be an integer in \[1, 1000\], got 0"),
     (lambda: sj.technique("hdrp", quality="x"), ValueError, r"^hdrp: quality='x' is not one of"),
-    (lambda: sj.technique("eevee-next", frames=0), ValueError, r"^eevee-next: frames must be in \[1, inf\], got 0"),
+    (lambda: sj.technique("eevee-next", frames=0), ValueError, r"^eevee-next: frames must be a positive integer, got 0"),
     (lambda: sj.technique("eevee-next", blender_version=4.2), TypeError, r"^eevee-next: blender_version must be a "),
 ])
 def test_engine_profile_and_scene_helpers_name_what_is_wrong(call, error, message):
@@ -818,3 +818,19 @@ def test_unreal_says_what_it_renders_for_a_channel_without_scattering():
     out = sj.to_engine("unreal", (0.8, 0.5, 0.3), (2.0, 1.0, 0.0))
     assert any("channel B has d = 0" in w and "clamps it to 0.009" in w for w in out.get("warnings", []))
     assert not any("d = 0" in w for w in sj.to_engine("unreal", (0.8, 0.5, 0.3), (2.0, 1.0, 0.5)).get("warnings", []))
+
+
+def test_a_bool_is_not_a_count_anywhere(tmp_path):
+    # scale_levels, tile_pixels and radius_px took True as 1 (their checks were isinstance(x, int), and a bool is
+    # one); every count now goes through _checks.check_host_count
+    sc = sj.demo_scene(6, 8)
+    mat = sj.BurleyMaterial([0.8, 0.6, 0.5], [1.0, 0.5, 0.3])
+    with pytest.raises(ValueError, match="scale_levels must be a positive integer, got True"):
+        sj.separable(sc.buffers, mat, sc.camera, scale_levels=True)
+    with pytest.raises(ValueError, match="tile_pixels must be a positive integer, got True"):
+        sj.process_frames([str(tmp_path / "none.exr")], "burley", mat, out_dir=tmp_path / "o", tile_pixels=True,
+                          progress=False)
+    with pytest.raises(ValueError, match="radius_px must be a positive integer, got True"):
+        sj.evaluate_frames([str(tmp_path / "none.exr")], mat, techniques=("burley",), radius_px=True)
+    # the counts of the engines' conversions take a whole float (a parameter read from JSON), not a fraction
+    assert sj.to_engine("eevee", (0.8, 0.5, 0.3), (2, 1, 1), samples=7.0)["Samples"] == 7

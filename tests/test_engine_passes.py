@@ -337,8 +337,8 @@ def test_jimenez_image_matches_the_port():
 
 @pytest.mark.parametrize("make, message", [
     (lambda: HdrpPass(quality="ultra"), "quality='ultra' is not one of"),
-    (lambda: HdrpPass(budget=0), r"budget must be in \[1, 1000\]"),
-    (lambda: HdrpPass(frames=0), r"frames must be in \[1, inf\]"),
+    (lambda: HdrpPass(budget=0), r"budget must be an integer in \[1, 1000\]"),
+    (lambda: HdrpPass(frames=0), r"frames must be a positive integer"),
     (lambda: EeveeNextPass(blender_version="4.1"), "EEVEE Next starts with 4.2"),
     (lambda: JimenezPass(taps=13), "taps=13 is not one of"),
     (lambda: JimenezParams(strength=[1.5, 0, 0], falloff=1.0, sss_width=0.01), "strength must be within"),

@@ -265,7 +265,8 @@ def test_an_integer_option_whose_default_is_none_parses_as_an_integer(tmp_path, 
             return exc.code
 
     assert apply("50") == 0 and read_rgb(tmp_path / "o50.exr").shape == (12, 16, 3)
-    for value, message in (("0", "budget must be in [1, 1000], got 0"), ("5000", "budget must be in [1, 1000]"),
+    for value, message in (("0", "budget must be an integer in [1, 1000], got 0"),
+                           ("5000", "budget must be an integer in [1, 1000]"),
                            ("2.5", "--budget: expected an integer, got '2.5'")):
         capsys.readouterr()
         assert apply(value) == 2

@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._checks import check_host_count
 from .._materials import BurleyMaterial
 from .._scene import Buffers, Camera
 from ._burley_gpu import _burley_impl as _burley_impl
@@ -101,8 +102,7 @@ def check_burley_counts(samples, frames, min_footprint_px, seed) -> None:
     """``burley``'s counts (positive integers, not bools), its footprint floor (>= 0) and its seed (``check_seed``):
     what the function checks before it runs and a ``Burley`` object when it is made."""
     for name, value in (("samples", samples), ("frames", frames)):
-        if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
-            raise ValueError(f"burley: {name} must be a positive integer, got {value!r}")
+        check_host_count(value, f"burley: {name}")
     if not float(min_footprint_px) >= 0:
         raise ValueError(f"burley: min_footprint_px must be >= 0, got {min_footprint_px!r}")
     check_seed("burley", seed)

@@ -33,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._checks import checked
+from .._checks import check_host_count, checked
 from .._materials import BurleyMaterial
 from .._profiles import burley_inverse_ccdf
 from .._scene import Buffers, Camera
@@ -47,7 +47,7 @@ from ._common import (
     _work_dtype,
     check_seed,
 )
-from ._engine_frame import check_count, frame_geometry, nearest_fetch, pass_arguments
+from ._engine_frame import frame_geometry, nearest_fetch, pass_arguments
 
 EEVEE_SAMPLE_LEN = 16  # SubsurfaceModule::end_sync, data_.sample_len (EEVEE Next, 4.2 and later)
 EEVEE_BURLEY_TRUNCATE = 16.0  # SSS_BURLEY_TRUNCATE
@@ -189,7 +189,7 @@ class EeveeNextPass(AbstractTechnique):
     seed: int = option(0, "eevee-next: offset into the TAA sample sequence", static=False)
 
     def __check_init__(self):
-        check_count("eevee-next: frames", self.frames, lo=1)
+        check_host_count(self.frames, "eevee-next: frames")
         check_seed("eevee-next", self.seed)
         from ..engines._blender import parse_version
 

@@ -28,16 +28,6 @@ def frame_geometry(buffers: Buffers, camera: Camera, origin, frame_shape):
     return rows, cols, fh, fw, float(cx) - ox, float(cy) - oy
 
 
-def check_count(name: str, value, *, lo: int, hi: int | None = None) -> int:
-    """An integer option within ``[lo, hi]``; the error names the option."""
-    if isinstance(value, bool) or not hasattr(value, "__index__"):
-        raise ValueError(f"{name} must be an integer, got {value!r}")
-    v = int(value)
-    if v < lo or (hi is not None and v > hi):
-        raise ValueError(f"{name} must be in [{lo}, {hi if hi is not None else 'inf'}], got {value!r}")
-    return v
-
-
 def nearest_fetch(flat: Array, height: int, width: int, row: Array, col: Array):
     """Point fetch of ``flat (H*W, K)`` at integer pixel ``(row, col)``; ``inside`` is False off the buffer (the
     fetched row is then the clamped one and must be masked)."""

@@ -37,7 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._checks import checked
+from .._checks import check_host_count, checked
 from .._materials import BurleyMaterial
 from .._profiles import burley_inverse_ccdf
 from .._scene import Buffers, Camera
@@ -46,7 +46,7 @@ from ._base import AbstractTechnique, built, frame_pieces, option
 from ._burley import spiral_rotation
 from ._burley_spec import unit_radius
 from ._common import _as_seed, _finish, _prepare, _safe_sqrt, _work_dtype, ALBEDO_MODES, check_seed
-from ._engine_frame import check_count, frame_geometry, nearest_fetch, pass_arguments
+from ._engine_frame import frame_geometry, nearest_fetch, pass_arguments
 
 HDRP_QUALITY_BUDGETS = {"low": 20, "medium": 40, "high": 80}  # DefaultSssSampleBudgetForQualityLevel
 HDRP_MAX_BUDGET = 1000  # DefaultSssSampleBudgetForQualityLevel.Max
@@ -60,7 +60,7 @@ FILTER_RADIUS_UNITS = unit_radius(1 - HDRP_FILTER_CDF)
 def hdrp_budget(quality: str, budget: int | None) -> int:
     """The sample budget: ``budget`` where given (1..1000, HDRP's custom budget), else the quality level's."""
     if budget is not None:
-        return check_count("hdrp: budget", budget, lo=1, hi=HDRP_MAX_BUDGET)
+        return check_host_count(budget, "hdrp: budget", hi=HDRP_MAX_BUDGET)
     if quality not in HDRP_QUALITY_BUDGETS:
         raise ValueError(f"hdrp: quality={quality!r} is not one of {tuple(HDRP_QUALITY_BUDGETS)}")
     return HDRP_QUALITY_BUDGETS[quality]
@@ -155,7 +155,7 @@ class HdrpPass(AbstractTechnique):
 
     def __check_init__(self):
         hdrp_budget(self.quality, self.budget)
-        check_count("hdrp: frames", self.frames, lo=1)
+        check_host_count(self.frames, "hdrp: frames")
         check_seed("hdrp", self.seed)
 
     @property

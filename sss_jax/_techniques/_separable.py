@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._checks import check_host_count
 from .._errors import TilePlacementError
 from .._materials import (
     AbstractMaterial,
@@ -515,8 +516,7 @@ def separable(
         raise ValueError(f"interpolation={interpolation!r} is not one of ('linear', 'nearest')")
     if not isinstance(taps, (int, np.integer)) or taps < 1 or taps % 2 == 0:
         raise ValueError(f"taps must be an odd positive integer, got {taps!r}")
-    if not isinstance(scale_levels, (int, np.integer)) or scale_levels < 1:
-        raise ValueError(f"scale_levels must be a positive integer, got {scale_levels!r}")
+    check_host_count(scale_levels, "scale_levels")
     if not (float(min_footprint_px) >= 0):
         raise ValueError(f"min_footprint_px must be >= 0, got {min_footprint_px!r}")
     mode = "bilinear" if interpolation == "linear" else "nearest"

@@ -8,6 +8,7 @@ import math
 import jax
 import numpy as np
 
+from .._checks import check_host_count
 from .._profiles import SCALING_FITS, burley_cdf, burley_inverse_cdf
 
 FOUR_PI = 4.0 * math.pi
@@ -53,15 +54,9 @@ def scalar(name: str, value, *, positive: bool = True, lo: float | None = None, 
 
 
 def count(name: str, value, *, lo: int = 1) -> int:
-    """An integer parameter (a Python or NumPy integer, or a float with an integer value, as JSON and argparse give
-    them; not a bool) >= ``lo``, as int; the error names the parameter."""
-    try:
-        v = math.nan if isinstance(value, (bool, np.bool_)) else float(value)
-    except (TypeError, ValueError):
-        v = math.nan
-    if not (math.isfinite(v) and v == int(v) and v >= lo):
-        raise ValueError(f"{name} must be an integer >= {lo}, got {value!r}")
-    return int(v)
+    """An integer parameter >= ``lo`` (``_checks.check_host_count``; a float with an integer value too, as a
+    parameter read from JSON may be), as int; the error names the parameter."""
+    return check_host_count(value, name, lo=lo, whole_floats=True)
 
 
 def material(albedo, d_mm) -> tuple[np.ndarray, np.ndarray]:
