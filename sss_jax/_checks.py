@@ -36,8 +36,16 @@ def check_host_range(x, name: str, *, low: float = 0.0, high: float = math.inf, 
     ok = (np.isfinite(v) if finite else ~np.isnan(v)) & ((v > low) if low_open else (v >= low)) & (v <= high)
     if not np.all(ok):
         bound = f"{'>' if low_open else '>='} {low:g}" + (f" and <= {high:g}" if high < math.inf else "")
-        shown = v.tolist() if v.size <= 8 else f"{v.size} values, {int(np.sum(~ok))} of them outside"
+        shown = _shown(x) if v.size <= 8 else f"{v.size} values, {int(np.sum(~ok))} of them outside"
         raise ValueError(f"{name} must be {'finite and ' if finite else ''}{bound}, got {shown}")
+
+
+def _shown(x) -> str:
+    """A few host values as the user gave them: each at its own dtype's shortest repr (a float32 1.2 reads 1.2, not
+    the 1.2000000476837158 of its float64), flattened."""
+    a = np.asarray(x)
+    items = [str(e) for e in a.ravel()]
+    return items[0] if a.ndim == 0 else "[" + ", ".join(items) + "]"
 
 
 def check_host_count(x, name: str, *, lo: int = 1, hi: int | None = None, whole_floats: bool = False) -> int:

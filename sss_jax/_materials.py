@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._checks import checked
+from ._checks import check_host_range, checked
 from ._custom_types import ParamLike
 from ._kernels import (
     SeparableKernel,
@@ -55,28 +55,6 @@ def _table(name: str, value: ParamLike, dtype=None) -> Array:
 
 def _is_concrete(x) -> bool:
     return not isinstance(x, jax.core.Tracer)
-
-
-def _check_range(name: str, x: Array, lo: float, hi: float | None = None, *, lo_open: bool = False) -> None:
-    """Raise a ValueError naming the parameter when concrete values fall outside [lo, hi] (NaN always fails)."""
-    if not _is_concrete(x):
-        return
-    v = np.asarray(x, dtype=np.float64)
-    ok = (v > lo) if lo_open else (v >= lo)
-    if hi is not None:
-        ok &= v <= hi
-    if not np.all(ok):  # NaN fails both comparisons
-        bad = v[~ok].ravel()[:3]
-        top = "inf" if hi is None else hi  # (an open bound below reads "(0.0, None]" no more)
-        bound = f"({lo}, {top}]" if lo_open else f"[{lo}, {top}]"
-        raise ValueError(f"{name} must lie in {bound} (and not be NaN); got {bad.tolist()}")
-
-
-def _check_finite(name: str, x: Array) -> None:
-    """Raise a ValueError naming the parameter when a concrete value is infinite (an inf STA scale, power or light
-    makes an inf or NaN image, not a bright one)."""
-    if _is_concrete(x) and np.any(np.isinf(np.asarray(x))):
-        raise ValueError(f"{name} must be finite; got {np.asarray(x).ravel().tolist()[:3]}")
 
 
 def _same_rows(*named: tuple[str, Array]) -> None:
@@ -135,17 +113,15 @@ class BurleyMaterial(AbstractMaterial):
 
     def __check_init__(self):
         _same_rows(("albedo", self.albedo), ("d_mm", self.d_mm))
-        _check_range("albedo", self.albedo, 0.0, 1.0)
-        _check_range("d_mm", self.d_mm, 0.0)
-        if _is_concrete(self.d_mm) and not np.all(np.isfinite(np.asarray(self.d_mm))):
-            raise ValueError("d_mm must be finite")
+        check_host_range(self.albedo, "albedo", high=1.0, finite=False)
+        check_host_range(self.d_mm, "d_mm")
 
     @classmethod
     def from_mfp(cls, albedo: ParamLike, mfp_mm: ParamLike, *, fit: str = "diffuse_transmission") -> "BurleyMaterial":
         """From albedo and mean free path (mm) through the memo's ``s(A)`` fit (``d = mfp / s(A)``)."""
         a = _table("albedo", albedo)
         l = _table("mfp_mm", mfp_mm, a.dtype)
-        _check_range("mfp_mm", l, 0.0)
+        check_host_range(l, "mfp_mm", finite=False)
         return cls(a, d_from_mfp(a, l, fit=fit))
 
     def separable_kernels(self, taps: int, dtype) -> SeparableKernel:
@@ -191,12 +167,11 @@ class TwoGaussianMaterial(AbstractMaterial):
     def __check_init__(self):
         _same_rows(("albedo", self.albedo), ("w", self.w), ("sigma_near_mm", self.sigma_near_mm),
                    ("sigma_far_mm", self.sigma_far_mm))
-        _check_range("albedo", self.albedo, 0.0, 1.0)
-        _check_range("w", self.w, 0.0, 1.0)
-        _check_range("sigma_near_mm", self.sigma_near_mm, 0.0)
-        _check_range("sigma_far_mm", self.sigma_far_mm, 0.0)
-        _check_finite("sigma_near_mm", self.sigma_near_mm)  # an inf sigma failed later, inside the pass's jit
-        _check_finite("sigma_far_mm", self.sigma_far_mm)
+        check_host_range(self.albedo, "albedo", high=1.0, finite=False)
+        check_host_range(self.w, "w", high=1.0, finite=False)
+        # finite: an inf sigma failed later, inside the pass's jit
+        check_host_range(self.sigma_near_mm, "sigma_near_mm")
+        check_host_range(self.sigma_far_mm, "sigma_far_mm")
 
     def _kernel_rows(self, dtype) -> tuple[Array, Array, Array]:
         """``w`` (clipped to [0, 1]), ``sigma_near_mm`` and ``sigma_far_mm`` (checked) as the kernels take them."""
@@ -229,7 +204,7 @@ class ProfileMaterial(AbstractMaterial):
         self.albedo = _table("albedo", profile.albedo if albedo is None else albedo)
 
     def __check_init__(self):
-        _check_range("albedo", self.albedo, 0.0, 1.0)
+        check_host_range(self.albedo, "albedo", high=1.0, finite=False)
 
     def separable_kernels(self, taps: int, dtype) -> SeparableKernel:
         k = separable_kernel_from_profile(self.profile, taps=taps)
@@ -274,13 +249,10 @@ class STAParams(eqx.Module):
         self.thickness_mm = jnp.broadcast_to(jnp.asarray(thickness_mm, dtype=dtype), (3,))
 
     def __check_init__(self):
-        _check_range("distortion", self.distortion, 0.0)
-        _check_range("power", self.power, 0.0)
-        _check_range("scale", self.scale, 0.0)
-        _check_range("ambient", self.ambient, 0.0)
-        _check_range("thickness_mm", self.thickness_mm, 0.0, lo_open=True)
-        for name in ("distortion", "power", "scale", "ambient"):  # thickness_mm = inf is paper-thin: allowed
-            _check_finite(name, getattr(self, name))
+        # finite: an inf scale, power or light makes an inf or NaN image, not a bright one
+        for name in ("distortion", "power", "scale", "ambient"):
+            check_host_range(getattr(self, name), name)
+        check_host_range(self.thickness_mm, "thickness_mm", low_open=True, finite=False)  # inf: paper-thin
 
 
 class DirectionalLight(eqx.Module):
@@ -302,5 +274,4 @@ class DirectionalLight(eqx.Module):
         self.colour = jnp.broadcast_to(jnp.asarray(colour, dtype=direction.dtype), (3,))
 
     def __check_init__(self):
-        _check_range("light colour", self.colour, 0.0)
-        _check_finite("light colour", self.colour)
+        check_host_range(self.colour, "light colour")

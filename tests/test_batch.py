@@ -160,8 +160,8 @@ def test_presets_by_file_and_by_name(frames, tmp_path, monkeypatch):
 @pytest.mark.parametrize("mutate, message", [
     (lambda d: d.pop("burley"), "preset is missing burley.d_mm"),
     (lambda d: d.update(albedo=[0.5, 0.5]), "albedo must be a list of 3 numbers"),
-    (lambda d: d["burley"].update(d_mm=[-1, 1, 1]), r"invalid preset: d_mm must lie in"),
-    (lambda d: d["separable"]["two_gaussian"].update(w=[2, 0, 0]), r"invalid preset: w must lie in"),
+    (lambda d: d["burley"].update(d_mm=[-1, 1, 1]), r"invalid preset: d_mm must be finite and >= 0"),
+    (lambda d: d["separable"]["two_gaussian"].update(w=[2, 0, 0]), r"invalid preset: w must be >= 0 and <= 1"),
 ])
 def test_invalid_presets_are_named(tmp_path, capsys, mutate, message):
     import copy

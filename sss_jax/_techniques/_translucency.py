@@ -196,10 +196,8 @@ def translucency(
         raise ValueError(f"model={model!r} is not one of {TRANSLUCENCY_MODELS}")
     check_one_image("translucency", buffers, getattr(params, "count", None), camera=camera)
     # the same ranges the batch and the CLI check: out of range, the added light explodes (7e16 from albedo 40)
-    if albedo is not None and _is_concrete(albedo):
-        a = np.asarray(albedo, np.float64)
-        if not np.all((a >= 0) & (a <= 1)):
-            raise ValueError(f"albedo must lie in [0, 1] (and not be NaN), got {a.tolist()}")
+    if albedo is not None:
+        check_host_range(albedo, "albedo", high=1.0, finite=False)
     if thickness is not None and _is_concrete(thickness) and not np.all(np.asarray(thickness, np.float64) >= 0):
         raise ValueError(f"thickness must be >= 0 scene units (inf: infinitely thick), got {thickness}")
     if not isinstance(light, DirectionalLight):
