@@ -48,6 +48,7 @@ import numpy as np
 
 from ._checks import check_host_count, check_host_range
 from ._io import SSSInputError, check_writable, display_transform, read_frame, write_bytes_atomic
+from ._kernels import _check_taps
 from ._evaluate import read_truth
 from ._materials import BurleyMaterial, DirectionalLight, STAParams, TwoGaussianMaterial
 from ._scene import Buffers, Camera
@@ -671,8 +672,7 @@ def match_render(
     if not (0.0 < held_fraction < 1.0):
         raise ValueError(f"held_fraction must lie in (0, 1), got {held_fraction}")
     samples = check_host_count(samples, "samples")
-    if isinstance(taps, (bool, np.bool_)) or not isinstance(taps, (int, np.integer)) or taps < 1 or taps % 2 == 0:
-        raise ValueError(f"taps must be an odd positive integer, got {taps!r}")
+    _check_taps(taps)
     max_steps = check_host_count(max_steps, "max_steps")
     check_host_range(gain, "gain", low_open=True)  # gain 0 "succeeded" without moving: no step is ever taken
     check_host_range(rtol, "rtol")

@@ -239,7 +239,11 @@ def _depth_plane(depth, camera: Camera, who: str) -> Array:
 
 def camera_positions(depth: Array, camera: Camera) -> Array:
     """Camera-space position ``(H, W, 3)`` of each pixel centre at its planar depth (scene units)."""
-    depth = _depth_plane(depth, camera, "camera_positions")
+    return _positions(_depth_plane(depth, camera, "camera_positions"), camera)
+
+
+def _positions(depth: Array, camera: Camera) -> Array:
+    """``camera_positions`` of a depth plane ``_depth_plane`` has checked."""
     h, w = depth.shape
     cx, cy = _principal_point(camera, (h, w))
     dtype = depth.dtype
@@ -253,7 +257,7 @@ def normals_from_depth(depth: Array, camera: Camera) -> Array:
     """Unit camera-space normals from central differences of the reconstructed positions (one-sided at edges and
     next to pixels without a surface); facing the camera where nothing can be derived."""
     depth = _depth_plane(depth, camera, "normals_from_depth")
-    p = camera_positions(depth, camera)
+    p = _positions(depth, camera)
     valid = surface_mask(depth)
 
     def diff(axis):

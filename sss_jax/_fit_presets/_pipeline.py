@@ -23,7 +23,7 @@ from .._fitting import (
     fit_two_gaussian_to_burley,
 )
 from .._io import SSSInputError, write_bytes_atomic
-from .._kernels import two_gaussian_kernel
+from .._kernels import _check_taps, two_gaussian_kernel
 from .._montecarlo import to_tabulated_profile
 from .._presets import preset_from_data
 from .._profiles import scaling_searchlight
@@ -182,8 +182,7 @@ def fit_presets(names: Iterable[str] | None = None, *, out_dir: str | os.PathLik
     if not isinstance(photons, (int, np.integer)) or photons < least:
         raise ValueError(f"photons must be an integer >= {least} (the medium's slabs run photons / "
                          f"{MEDIUM_SLAB_PHOTONS_FRACTION} each), got {photons!r}")
-    if not isinstance(taps, (int, np.integer)) or taps < 1 or taps % 2 == 0:
-        raise ValueError(f"taps must be an odd positive integer (the exported kernel has a centre tap), got {taps!r}")
+    _check_taps(taps)  # the exported kernel has a centre tap
     out = pathlib.Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     todo = list(names) if names is not None else (sorted(measured_materials(measured_csv)) + sorted(ARTIST_MATERIALS))

@@ -14,6 +14,7 @@ from jaxtyping import Array, Float
 
 from .._checks import check_host_count
 from .._errors import TilePlacementError
+from .._kernels import _check_taps
 from .._materials import (
     AbstractMaterial,
     BurleyMaterial,
@@ -514,8 +515,7 @@ def separable(
                         + type(material).__name__)
     if interpolation not in ("linear", "nearest"):
         raise ValueError(f"interpolation={interpolation!r} is not one of ('linear', 'nearest')")
-    if not isinstance(taps, (int, np.integer)) or taps < 1 or taps % 2 == 0:
-        raise ValueError(f"taps must be an odd positive integer, got {taps!r}")
+    _check_taps(taps)
     check_host_count(scale_levels, "scale_levels")
     if not (float(min_footprint_px) >= 0):
         raise ValueError(f"min_footprint_px must be >= 0, got {min_footprint_px!r}")
