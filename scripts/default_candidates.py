@@ -2,8 +2,9 @@
 
     nice -n 10 .venv/bin/python scripts/default_candidates.py [--json OUT]
 
-Frames: the Blender 3.4 / Cycles render in ../shared/reference/blender (Cycles' own Christensen-Burley SSS as the
-truth, d = radius / (4 pi) as Cycles >= 3.0 converts it) and the Mitsuba 3 scenes in tests/data/mitsuba
+Frames: the Blender 3.4 / Cycles render in ../shared/reference/blender and three of our own in tests/data/cycles
+(scripts/render_blender.py: a close-up cut by the frame, grazing light, a far view; Cycles' own Christensen-Burley SSS
+as the truth, d = radius / (4 pi) as Cycles >= 3.0 converts it) and the Mitsuba 3 scenes in tests/data/mitsuba
 (scripts/render_mitsuba.py: volpath through a measured medium). Metric: relative L2 over the SSS pixels (id > 0)
 against the path-traced truth, and its ratio to local shading's (albedo x irradiance, no SSS): below 1 the technique
 is closer to the truth than no SSS at all.
@@ -25,8 +26,11 @@ sys.path.insert(0, str(ROOT))
 
 MITSUBA = ROOT / "tests" / "data" / "mitsuba"
 BLENDER = ROOT.parent / "shared" / "reference" / "blender"
-MITSUBA_SCENES = ("skin_closeup", "marble_objects")
+CYCLES = ROOT / "tests" / "data" / "cycles"
+MITSUBA_SCENES = ("skin_closeup", "marble_objects", "skin_occlusion")
 MITSUBA_SCENES = tuple(n for n in MITSUBA_SCENES if (MITSUBA / f"{n}_truth.exr").exists())
+CYCLES_SCENES = ("closeup", "grazing", "far")
+CYCLES_SCENES = tuple(n for n in CYCLES_SCENES if (CYCLES / f"burley_{n}.exr").exists())
 
 # (technique, options): the candidates; the first of each technique's block is the old default
 CANDIDATES = (
@@ -38,19 +42,21 @@ CANDIDATES = (
     ("separable", {"taps": 25, "border": "leaves"}),
     ("separable", {"taps": 25, "border": "renormalise"}),
     ("separable", {"taps": 25, "border": "renormalise", "interpolation": "nearest"}),
+    ("separable", {"taps": 25, "border": "renormalise", "follow_surface": False}),
 )
 
 
-def load_blender():
-    """(buffers, camera, material, truth, mask) of the Cycles frame."""
+def load_blender(root: pathlib.Path = BLENDER, name: str = "backlit"):
+    """(buffers, camera, material, truth, mask) of a Cycles frame: ``irradiance_<name>.exr`` (the white render) and
+    ``burley_<name>.exr`` (Cycles' SSS) with the latter's JSON sidecar (scripts/render_blender.py's layout)."""
     import sss_jax as sj
     from sss_jax import _io
 
-    scene = json.loads((BLENDER / "burley_backlit.json").read_text())
-    f = _io.read_frame(BLENDER / "irradiance_backlit.exr")
-    truth = _io.read_frame(BLENDER / "burley_backlit.exr", channel_map={
+    scene = json.loads((root / f"burley_{name}.json").read_text())
+    f = _io.read_frame(root / f"irradiance_{name}.exr")
+    truth = _io.read_frame(root / f"burley_{name}.exr", channel_map={
         "irradiance": ["ViewLayer.Combined.R", "ViewLayer.Combined.G", "ViewLayer.Combined.B"],
-        "depth": "ViewLayer.Depth.Z"}).irradiance
+        "depth": "ViewLayer.Combined.A"}).irradiance
     a = np.asarray(scene["material"]["subsurface_color"], np.float64)
     radius_mm = np.asarray(scene["material"]["radius_m"], np.float64) * scene["scene_unit_mm"]
     mat = sj.BurleyMaterial(a.astype(np.float32), (radius_mm / (4 * math.pi)).astype(np.float32))
@@ -74,6 +80,8 @@ def load_mitsuba(name: str, root: pathlib.Path = MITSUBA):
 
 def frames() -> dict:
     out = {"Cycles (Blender 3.4), back-lit sphere + Suzanne": load_blender}
+    for name in CYCLES_SCENES:
+        out[f"Cycles {name}"] = lambda name=name: load_blender(CYCLES, name)
     for name in MITSUBA_SCENES:
         out[f"Mitsuba {name}"] = lambda name=name: load_mitsuba(name)
     return out

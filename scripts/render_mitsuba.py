@@ -19,6 +19,8 @@ Scenes:
 - ``skin_closeup``: a half-space of skin1 filling the frame (8 px/mm), lit by a directional light whose shadow edge,
   cast by a black blocker outside the view, crosses the frame: a close-up cut by the frame, with a hard shadow edge.
 - ``marble_objects``: two marble spheres and a rotated marble cube against a black background, one directional light.
+- ``skin_occlusion``: a skin2 sphere 25 mm in front of a skin2 wall, lit from the upper left: the sphere's silhouette
+  against the lit wall and its shadow on the wall beside it (depth discontinuities between two surfaces of the medium).
 - ``skin_backlit``: three slabs of skin1 (1, 2 and 4 mm thick) lit only from behind (17 degrees off the axis); the
   light they transmit is all the camera sees (the unscattered beam, a delta direction, never reaches it).
 """
@@ -130,12 +132,22 @@ def scene_spec(name: str) -> dict:
         light = np.array([0.3, 0.0, -1.0])  # from behind, travelling towards the camera, 17 degrees off the axis
         return {"focal_px": f, "medium": "skin1", "boxes": boxes, "spheres": [], "blocker": None,
                 "lights": [{"direction_of_travel": light.tolist(), "irradiance": math.pi}]}
+    if name == "skin_occlusion":
+        # a skin2 sphere 25 mm in front of a skin2 wall, lit from the upper left and the front: its silhouette
+        # occludes the lit wall, and its shadow falls on the wall beside it (what depth-aware passes must not bleed
+        # across); 5.7 px/mm at the sphere's front (z = 70 mm), 3.8 px/mm on the wall (z = 105 mm)
+        f = 400.0
+        spheres = [{"center": [-2.0, -1.0, 80.0], "radius": 10.0}]
+        boxes = [{"center": [0.0, 0.0, 115.0], "half": [100.0, 100.0, 10.0], "rot_y": 0.0}]
+        light = np.array([0.5, 0.35, 1.0])
+        return {"focal_px": f, "medium": "skin2", "boxes": boxes, "spheres": spheres, "blocker": None,
+                "lights": [{"direction_of_travel": light.tolist(), "irradiance": math.pi}]}
     raise SystemExit(f"unknown scene {name!r}")
 
 
-SCENES = ("skin_closeup", "skin_backlit", "marble_objects")
+SCENES = ("skin_closeup", "skin_backlit", "marble_objects", "skin_occlusion")
 # truth samples per pixel and channel (each channel is its own render): 1-2 CPU minutes per scene
-SPP = {"skin_closeup": 64, "marble_objects": 128, "skin_backlit": 256}
+SPP = {"skin_closeup": 64, "marble_objects": 128, "skin_backlit": 256, "skin_occlusion": 128}
 
 
 def _mitsuba_scene(mi, spec: dict, *, truth: bool, spp: int, seed: int, channel: int = 0):
