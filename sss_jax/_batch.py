@@ -87,8 +87,8 @@ from jaxtyping import Array
 
 from ._checks import check_host_count
 from ._io import (EXR_MAGIC, Frame, SSSInputError, Window, _frame_from_decoded, _read_image, check_depth_kind,
-                  check_writable, exr_is_complete, load_channel_map, read_header, write_exr, write_json_atomic,
-                  write_png_preview)
+                  check_writable, exr_is_complete, load_channel_map, no_focal_length, read_header, write_exr,
+                  write_json_atomic, write_png_preview)
 from ._kernels import separable_kernel_from_profile, two_gaussian_kernel
 from ._materials import BurleyMaterial, DirectionalLight, ProfileMaterial, STAParams, TwoGaussianMaterial
 from ._profiles import BurleyProfile
@@ -142,6 +142,11 @@ class FrameResult:
     message: str = ""
     seconds: float = 0.0
     warnings: list[str] = dataclasses.field(default_factory=list)  # the clamp's and the technique's, this frame
+
+    def failure_line(self) -> str:
+        """``FAILED <input>: <why>`` for a progress line, the input named once (most messages start with it)."""
+        why = self.message.removeprefix(f"{self.input}: ")
+        return f"FAILED {self.input}: {why}"
 
 
 @dataclasses.dataclass
@@ -1397,7 +1402,7 @@ class _Batch:
         if self.bar is not None:
             self.bar.update(1)
             if r.status == "failed":
-                self.bar.write(f"FAILED {r.input}: {r.message}")
+                self.bar.write(r.failure_line())
         if self.on_frame_done is not None:
             _call_back("on_frame_done", self.on_frame_done, r)
 
@@ -1505,8 +1510,7 @@ class _Batch:
             frame = _frame_from_decoded(job.src, _read_image(job.src), **read_options,
                                         warn=lambda message, category: said.append((message, category)))
             if frame.focal_px is None:
-                raise SSSInputError(f"{job.src}: no focal length (pass focal_px or put sss_jax:focal_px in the "
-                                    "header)")
+                raise no_focal_length(job.src)
             buffers = frame.to_buffers(use_albedo=use_albedo)
             validate_buffers(buffers, materials=_material_count(self.material))
         except (OSError, ValueError) as exc:

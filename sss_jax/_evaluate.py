@@ -25,7 +25,8 @@ from typing import Any
 import numpy as np
 
 from ._checks import check_host_count
-from ._io import Frame, SSSInputError, Window, _blender_layers, _read_image, read_frame, write_bytes_atomic
+from ._io import (Frame, SSSInputError, Window, _blender_layers, _read_image, no_focal_length, read_frame,
+                  write_bytes_atomic)
 from ._machine import machine_info
 from ._materials import BurleyMaterial, DirectionalLight, ProfileMaterial, STAParams, TwoGaussianMaterial
 from ._report import FrameImages, ReportData, TechniqueRun
@@ -329,8 +330,7 @@ def evaluate_frames(
     for p in paths:
         f = read_frame(p, channel_map=channel_map, focal_px=focal_px, mm_per_unit=mm_per_unit, depth_kind=depth_kind)
         if f.focal_px is None:
-            raise SSSInputError(f"{p}: no focal length (pass --focal-px / focal_px, put sss_jax:focal_px in the "
-                                f"header, or camera.focal_px in the sidecar {pathlib.Path(p).with_suffix('.json')})")
+            raise no_focal_length(p)
         ids = f.material_id if f.material_id is not None else np.ones(f.shape, np.int32)
         mask = frame_sss_mask(f)
         if not mask.any():

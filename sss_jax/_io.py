@@ -28,7 +28,8 @@ that read neighbours) is read whole, so the margin's pixels feed the pass, and t
 Depth is planar view depth in scene units; ``depth_kind="distance"`` converts distance-to-camera to planar with the
 focal length. Channels stored as integers (an id pass as uint32) keep their values (OpenImageIO's float conversion
 would normalise them). Camera intrinsics come from explicit arguments, else the EXR header (``sss_jax:focal_px``,
-``sss_jax:mm_per_unit``), else a sidecar ``<stem>.json`` (``camera.focal_px``, ``scene_unit_mm``).
+``sss_jax:mm_per_unit``), else a sidecar ``<stem>.json`` (``camera.focal_px``, ``scene_unit_mm``; without
+``focal_px``, the camera's ``lens_mm`` and ``sensor_width_mm`` as Blender gives them, ``focal_from_lens``).
 
 Every write goes to a temporary file in the target directory and is renamed into place: an interrupted run never
 leaves a half-written file under the final name.
@@ -40,6 +41,7 @@ import contextlib
 import dataclasses
 import errno
 import json
+import math
 import os
 import pathlib
 import socket
@@ -609,6 +611,38 @@ def _header_number(path: pathlib.Path, name: str, given, *sources: tuple[Any, st
         raise SSSInputError(f"{path}: {name} from {where} is {value!r}, not a number") from None
 
 
+def focal_from_lens(camera: Mapping[str, Any], display: tuple[int, int], *, where: str) -> float | None:
+    """The focal length in pixels from a camera's lens and sensor in millimetres, as Blender describes a camera
+    (``lens_mm``, ``sensor_width_mm``, ``sensor_height_mm``, ``sensor_fit``: ``AUTO``, the default, fits the sensor
+    width to the larger of the image's width and height, ``HORIZONTAL`` to its width, ``VERTICAL`` the sensor height
+    to its height), for an image of ``display = (width, height)`` pixels; None where the camera gives no lens.
+    Square pixels."""
+    lens = camera.get("lens_mm")
+    if lens is None:
+        return None
+    fit = str(camera.get("sensor_fit", "AUTO")).upper()
+    if fit not in ("AUTO", "HORIZONTAL", "VERTICAL"):
+        raise SSSInputError(f"{where}: sensor_fit must be AUTO, HORIZONTAL or VERTICAL, got {camera['sensor_fit']!r}")
+    width, height = display
+    key, pixels = {"AUTO": ("sensor_width_mm", max(width, height)), "HORIZONTAL": ("sensor_width_mm", width),
+                   "VERTICAL": ("sensor_height_mm", height)}[fit]
+    if camera.get(key) is None:
+        raise SSSInputError(f"{where}: lens_mm {lens!r} needs {key} (sensor_fit {fit}) to give the focal length")
+    values = []
+    for name, v in (("lens_mm", lens), (key, camera[key])):
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float)) or not 0 < v < math.inf:
+            raise SSSInputError(f"{where}: {name} must be a positive number of millimetres, got {v!r}")
+        values.append(float(v))
+    return values[0] / values[1] * pixels
+
+
+def no_focal_length(path) -> SSSInputError:
+    """The error for a frame whose focal length nothing gave: where it can come from."""
+    side = pathlib.Path(path).with_suffix(".json").name
+    return SSSInputError(f"{path}: no focal length: pass focal_px (--focal-px), put sss_jax:focal_px in the EXR "
+                         f"header, or camera.focal_px (or camera.lens_mm and sensor_width_mm) in the sidecar {side}")
+
+
 def _sidecar(path: pathlib.Path) -> dict[str, Any]:
     side = path.with_suffix(".json")
     if not side.exists():
@@ -717,6 +751,9 @@ def _frame_from_decoded(path: pathlib.Path, decoded, *, channel_map, depth_kind:
     sidecar = path.with_suffix(".json").name
     focal_px = _header_number(path, "focal_px", focal_px, (metadata.get("sss_jax:focal_px"), "sss_jax:focal_px"),
                               (camera_side.get("focal_px"), f"camera.focal_px of {sidecar}"))
+    if focal_px is None:
+        display = window.display[2:] if window is not None else (shape[1], shape[0])
+        focal_px = focal_from_lens(camera_side, display, where=f"{path}: camera of {sidecar}")
     mm_per_unit = _header_number(path, "mm_per_unit", mm_per_unit,
                                  (metadata.get("sss_jax:mm_per_unit"), "sss_jax:mm_per_unit"),
                                  (side.get("scene_unit_mm"), f"scene_unit_mm of {sidecar}"))

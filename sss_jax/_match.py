@@ -47,7 +47,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._checks import check_host_count, check_host_range
-from ._io import SSSInputError, check_writable, display_transform, read_frame, write_bytes_atomic
+from ._io import SSSInputError, check_writable, display_transform, no_focal_length, read_frame, write_bytes_atomic
 from ._kernels import _check_taps
 from ._evaluate import read_truth
 from ._materials import BurleyMaterial, DirectionalLight, STAParams, TwoGaussianMaterial
@@ -134,8 +134,7 @@ def load_match_frame(render: str | os.PathLike, truth: str | os.PathLike, *, tru
     frame = read_frame(render, channel_map=channel_map, focal_px=focal_px, mm_per_unit=mm_per_unit,
                        depth_kind=depth_kind)
     if frame.focal_px is None:
-        raise SSSInputError(f"{render}: no focal length: give focal_px (--focal-px), the EXR header "
-                            "sss_jax:focal_px or a sidecar JSON with camera.focal_px")
+        raise no_focal_length(render)
     rgb = read_truth(truth, truth_channels, frame=frame)  # the report's reader: one rule for a truth
     camera = Camera(frame.focal_px, frame.mm_per_unit if frame.mm_per_unit is not None else 1.0)
     return match_frame(frame.to_buffers(use_albedo=use_albedo_pass), camera, rgb, name=pathlib.Path(render).name)

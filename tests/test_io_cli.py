@@ -288,6 +288,47 @@ def test_blender_render_reads_out_of_the_box(shared_dir):
     assert np.all(np.isinf(f.depth[col("ViewLayer.Depth.Z") > 1e9]))
 
 
+def test_a_sidecar_with_the_lens_and_sensor_gives_the_focal_length(shared_dir, tmp_path, capsys):
+    # a Blender camera described as Blender shows it (lens and sensor in mm, no focal length in pixels): focal_px =
+    # lens / sensor x the image's larger side (sensor fit AUTO, Blender's default); before, "no focal length"
+    import shutil
+
+    base = shared_dir / "reference" / "blender"
+    src = tmp_path / "shot.exr"
+    shutil.copy(base / "irradiance_backlit.exr", src)
+    scene = json.loads((base / "irradiance_backlit.json").read_text())
+    cam = {k: v for k, v in scene["camera"].items() if k != "focal_px"}  # lens 50 mm, sensor 36 mm, 320x240
+    side = tmp_path / "shot.json"
+
+    def focal(**camera):
+        side.write_text(json.dumps({**scene, "camera": {**cam, **camera}}))
+        return _io.read_frame(src).focal_px
+
+    assert focal() == pytest.approx(50 / 36 * 320)  # 444.44, the sidecar's own focal_px
+    assert focal(sensor_fit="HORIZONTAL") == pytest.approx(50 / 36 * 320)
+    assert focal(sensor_fit="VERTICAL", sensor_height_mm=24.0) == pytest.approx(50 / 24 * 240)
+    with pytest.raises(_io.SSSInputError, match=r"shot.exr: camera of shot.json: lens_mm 50.0 needs "
+                                                r"sensor_height_mm \(sensor_fit VERTICAL\)"):
+        focal(sensor_fit="VERTICAL")
+    with pytest.raises(_io.SSSInputError, match=r"sensor_width_mm must be a positive number of millimetres, got 0"):
+        focal(sensor_width_mm=0)
+    with pytest.raises(_io.SSSInputError, match=r"sensor_fit must be AUTO, HORIZONTAL or VERTICAL, got 'FILL'"):
+        focal(sensor_fit="FILL")
+    side.write_text(json.dumps({**scene, "camera": cam}))
+    out = tmp_path / "out.exr"
+    assert main(["apply", str(src), "-o", str(out), "--technique", "separable", "--albedo", "0.8,0.6,0.5",
+                 "--d-mm", "30,20,10"]) == 0 and out.exists()
+    # nothing gives a focal length: the message says every place it can come from
+    side.write_text(json.dumps({**scene, "camera": {"location": cam["location"]}}))
+    capsys.readouterr()
+    assert main(["apply", str(src), "-o", str(tmp_path / "none.exr"), "--technique", "separable", "--albedo",
+                 "0.8,0.6,0.5", "--d-mm", "30,20,10"]) == 1
+    err = capsys.readouterr().err
+    assert f"FAILED {src}: no focal length: pass focal_px (--focal-px), put sss_jax:focal_px in the EXR header, or " \
+           "camera.focal_px (or camera.lens_mm and sensor_width_mm) in the sidecar shot.json" in err, err
+    assert f"FAILED {src}: {src}" not in err, err  # the input named once (was "FAILED x.exr: x.exr: no focal ...")
+
+
 def blender_material(scene: dict) -> sj.BurleyMaterial:
     """Cycles' conversion, as the scene README states (Blender intern/cycles/kernel/closure/bssrdf.h):
     d = (0.25 / pi) * radius / s(A), s(A) = 1.9 - A + 3.5 (A - 0.8)^2, radius in metres -> mm."""

@@ -193,7 +193,7 @@ def run(args) -> int:
 
     def report(r):
         if r.status == "failed":
-            line = f"FAILED {r.input}: {r.message}"
+            line = r.failure_line()
         elif r.status == "skipped":
             line = f"{r.input} -> {r.output} (skipped: {r.message})"
         else:
