@@ -1305,7 +1305,7 @@ def _category(message: str) -> type[Warning]:
 def _camera(frame: Frame) -> Camera:
     """The frame's camera: one ``Camera`` per (focal length, unit) and precision, shared by the frames of a sequence
     (immutable; building one is device work: two conversions and two reads back)."""
-    return _camera_for(frame.focal_px, frame.mm_per_unit if frame.mm_per_unit is not None else 1.0,
+    return _camera_for(frame.focal_px, frame.scene_unit_mm,
                        jax.dtypes.canonicalize_dtype(jnp.float64))
 
 

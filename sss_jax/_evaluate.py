@@ -371,7 +371,7 @@ def evaluate_frames(
         for f in frames:
             name = pathlib.Path(f.path).name
             b = f.to_buffers(use_albedo=use_albedo_pass)
-            cam = Camera(f.focal_px, f.mm_per_unit if f.mm_per_unit is not None else 1.0)
+            cam = Camera(f.focal_px, f.scene_unit_mm)
             ids = f.material_id if f.material_id is not None else np.ones(f.shape, np.int32)
             mask = frame_sss_mask(f)
             albedo = (f.albedo if use_albedo_pass and f.albedo is not None else _material_albedo(material, ids))
@@ -409,7 +409,7 @@ def evaluate_frames(
                                             truth=truth_images[len(frame_images)] if truth_images else None,
                                             mask=mask, window=f.window))
             inputs_info.append({"path": str(f.path), "name": name, "width": f.shape[1], "height": f.shape[0],
-                                "layout": f.layout, "focal_px": f.focal_px, "mm_per_unit": float(f.mm_per_unit if f.mm_per_unit is not None else 1.0),
+                                "layout": f.layout, "focal_px": f.focal_px, "mm_per_unit": f.scene_unit_mm,
                                 "sss_pixels": int(mask.sum()), "reference_radius_px": int(radius),
                                 "truth": str(truths[len(inputs_info)]) if truths else None})
     finally:

@@ -127,6 +127,12 @@ class Frame:
         return self.depth.shape
 
     @property
+    def scene_unit_mm(self) -> float:
+        """Millimetres per unit of the depth: the frame's ``mm_per_unit``, or 1 where nothing gave one (a generic
+        frame's depth read in mm; a Blender frame's reader puts in the metre)."""
+        return float(self.mm_per_unit) if self.mm_per_unit is not None else 1.0
+
+    @property
     def sss_pixels(self) -> int:
         """How many pixels a technique scatters: a surface (finite depth) whose id, where there is an id, is >= 1."""
         mask = np.isfinite(self.depth)
@@ -611,6 +617,9 @@ def _header_number(path: pathlib.Path, name: str, given, *sources: tuple[Any, st
         raise SSSInputError(f"{path}: {name} from {where} is {value!r}, not a number") from None
 
 
+BLENDER_MM_PER_UNIT = 1000.0  # Blender's scene unit at the default unit scale: the metre
+
+
 def focal_from_lens(camera: Mapping[str, Any], display: tuple[int, int], *, where: str) -> float | None:
     """The focal length in pixels from a camera's lens and sensor in millimetres, as Blender describes a camera
     (``lens_mm``, ``sensor_width_mm``, ``sensor_height_mm``, ``sensor_fit``: ``AUTO``, the default, fits the sensor
@@ -757,6 +766,13 @@ def _frame_from_decoded(path: pathlib.Path, decoded, *, channel_map, depth_kind:
     mm_per_unit = _header_number(path, "mm_per_unit", mm_per_unit,
                                  (metadata.get("sss_jax:mm_per_unit"), "sss_jax:mm_per_unit"),
                                  (side.get("scene_unit_mm"), f"scene_unit_mm of {sidecar}"))
+    if mm_per_unit is None and layout == "blender":
+        # Blender's depth is in its scene unit, the metre at the default unit scale; read as 1 mm a unit (what a
+        # generic frame without a unit gets) every material would be 1000 times wider than the user meant
+        mm_per_unit = BLENDER_MM_PER_UNIT
+        warn(f"{path}: no scene unit (sss_jax:mm_per_unit in the header, scene_unit_mm in a sidecar {sidecar}, or "
+             f"mm_per_unit / --mm-per-unit): Blender's depth read in metres ({BLENDER_MM_PER_UNIT:g} mm a unit); "
+             "give the unit if the scene's unit scale is not 1", UserWarning)
 
     depth = buffers["depth"].astype(np.float32)
     from ._scene import _first_pixel, surface_mask  # (here: _io itself imports no JAX)

@@ -329,6 +329,35 @@ def test_a_sidecar_with_the_lens_and_sensor_gives_the_focal_length(shared_dir, t
     assert f"FAILED {src}: {src}" not in err, err  # the input named once (was "FAILED x.exr: x.exr: no focal ...")
 
 
+def test_a_blender_frame_without_a_unit_is_read_in_metres(shared_dir, tmp_path):
+    # Blender's own file with no sidecar and no unit in its header: the depth is Blender's, in metres (unit scale 1),
+    # and the reader says so; before, it was read as 1 mm a unit and a material of d = 30 mm scattered over 30 m
+    import shutil
+
+    src = tmp_path / "alone.exr"
+    shutil.copy(shared_dir / "reference" / "blender" / "irradiance_backlit.exr", src)
+    with pytest.warns(UserWarning, match=r"alone.exr: no scene unit .*Blender's depth read in metres \(1000 mm a "
+                                         r"unit\)"):
+        f = _io.read_frame(src, focal_px=444.4)
+    assert f.mm_per_unit == 1000.0 and f.scene_unit_mm == 1000.0
+    # the sidecar's (or the caller's) unit wins, without a word
+    with warnings.catch_warnings():
+        warnings.filterwarnings("error", message=".*no scene unit")
+        assert _io.read_frame(src, focal_px=444.4, mm_per_unit=10.0, channel_map={"layer": "ViewLayer"}
+                              ).mm_per_unit == 10.0
+    # `apply` on it scatters as much as on the frame with its sidecar (the same unit, the same pixels)
+    base = shared_dir / "reference" / "blender" / "irradiance_backlit.exr"
+    flags = ["--technique", "separable", "--albedo", "0.8,0.6,0.5", "--d-mm", "30,20,10", "--focal-px", "444.4444444"]
+    assert main(["apply", str(src), "-o", str(tmp_path / "alone_sss.exr"), *flags]) == 0
+    assert main(["apply", str(base), "-o", str(tmp_path / "side_sss.exr"), *flags]) == 0
+    pixels = lambda name: oiio.ImageBuf(str(tmp_path / name)).get_pixels(oiio.FLOAT)
+    np.testing.assert_array_equal(pixels("alone_sss.exr"), pixels("side_sss.exr"))
+    # a generic frame has no natural unit: its depth stays in mm (scene_unit_mm 1), as before
+    g = tmp_path / "generic.exr"
+    synthetic_frame(g, focal=100.0)
+    assert _io.read_frame(g).mm_per_unit is None and _io.read_frame(g).scene_unit_mm == 1.0
+
+
 def blender_material(scene: dict) -> sj.BurleyMaterial:
     """Cycles' conversion, as the scene README states (Blender intern/cycles/kernel/closure/bssrdf.h):
     d = (0.25 / pi) * radius / s(A), s(A) = 1.9 - A + 3.5 (A - 0.8)^2, radius in metres -> mm."""

@@ -154,7 +154,7 @@ def _frame(args, material):
                          "header or camera.focal_px in the sidecar JSON)")
     # the frame's albedo pass where it has one and no --albedo overrides it
     buffers = f.to_buffers(use_albedo=args.albedo is None)
-    out = {"buffers": buffers, "camera": Camera(f.focal_px, f.mm_per_unit if f.mm_per_unit is not None else 1.0)}
+    out = {"buffers": buffers, "camera": Camera(f.focal_px, f.scene_unit_mm)}
     if args.truth is not None:
         out["truth"] = read_truth(args.truth, args.truth_channels, frame=f)
     return out

@@ -307,7 +307,7 @@ def _check_frames(inputs, args, material, light, counts, *, technique_checks: bo
             if message:
                 warnings.warn(f"{path}: {message}", UserWarning, stacklevel=2)
         if tech is not None and f.focal_px is not None:
-            cam = Camera(f.focal_px, f.mm_per_unit or 1.0)
+            cam = Camera(f.focal_px, f.scene_unit_mm)
             for w in tech.check(f.to_buffers(use_albedo=args.albedo is None), material, cam):
                 warnings.warn(f"{path}: {w}", type(w), stacklevel=2)
 
@@ -325,6 +325,6 @@ def _reference_radius(inputs, args, material) -> int:
         except (OSError, ValueError):
             continue  # reported when the batch reaches it
         if f.focal_px is not None:
-            cam = Camera(f.focal_px, f.mm_per_unit or 1.0)
+            cam = Camera(f.focal_px, f.scene_unit_mm)
             radius = max(radius, reference_radius_px(f.to_buffers(), material, cam))
     return radius

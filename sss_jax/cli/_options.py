@@ -313,7 +313,7 @@ def sta_thickness_warning(frame, params, thickness: float | None) -> str | None:
     difference). None where it is in range."""
     import numpy as np
 
-    mm_per_unit = frame.mm_per_unit or 1.0
+    mm_per_unit = frame.scene_unit_mm
     falloff = np.asarray(params.thickness_mm, np.float64).reshape(-1)
     mask = np.isfinite(frame.depth) & ((frame.material_id > 0) if frame.material_id is not None else True)
     if frame.thickness is not None:
