@@ -65,7 +65,7 @@ def register(subparsers) -> None:
     p.add_argument("--channel-map", help="JSON/TOML file mapping buffers (irradiance, depth, albedo, normal, thickness, id) to channels, or naming the Blender view layer to read ({\"layer\": \"ViewLayer\"})")
     p.add_argument("--samples", type=int, default=None, help="Burley spiral samples (default 32)")
     p.add_argument("--taps", type=int, default=None, help="separable taps per pass (default 25)")
-    p.add_argument("--radius-px", type=int, help="reference window radius in pixels (default: 99.9%% of the energy)")
+    p.add_argument("--radius-px", type=int, help="reference window radius in pixels (default: 99.9%% of the energy, at most 96 px)")
     sta = p.add_argument_group("STA")
     sta.add_argument("--light-dir", type=rgb_triple, help="direction towards the light, camera space (x right, y down, z forward)")
     sta.add_argument("--light-colour", type=rgb_triple, default=(1.0, 1.0, 1.0), help="light irradiance R,G,B (default 1)")

@@ -190,7 +190,7 @@ def _register_match(p) -> None:
                         "frames against the reference and the truth, with a section showing the fit's before/after "
                         "and the fitted parameters (burley and separable)")
     m.add_argument("--radius-px", type=int, metavar="N", help="the report's reference window radius in px (default: "
-                   "the radius holding 99.9%% of the profile's energy)")
+                   "the radius holding 99.9%% of the profile's energy, at most 96 px)")
     sta = p.add_argument_group("STA start (with --render --technique sta)")
     sta.add_argument("--light-dir", type=rgb_triple, help="direction towards the light, camera space")
     sta.add_argument("--light-colour", type=rgb_triple, default=(1.0, 1.0, 1.0))

@@ -77,7 +77,7 @@ def register(subparsers) -> None:
     c.add_argument("--mm-per-unit", type=float, help="millimetres per scene unit of the depth buffer")
     c.add_argument("--depth-kind", choices=("planar", "distance"), default="planar")
     c.add_argument("--channel-map", help="JSON/TOML file mapping buffers to channels, or naming the Blender view layer to read ({\"layer\": \"ViewLayer\"})")
-    c.add_argument("--radius-px", type=int, help="reference window radius in px (default: 99.9%% of the energy)")
+    c.add_argument("--radius-px", type=int, help="reference window radius in px (default: 99.9%% of the energy, at most 96 px)")
     c.add_argument("--repeats", type=int, default=3, help="timed runs per frame after compilation (default 3; 0: no timed run, the times are "
                    "the first, compiling run's and the report says so)")
     s = p.add_argument_group("STA (included with --light-dir)")
