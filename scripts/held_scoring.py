@@ -3,7 +3,8 @@
     nice -n 10 .venv/bin/python scripts/held_scoring.py [--samples 32] [--max-steps 12] [--start 1.0]
         [--held-fraction 0.95] [--frames skin_closeup,blender] [--borders renormalise,leaves] [--json OUT]
 
-For each frame (the Cycles render of ../shared/reference/blender, whose true d is Cycles' own radius / (4 pi); the
+For each frame (the Cycles render of ../shared/reference/blender and ours in tests/data/cycles, ``cycles_closeup``,
+``cycles_grazing``, ``cycles_far``, whose true d is Cycles' own radius / (4 pi); the
 Mitsuba skin close-up cut by the frame on every side, tests/data/mitsuba, whose true d is the Burley d fitted to the
 index-matched medium's Monte Carlo profile, in its sidecar) and each frame border of the technique (``renormalise``,
 the default; ``leaves``), ``match_render`` fits d starting from the true d (the converted d) with ``score="held"``
@@ -24,7 +25,7 @@ import numpy as np
 ROOT = pathlib.Path(__file__).resolve().parent
 sys.path.insert(0, str(ROOT))
 
-from default_candidates import load_blender, load_mitsuba  # noqa: E402  (the same frames as the defaults' table)
+from default_candidates import CYCLES, load_blender, load_mitsuba  # noqa: E402  (the defaults' table's frames)
 
 
 def main(argv=None) -> None:
@@ -46,7 +47,8 @@ def main(argv=None) -> None:
     from sss_jax._match import match_frame, match_render
 
     loads = {"blender": load_blender, "skin_closeup": lambda: load_mitsuba("skin_closeup"),
-             "marble_objects": lambda: load_mitsuba("marble_objects")}
+             "marble_objects": lambda: load_mitsuba("marble_objects"),
+             **{f"cycles_{n}": (lambda n=n: load_blender(CYCLES, n)) for n in ("closeup", "grazing", "far")}}
     rows = []
     for name in args.frames.split(","):
         b, cam, mat, truth, mask = loads[name]()
