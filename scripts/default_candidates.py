@@ -56,7 +56,7 @@ def load_blender(root: pathlib.Path = BLENDER, name: str = "backlit"):
     f = _io.read_frame(root / f"irradiance_{name}.exr")
     truth = _io.read_frame(root / f"burley_{name}.exr", channel_map={
         "irradiance": ["ViewLayer.Combined.R", "ViewLayer.Combined.G", "ViewLayer.Combined.B"],
-        "depth": "ViewLayer.Combined.A"}).irradiance
+        "depth": "ViewLayer.Combined.A"}).irradiance  # a frame needs a depth: the truth's own is not read
     a = np.asarray(scene["material"]["subsurface_color"], np.float64)
     radius_mm = np.asarray(scene["material"]["radius_m"], np.float64) * scene["scene_unit_mm"]
     mat = sj.BurleyMaterial(a.astype(np.float32), (radius_mm / (4 * math.pi)).astype(np.float32))

@@ -167,7 +167,8 @@ def build(spec: dict, mode: str, samples: int) -> dict:
     lights["world_strength"] = WORLD
     return {"blender_version": bpy.app.version_string, "mode": mode, "engine": "CYCLES", "samples": samples,
             "resolution": list(RESOLUTION),
-            "camera": {"lens_mm": LENS_MM, "sensor_width_mm": SENSOR_MM, "focal_px": focal_px,
+            "camera": {"lens_mm": LENS_MM, "sensor_width_mm": SENSOR_MM, "sensor_fit": "HORIZONTAL",
+                       "focal_px": focal_px,
                        "location": list(spec["camera"]), "look_at": list(spec["look_at"]), "clip": [0.1, 100.0]},
             "scene_unit_mm": 1000.0, "lights": lights,
             "objects": {"sphere": {k: (list(v) if isinstance(v, tuple) else v) for k, v in SPHERE.items()},

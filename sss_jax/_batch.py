@@ -283,12 +283,14 @@ def _file_stamp(path: pathlib.Path) -> dict[str, Any] | None:
 
 def _resume_record(src: pathlib.Path, parameters: dict[str, Any]) -> tuple[dict[str, str], str]:
     """The header attributes that say what an output was made from, and their digest: the input (path, size,
-    mtime; its sidecar's too), the technique and every parameter, the sss_jax version."""
+    mtime; its sidecar's too), the technique and every parameter, the sss_jax version and how it reads a file
+    (``_io.READER_REVISION``)."""
+    from ._io import READER_REVISION
     from ._version import __version__
 
     stamp = _file_stamp(src) or {"path": str(src)}
     record = {"input": stamp, "sidecar": _file_stamp(src.with_suffix(".json")), "parameters": parameters,
-              "version": __version__}
+              "version": __version__, "reader": READER_REVISION}
     text = json.dumps(record, sort_keys=True)
     digest = hashlib.sha256(text.encode()).hexdigest()
     attrs = {"sss_jax:input": stamp["path"], "sss_jax:input_size": str(stamp.get("size", "")),

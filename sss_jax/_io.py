@@ -29,7 +29,9 @@ Depth is planar view depth in scene units; ``depth_kind="distance"`` converts di
 focal length. Channels stored as integers (an id pass as uint32) keep their values (OpenImageIO's float conversion
 would normalise them). Camera intrinsics come from explicit arguments, else the EXR header (``sss_jax:focal_px``,
 ``sss_jax:mm_per_unit``), else a sidecar ``<stem>.json`` (``camera.focal_px``, ``scene_unit_mm``; without
-``focal_px``, the camera's ``lens_mm`` and ``sensor_width_mm`` as Blender gives them, ``focal_from_lens``).
+``focal_px``, the camera's ``lens_mm`` and ``sensor_width_mm`` as Blender gives them, ``focal_from_lens``). A
+frame no source gives a unit is read with depth in mm, except a Blender frame (its layout, or Blender's
+``BlenderMultiChannel`` header): in metres, Blender's unit, with a warning.
 
 Every write goes to a temporary file in the target directory and is renamed into place: an interrupted run never
 leaves a half-written file under the final name.
@@ -618,17 +620,37 @@ def _header_number(path: pathlib.Path, name: str, given, *sources: tuple[Any, st
 
 
 BLENDER_MM_PER_UNIT = 1000.0  # Blender's scene unit at the default unit scale: the metre
+# Raised whenever the same file and arguments read as other buffers or another camera (2: a Blender frame without a
+# unit in metres, not mm; the focal length from a sidecar's lens): a batch's resume record holds it, so outputs made
+# under an older reading are computed again instead of kept
+READER_REVISION = 2
 
 
-def focal_from_lens(camera: Mapping[str, Any], display: tuple[int, int], *, where: str) -> float | None:
+def focal_from_lens(camera: Mapping[str, Any], display: tuple[int, int], *, where: str, resolution=None,
+                    pixel_aspect=None) -> float | None:
     """The focal length in pixels from a camera's lens and sensor in millimetres, as Blender describes a camera
     (``lens_mm``, ``sensor_width_mm``, ``sensor_height_mm``, ``sensor_fit``: ``AUTO``, the default, fits the sensor
     width to the larger of the image's width and height, ``HORIZONTAL`` to its width, ``VERTICAL`` the sensor height
     to its height), for an image of ``display = (width, height)`` pixels; None where the camera gives no lens.
-    Square pixels."""
+
+    The sensor spans the rendered image, so the file must be all of it: ``resolution`` (the render's ``(width,
+    height)`` where the description states it) other than ``display`` (a render cropped to a region, or scaled) and
+    non-square pixels (``pixel_aspect``, the header's ``PixelAspectRatio``) are errors that ask for ``focal_px``."""
     lens = camera.get("lens_mm")
     if lens is None:
         return None
+    if resolution is not None:
+        try:
+            res = tuple(int(v) for v in resolution)
+        except (TypeError, ValueError):
+            raise SSSInputError(f"{where}: resolution must be [width, height], got {resolution!r}") from None
+        if res != tuple(display):
+            raise SSSInputError(f"{where}: the render's resolution {res[0]}x{res[1]} is not the file's "
+                                f"{display[0]}x{display[1]} (cropped or scaled?): its lens gives no focal length for "
+                                "this file; pass focal_px (--focal-px)")
+    if pixel_aspect is not None and not math.isclose(float(pixel_aspect), 1.0, rel_tol=1e-6):
+        raise SSSInputError(f"{where}: pixels are not square (PixelAspectRatio {float(pixel_aspect):g}): the lens "
+                            "gives no single focal length; pass focal_px (--focal-px)")
     fit = str(camera.get("sensor_fit", "AUTO")).upper()
     if fit not in ("AUTO", "HORIZONTAL", "VERTICAL"):
         raise SSSInputError(f"{where}: sensor_fit must be AUTO, HORIZONTAL or VERTICAL, got {camera['sensor_fit']!r}")
@@ -645,11 +667,15 @@ def focal_from_lens(camera: Mapping[str, Any], display: tuple[int, int], *, wher
     return values[0] / values[1] * pixels
 
 
+def _focal_sources(path) -> str:
+    side = pathlib.Path(path).with_suffix(".json").name
+    return (f"pass focal_px (--focal-px), put sss_jax:focal_px in the EXR header, or camera.focal_px (or "
+            f"camera.lens_mm and sensor_width_mm) in the sidecar {side}")
+
+
 def no_focal_length(path) -> SSSInputError:
     """The error for a frame whose focal length nothing gave: where it can come from."""
-    side = pathlib.Path(path).with_suffix(".json").name
-    return SSSInputError(f"{path}: no focal length: pass focal_px (--focal-px), put sss_jax:focal_px in the EXR "
-                         f"header, or camera.focal_px (or camera.lens_mm and sensor_width_mm) in the sidecar {side}")
+    return SSSInputError(f"{path}: no focal length: {_focal_sources(path)}")
 
 
 def _sidecar(path: pathlib.Path) -> dict[str, Any]:
@@ -762,11 +788,12 @@ def _frame_from_decoded(path: pathlib.Path, decoded, *, channel_map, depth_kind:
                               (camera_side.get("focal_px"), f"camera.focal_px of {sidecar}"))
     if focal_px is None:
         display = window.display[2:] if window is not None else (shape[1], shape[0])
-        focal_px = focal_from_lens(camera_side, display, where=f"{path}: camera of {sidecar}")
+        focal_px = focal_from_lens(camera_side, display, where=f"{path}: camera of {sidecar}",
+                                   resolution=side.get("resolution"), pixel_aspect=metadata.get("PixelAspectRatio"))
     mm_per_unit = _header_number(path, "mm_per_unit", mm_per_unit,
                                  (metadata.get("sss_jax:mm_per_unit"), "sss_jax:mm_per_unit"),
                                  (side.get("scene_unit_mm"), f"scene_unit_mm of {sidecar}"))
-    if mm_per_unit is None and layout == "blender":
+    if mm_per_unit is None and (layout == "blender" or "BlenderMultiChannel" in metadata):
         # Blender's depth is in its scene unit, the metre at the default unit scale; read as 1 mm a unit (what a
         # generic frame without a unit gets) every material would be 1000 times wider than the user meant
         mm_per_unit = BLENDER_MM_PER_UNIT
@@ -780,7 +807,8 @@ def _frame_from_decoded(path: pathlib.Path, decoded, *, channel_map, depth_kind:
     depth = np.where(surface_mask(depth), depth, np.inf).astype(np.float32)
     if depth_kind == "distance":
         if focal_px is None:
-            raise SSSInputError(f"{path}: depth_kind='distance' needs the focal length (focal_px) to convert to planar")
+            raise SSSInputError(f"{path}: depth_kind='distance' needs the focal length to convert the depth to "
+                                f"planar: {_focal_sources(path)}")
         depth = np.where(np.isfinite(depth), distance_to_planar(np.where(np.isfinite(depth), depth, 1.0), focal_px,
                                                                  principal_point), np.inf).astype(np.float32)
     irradiance = np.asarray(buffers["irradiance"], np.float32)

@@ -351,6 +351,19 @@ def test_resume_skips_exactly_the_frames_made_the_same_way(frames, tmp_path):
     assert [f.status for f in run(other, resume=False).frames] == ["done"] * 3
 
 
+def test_outputs_made_under_an_older_reading_of_the_files_are_computed_again(frames, tmp_path, monkeypatch):
+    # the same file and arguments can read as another frame when the reader changes (2026-12-06: a Blender frame
+    # without a unit in metres, not mm): an output made under the older reading is not kept on resume
+    src = tmp_path / "src"
+    copy_frame(frames, "f0.exr", src / "f0.exr")
+    run = lambda: process_frames(str(src / "*.exr"), "burley", MAT, out_dir=tmp_path / "out", samples=4,
+                                 progress=False, devices=jax.devices()[:1])
+    assert run().ok
+    assert [f.status for f in run().frames] == ["skipped"]
+    monkeypatch.setattr(_io, "READER_REVISION", _io.READER_REVISION + 1)
+    assert [f.status for f in run().frames] == ["done"]
+
+
 @pytest.mark.parametrize("devices", [1, 4])
 def test_an_input_rewritten_after_its_read_is_recomputed_on_resume(frames, tmp_path, monkeypatch, devices):
     # the output's record stamps its input (path, size, mtime) as it was when the frame was read; an input rewritten

@@ -84,7 +84,7 @@ def register(subparsers) -> None:
                     "the errors are against it instead of the reference")
     fr.add_argument("--truth-channels", help="truth pass (Blender: Combined, the default) or R,G,B channel names")
     fr.add_argument("--focal-px", type=float, help="focal length in pixels")
-    fr.add_argument("--mm-per-unit", type=float, help="millimetres per scene unit of the depth buffer")
+    fr.add_argument("--mm-per-unit", type=float, help="millimetres per scene unit of the depth buffer (default: the EXR header's or the sidecar's; else 1, or 1000 for a Blender file)")
     fr.add_argument("--depth-kind", choices=("planar", "distance"), default="planar")
     fr.add_argument("--channel-map", help="JSON/TOML file mapping buffers to channels, or naming the Blender view layer to read ({\"layer\": \"ViewLayer\"})")
     p.add_argument("--max-delta-e", type=float, required=True, help="budget: mean CIEDE2000 against the reference "
@@ -141,7 +141,7 @@ def _frame(args, material):
             raise ValueError(f"{flag} is for the demo scene; with --frame the frame and its camera are measured "
                              "(--mm-per-unit sets its scale)")
     from .._evaluate import read_truth
-    from .._io import read_frame
+    from .._io import no_focal_length, read_frame
 
     for name in ("focal_px", "mm_per_unit"):
         v = getattr(args, name)
@@ -150,8 +150,7 @@ def _frame(args, material):
     f = read_frame(args.frame, channel_map=args.channel_map, focal_px=args.focal_px, mm_per_unit=args.mm_per_unit,
                    depth_kind=args.depth_kind)
     if f.focal_px is None:
-        raise ValueError(f"--frame {args.frame}: no focal length (pass --focal-px, or put sss_jax:focal_px in the "
-                         "header or camera.focal_px in the sidecar JSON)")
+        raise no_focal_length(args.frame)
     # the frame's albedo pass where it has one and no --albedo overrides it
     buffers = f.to_buffers(use_albedo=args.albedo is None)
     out = {"buffers": buffers, "camera": Camera(f.focal_px, f.scene_unit_mm)}

@@ -24,14 +24,16 @@ input, output, status (done, failed with the message, skipped, pending) and seco
 any frame runs, the batch is refused (exit 2, nothing written) when two inputs would write one output, an output is
 an input, an existing output was made from another input (--overwrite allows it), or a folder is not writable.
 --resume skips frames whose output is complete and was made from the same input (path, size, mtime) with the same
-technique, parameters and sss_jax version (recorded in its EXR header). Frames larger than a tile's budget run in
+technique, parameters, sss_jax version and reading of the files (recorded in its EXR header). Frames larger than a tile's budget run in
 tiles overlapping by the kernel's reach (same result); sample or tap counts beyond the footprint's pixels are
 clamped with a warning.
 
 Input channels: R,G,B irradiance and Z planar depth (scene units; inf = no surface); optional albedo.R/G/B, N.X/Y/Z,
 thickness, id (0 = no SSS: passes through untouched). A Blender multi-layer EXR works as it is (DiffDir + DiffInd,
 Depth, DiffCol, IndexOB); --albedo overrides the albedo pass. The focal length and scene unit come from the flags,
-the EXR header (sss_jax:focal_px, sss_jax:mm_per_unit) or a sidecar <name>.json (camera.focal_px, scene_unit_mm).
+the EXR header (sss_jax:focal_px, sss_jax:mm_per_unit) or a sidecar <name>.json (camera.focal_px, or Blender's
+camera.lens_mm and sensor_width_mm; scene_unit_mm); a Blender file without a unit is read in metres (with a warning),
+any other in millimetres.
 """
 
 
@@ -59,7 +61,7 @@ def register(subparsers) -> None:
     p.add_argument("--preset", help="material preset: a name (fits/<name>.json, or a directory in SSS_JAX_PRESETS) "
                    "or a preset JSON file")
     p.add_argument("--focal-px", type=float, help="focal length in pixels")
-    p.add_argument("--mm-per-unit", type=float, help="millimetres per scene unit of the depth buffer")
+    p.add_argument("--mm-per-unit", type=float, help="millimetres per scene unit of the depth buffer (default: the EXR header's or the sidecar's; else 1, or 1000 for a Blender file)")
     p.add_argument("--depth-kind", choices=("planar", "distance"), default="planar",
                    help="Z is planar view depth (default) or distance to the camera")
     p.add_argument("--channel-map", help="JSON/TOML file mapping buffers (irradiance, depth, albedo, normal, thickness, id) to channels, or naming the Blender view layer to read ({\"layer\": \"ViewLayer\"})")
@@ -321,7 +323,8 @@ def _reference_radius(inputs, args, material) -> int:
     radius = 1
     for path in inputs:
         try:
-            f = read_frame(path, channel_map=args.channel_map, focal_px=args.focal_px, mm_per_unit=args.mm_per_unit)
+            f = read_frame(path, channel_map=args.channel_map, focal_px=args.focal_px, mm_per_unit=args.mm_per_unit,
+                           depth_kind=args.depth_kind)
         except (OSError, ValueError):
             continue  # reported when the batch reaches it
         if f.focal_px is not None:

@@ -74,7 +74,7 @@ def register(subparsers) -> None:
     m.add_argument("--mfp-mm", type=rgb_triple, help="mean free path per channel, mm")
     c = p.add_argument_group("camera and channels (as sss-jax apply)")
     c.add_argument("--focal-px", type=float, help="focal length in pixels")
-    c.add_argument("--mm-per-unit", type=float, help="millimetres per scene unit of the depth buffer")
+    c.add_argument("--mm-per-unit", type=float, help="millimetres per scene unit of the depth buffer (default: the EXR header's or the sidecar's; else 1, or 1000 for a Blender file)")
     c.add_argument("--depth-kind", choices=("planar", "distance"), default="planar")
     c.add_argument("--channel-map", help="JSON/TOML file mapping buffers to channels, or naming the Blender view layer to read ({\"layer\": \"ViewLayer\"})")
     c.add_argument("--radius-px", type=int, help="reference window radius in px (default: 99.9%% of the energy, at most 96 px)")
