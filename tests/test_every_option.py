@@ -230,6 +230,11 @@ def test_report_shows_the_engines_passes_with_their_cost(tmp_path, capsys, as_us
         want = np.linalg.norm(img[mask] - truth[mask]) / np.linalg.norm(truth[mask])
         assert rows[label]["vs_truth"]["rel_l2"] == pytest.approx(want, rel=1e-5)
         assert rows[label]["worse_than_local_shading"]["vs_truth"] is not None
+        # the terminal says it too, under the run's cost line (before, only the HTML and the JSON had the errors)
+        line = err.out.split(f"  {label}: ", 1)[1].splitlines()[1]
+        assert f"vs truth rel L2 {rows[label]['vs_truth']['rel_l2']:.4f}" in line and abs(
+            float(line.split("vs truth rel L2 ")[1][:6]) - want) < 6e-5, line
+    assert "  local shading (no SSS): vs reference rel L2 " in err.out and "vs truth rel L2" in err.out
     page = (tmp_path / "rep" / "report.html").read_text()
     assert "fetches / px" in page and "hdrp quality=high frames=2" in page
     assert "hdrp quality=low frames=2" in err.out  # the terminal lists each run's cost
@@ -317,3 +322,18 @@ def test_fit_render_passes_the_technique_options(tmp_path, monkeypatch, capsys, 
         "leaves", "fixed", 4, "bilinear")
     with pytest.raises(ValueError, match="has no option"):
         match._fit_technique("burley", {"quality": "low"}, samples=4)
+
+
+@pytest.mark.parametrize("command", ["apply", "report", "advise"])
+def test_a_technique_flags_help_names_each_technique_once(command, capsys):
+    # the flags' help is "[hdrp] <what it does>"; before, the engines' options carried their name in their own
+    # text as well: "[hdrp] hdrp: texturing mode", "jimenez: jimenez: SSSS_FOLLOW_SURFACE"
+    import re
+
+    with pytest.raises(SystemExit):
+        main([command, "--help"])
+    text = " ".join(capsys.readouterr().out.split())  # argparse wraps lines
+    assert "--quality" in text and "--follow-surface" in text
+    repeated = re.findall(r"\b(sta|separable|burley|reference|hdrp|eevee-next|jimenez): \1:", text)
+    assert not repeated, repeated
+    assert not re.search(r"\[(hdrp|eevee-next|jimenez)\] \1:", text), text

@@ -439,7 +439,11 @@ def test_cli_demo_writes_images_and_summary(tmp_path, capsys):
                                                                   abs=6e-6)
     assert 0 < rows["burley_8"]["rel_l2_vs_reference"] < rows["local"]["rel_l2_vs_reference"]
     assert rows["sta"]["energy_ratio_rgb"][0] > 1  # STA adds light
-    assert "rel L2 vs ref" in capsys.readouterr().out
+    said = capsys.readouterr()
+    assert "rel L2 vs ref" in said.out
+    # 9 taps over a 9 px reach: the sampling warning, said as apply says it (before: Python's own format with the
+    # source file and line of the code that raised it)
+    assert "sss-jax demo: warning: separable: 9 taps at a reach of" in said.err and "SamplingWarning" not in said.err
 
 
 def test_cli_apply_single_and_many(tmp_path, capsys):

@@ -182,11 +182,11 @@ class EeveeNextPass(AbstractTechnique):
     conserves_energy: ClassVar[bool] = True
     material_type: ClassVar[type | tuple[type, ...]] = BurleyMaterial
 
-    frames: int = option(16, "eevee-next: TAA samples accumulated (each a new 16-sample pattern)")
-    blender_version: str = option("4.2", "eevee-next: Blender version (4.2 or later: the 16-sample pattern)")
-    albedo_mode: str = option("post", "eevee-next: albedo applied after the scatter, or split before and after",
+    frames: int = option(16, "TAA samples accumulated (each a new 16-sample pattern)")
+    blender_version: str = option("4.2", "Blender version (4.2 or later: the 16-sample pattern)")
+    albedo_mode: str = option("post", "albedo applied after the scatter, or split before and after",
                               choices=ALBEDO_MODES)
-    seed: int = option(0, "eevee-next: offset into the TAA sample sequence", static=False)
+    seed: int = option(0, "offset into the TAA sample sequence", static=False)
 
     def __check_init__(self):
         check_host_count(self.frames, "eevee-next: frames")

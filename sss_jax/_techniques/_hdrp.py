@@ -146,12 +146,12 @@ class HdrpPass(AbstractTechnique):
     conserves_energy: ClassVar[bool] = True
     material_type: ClassVar[type | tuple[type, ...]] = BurleyMaterial
 
-    quality: str = option("medium", "hdrp: sample budget by quality level (low 20, medium 40, high 80)",
+    quality: str = option("medium", "sample budget by quality level (low 20, medium 40, high 80)",
                           choices=tuple(HDRP_QUALITY_BUDGETS))
-    budget: int | None = option(None, "hdrp: explicit sample budget 1..1000 (overrides --quality)")
-    frames: int = option(1, "hdrp: TAA frames averaged, each with its own rotation hash")
-    albedo_mode: str = option("post", "hdrp: texturing mode (post-scatter, or pre-and-post)", choices=ALBEDO_MODES)
-    seed: int = option(0, "hdrp: seed of the per-pixel rotation hash", static=False)
+    budget: int | None = option(None, "explicit sample budget 1..1000 (overrides --quality)")
+    frames: int = option(1, "TAA frames averaged, each with its own rotation hash")
+    albedo_mode: str = option("post", "texturing mode (post-scatter, or pre-and-post)", choices=ALBEDO_MODES)
+    seed: int = option(0, "seed of the per-pixel rotation hash", static=False)
 
     def __check_init__(self):
         hdrp_budget(self.quality, self.budget)

@@ -204,10 +204,10 @@ class JimenezPass(AbstractTechnique):
     conserves_energy: ClassVar[bool] = True
     material_type: ClassVar[type | tuple[type, ...]] = (BurleyMaterial, JimenezParams)
 
-    taps: int = option(17, "jimenez: kernel taps (SSSS_N_SAMPLES: 11, 17 or 25)", choices=JIMENEZ_TAPS)
-    follow_surface: bool = option(True, "jimenez: SSSS_FOLLOW_SURFACE (lerp taps across depth steps to the centre)",
+    taps: int = option(17, "kernel taps (SSSS_N_SAMPLES: 11, 17 or 25)", choices=JIMENEZ_TAPS)
+    follow_surface: bool = option(True, "SSSS_FOLLOW_SURFACE (lerp taps across depth steps to the centre)",
                                   choices=(True, False))
-    albedo_mode: str = option("post", "jimenez: albedo applied after the scatter, or split before and after",
+    albedo_mode: str = option("post", "albedo applied after the scatter, or split before and after",
                               choices=ALBEDO_MODES)
 
     def params(self, material, camera: Camera) -> JimenezParams:

@@ -100,29 +100,32 @@ def run(args) -> int:
         print(f"sss-jax demo: {exc}", file=sys.stderr)
         return 2
 
-    t0 = time.perf_counter()
-    result = run_demo(height=height, width=width, samples=args.samples, taps=args.taps,
-                      progress=lambda msg: print(msg, file=sys.stderr, flush=True))
-    for name, img in result.images.items():
-        write_exr(out / f"{name}.exr", img.astype("float32"), attributes={"sss_jax:technique": name})
-        write_png_preview(out / f"{name}.png", img)
-    _write_overview(out / "overview.png", result)
-    rows = summary_rows(result)
-    write_json_atomic(out / "summary.json", {"made_by": MADE_BY, "width": width, "height": height, "rows": rows})
-    print(f"\n{'technique':34s} {'ms/frame':>9s} {'rel L2 vs ref':>14s}  energy out/in (R, G, B)")
-    for r in rows:
-        ms = "" if r["ms_per_frame"] is None else f"{r['ms_per_frame']:9.1f}"
-        print(f"{r['technique']:34s} {ms:>9s} {r['rel_l2_vs_reference']:14.4f}  "
-              + ", ".join(f"{x:.3f}" for x in r["energy_ratio_rgb"]))
-    print("(STA adds light: its energy ratio exceeds 1 by design; separable and Burley redistribute it.)")
-    if not args.no_report:
-        from .._demo import demo_montecarlo, demo_trade
-        from .._reporting import write_demo_report
+    from ._options import WarningPrinter
 
-        print("timing the trade (STA, separable 9/17/25, burley 8/16/32/64) and the Monte Carlo profiles ...",
-              file=sys.stderr, flush=True)
-        html = write_demo_report(result, out, trade=demo_trade(result), montecarlo=demo_montecarlo())
-        print(f"report: {html}")
+    with WarningPrinter("sss-jax demo"):  # the passes' warnings as apply and report say them, once each
+        t0 = time.perf_counter()
+        result = run_demo(height=height, width=width, samples=args.samples, taps=args.taps,
+                          progress=lambda msg: print(msg, file=sys.stderr, flush=True))
+        for name, img in result.images.items():
+            write_exr(out / f"{name}.exr", img.astype("float32"), attributes={"sss_jax:technique": name})
+            write_png_preview(out / f"{name}.png", img)
+        _write_overview(out / "overview.png", result)
+        rows = summary_rows(result)
+        write_json_atomic(out / "summary.json", {"made_by": MADE_BY, "width": width, "height": height, "rows": rows})
+        print(f"\n{'technique':34s} {'ms/frame':>9s} {'rel L2 vs ref':>14s}  energy out/in (R, G, B)")
+        for r in rows:
+            ms = "" if r["ms_per_frame"] is None else f"{r['ms_per_frame']:9.1f}"
+            print(f"{r['technique']:34s} {ms:>9s} {r['rel_l2_vs_reference']:14.4f}  "
+                  + ", ".join(f"{x:.3f}" for x in r["energy_ratio_rgb"]))
+        print("(STA adds light: its energy ratio exceeds 1 by design; separable and Burley redistribute it.)")
+        if not args.no_report:
+            from .._demo import demo_montecarlo, demo_trade
+            from .._reporting import write_demo_report
+
+            print("timing the trade (STA, separable 9/17/25, burley 8/16/32/64) and the Monte Carlo profiles ...",
+                  file=sys.stderr, flush=True)
+            html = write_demo_report(result, out, trade=demo_trade(result), montecarlo=demo_montecarlo())
+            print(f"report: {html}")
     print(f"wrote {out}/ in {time.perf_counter() - t0:.1f} s")
     return 0
 

@@ -4,6 +4,7 @@ and what each costs."""
 from __future__ import annotations
 
 import argparse
+import json
 import pathlib
 import shutil
 import sys
@@ -283,11 +284,21 @@ def run(args) -> int:
         print(f"sss-jax report: {exc}", file=sys.stderr)
         return 2
     rows = [(r.label, r.ms_per_frame) for r in data.runs]
-    for r in data.runs:  # what each run costs as its shader executes it, beside the time here
+    summary = json.loads((args.out / "report.json").read_text())
+    errors = {e["label"]: e for e in summary["techniques"]}
+    targets = [("vs_reference", "reference")] + ([("vs_truth", "truth")] if summary["local_shading"]["vs_truth"]
+                                                  else [])
+
+    def accuracy(e) -> str:  # the report's summary in one line: rel L2 and mean CIEDE2000 against each target
+        return "; ".join(f"vs {what} rel L2 {e[k]['rel_l2']:.4f}, dE {e[k]['delta_e_mean']:.2f}" for k, what in targets)
+
+    for r in data.runs:  # what each run costs as its shader executes it, beside the time here, and how wrong it is
         c = r.cost_per_pixel or {}
         cost = (f"; {c['samples']:g} samples, {c['fetches']:g} texels, {c['flops']:g} flops per SSS pixel and frame"
                 if c else "")
         print(f"  {r.label}: {r.ms_per_frame:.1f} ms per frame here{cost}")
+        print(f"    {accuracy(errors[r.label])}")
+    print(f"  local shading (no SSS): {accuracy(summary['local_shading'])}")
     for note in notes:  # what the report left out and why (also in report.json's notes)
         print(f"sss-jax report: note: {note}", file=sys.stderr)
     print(f"report: {html}")
