@@ -112,11 +112,16 @@ def _count_cost(t, buffers, material, camera, active=None) -> dict[str, Any]:
     model = cost_per_pixel(t.name, count, interpolation)
     _, depth, _ = _sss_pixels(buffers)
     active = np.ones(depth.shape, bool) if active is None else active
-    samples = np.where(active, count, 0).astype(np.float64)
+    passes = _PASSES.get(t.name, 1)  # separable's taps run once per pass, as jimenez's are counted
+    samples = np.where(active, passes * count, 0).astype(np.float64)
     fetches = np.where(active, model["fetches"], 1).astype(np.float64)
     flops = np.where(active, model["flops"], 0).astype(np.float64)
+    per_pass = f"{passes} passes x " if passes > 1 else ""
     return _summary(samples, fetches, flops, active, getattr(t, "frames", 1),
-                    f"{count} {t.count_option} per pixel ({interpolation} fetches)")
+                    f"{per_pass}{count} {t.count_option} per pixel ({interpolation} fetches)")
+
+
+_PASSES = {"separable": 2}  # the 1D passes a count runs in (``cost_per_pixel``'s separable model)
 
 
 def _burley_cost(t, buffers, material, camera) -> dict[str, Any]:

@@ -337,3 +337,16 @@ def test_a_technique_flags_help_names_each_technique_once(command, capsys):
     repeated = re.findall(r"\b(sta|separable|burley|reference|hdrp|eevee-next|jimenez): \1:", text)
     assert not repeated, repeated
     assert not re.search(r"\[(hdrp|eevee-next|jimenez)\] \1:", text), text
+
+
+def test_separable_counts_its_taps_once_per_pass_as_jimenez_does():
+    # a separable pass of 9 taps runs them twice (horizontal, then vertical): 18 taps a pixel beside its 2 x (1 + 2 x
+    # 9) = 38 texels (linear fetches of 2 texels, the centre once per pass), as jimenez's 2 x 17 are 34; before, 9
+    from sss_jax._cost import frame_cost
+
+    sc = sj.demo_scene(24, 32)
+    mat = sj.BurleyMaterial((0.8, 0.6, 0.5), (3.0, 1.5, 0.75))
+    sep = frame_cost(sj.technique("separable", taps=9), sc.buffers, mat, sc.camera)
+    jim = frame_cost(sj.technique("jimenez", taps=17), sc.buffers, mat, sc.camera)
+    assert (sep["samples"], sep["fetches"]) == (18, 38) and sep["rule"].startswith("2 passes x 9 taps")
+    assert jim["samples"] == 34
