@@ -543,6 +543,15 @@ def frame_seed(base: int, number: int) -> int:
     return (int(base) ^ ((int(number) * 0x9E3779B1) & 0xFFFFFFFF)) & 0xFFFFFFFF
 
 
+def _under_a_pixel(material) -> str:
+    """The rest of a clamp's message where the material scatters less than a pixel: what the frame gets, and the
+    unit a d of metres typed as millimetres would have gone wrong in."""
+    d = getattr(material, "d_mm", None)
+    widest = f" (the widest d {float(np.max(np.asarray(d))):.3g} mm)" if d is not None else ""
+    return (f": the frame keeps its local shading{widest}; if that is not meant, the material's lengths are in "
+            "millimetres and the camera's unit is --mm-per-unit")
+
+
 def _clamp(tech, buffers: Buffers, material, camera: Camera):
     """The technique with its count clamped to what the frame's footprint can use, and the message (or ""): samples
     of a 2D profile beyond the next power of two above the pixels of its 99.9%-energy footprint, taps of a 1D pass
@@ -557,6 +566,9 @@ def _clamp(tech, buffers: Buffers, material, camera: Camera):
         footprint = min(math.pi * (_BURLEY_R999 * d_px) ** 2, h * w)
         bound = _next_pow2(max(footprint, 1.0))
         if samples > bound:
+            if footprint < 1:
+                return tech.replace(samples=bound), (f"samples {samples} clamped to {bound}: no pixel's footprint "
+                                                     f"reaches a neighbouring pixel{_under_a_pixel(material)}")
             return tech.replace(samples=bound), (f"samples {samples} clamped to {bound}: the footprint has "
                                                  f"{math.ceil(footprint)} pixels, more samples cannot help")
     elif option == "taps":
@@ -565,6 +577,9 @@ def _clamp(tech, buffers: Buffers, material, camera: Camera):
         # 2^k + 1 taps (odd, a centre and symmetric pairs); a pass that reaches no other pixel needs its centre only
         bound = 1 if footprint <= 1 else _next_pow2(footprint - 1) + 1
         if taps > bound:
+            if footprint <= 1:
+                return tech.replace(taps=bound), (f"taps {taps} clamped to {bound}: a pass reaches no neighbouring "
+                                                  f"pixel{_under_a_pixel(material)}")
             return tech.replace(taps=bound), (f"taps {taps} clamped to {bound}: a pass reaches {footprint} pixels, "
                                               "more taps cannot help")
     radius = getattr(tech, "radius_px", None)
@@ -1055,7 +1070,8 @@ def _pieces_for(tech, call_s: float, bound: float):
 
 def _count_text(tech) -> str:
     opts = _technique_options(tech)
-    shown = [f"{opts[k]} {k.replace('_', ' ')}" for k in ("samples", "taps", "radius_px", "frames") if k in opts
+    name = lambda k: k.replace("_", " ").removesuffix("s" if opts[k] == 1 and k != "radius_px" else "")
+    shown = [f"{opts[k]} {name(k)}" for k in ("samples", "taps", "radius_px", "frames") if k in opts
              and not (k == "frames" and opts[k] == 1)]
     return ", ".join(shown) or "its options"
 

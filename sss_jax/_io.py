@@ -222,6 +222,8 @@ def _read_image(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[st
                 placed = _frame_window(spec)
                 for attr in spec.extra_attribs:
                     metadata[attr.name] = attr.value
+                if inp.format_name() != "openexr":  # what a missing channel's message says of the file
+                    metadata["sss_jax:file_format"] = inp.format_name()
             elif (spec.x, spec.y, spec.width, spec.height) != data_window:
                 # parts of one frame cover the same pixels (a pass at another resolution is not a crop of it)
                 x, y, w, h = data_window
@@ -774,7 +776,14 @@ def _frame_from_decoded(path: pathlib.Path, decoded, *, channel_map, depth_kind:
             )
         key = _first(d_channels, "Z", "depth.Z", "Depth.Z", "Y", "R") or next(iter(d_channels))
         channels = dict(channels, **{"Z": d_channels[key]})
-    plan, layout = _resolve(channels, cmap, path)
+    try:
+        plan, layout = _resolve(channels, cmap, path)
+    except SSSInputError as exc:
+        fmt = metadata.get("sss_jax:file_format")
+        if fmt is None:
+            raise
+        raise SSSInputError(f"{exc} (a {fmt.upper()} file, not OpenEXR: a frame is linear light and depth, as a "
+                            "renderer writes them in an EXR)") from None
     if layout == "blender" and any(".Combined." in name for name in plan["irradiance"]):
         warn(f"{path}: no diffuse light passes (DiffDir, DiffInd): the irradiance is the Combined pass, which is "
              "shaded already (the surface colour, specular and emission in it), so the albedo counts twice and the "

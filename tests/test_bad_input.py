@@ -834,3 +834,17 @@ def test_a_bool_is_not_a_count_anywhere(tmp_path):
         sj.evaluate_frames([str(tmp_path / "none.exr")], mat, techniques=("burley",), radius_px=True)
     # the counts of the engines' conversions take a whole float (a parameter read from JSON), not a fraction
     assert sj.to_engine("eevee", (0.8, 0.5, 0.3), (2, 1, 1), samples=7.0)["Samples"] == 7
+
+
+def test_a_display_image_given_as_a_frame_says_what_it_is(tmp_path):
+    # an 8-bit PNG (a preview, a screenshot) passed where a frame belongs: OpenImageIO reads it, and the missing
+    # depth is named with what the file is (before: only "missing depth channel(s) ... channels found: R, G, B")
+    from sss_jax import _io
+
+    path = tmp_path / "shot.png"
+    write_ok = oiio.ImageOutput.create(str(path))
+    spec = oiio.ImageSpec(6, 4, 3, oiio.UINT8)
+    assert write_ok.open(str(path), spec) and write_ok.write_image(np.full((4, 6, 3), 128, np.uint8))
+    write_ok.close()
+    with pytest.raises(_io.SSSInputError, match=r"shot.png: missing depth channel\(s\) .* \(a PNG file, not OpenEXR"):
+        _io.read_frame(path)

@@ -576,13 +576,27 @@ def test_samples_beyond_the_footprint_are_clamped_with_a_warning(frames, tmp_pat
     assert f"clamped to {bound}" in book["frames"][0]["message"]
 
 
+def test_a_burley_material_under_a_pixel_says_the_frame_keeps_its_local_shading(frames, tmp_path):
+    # d typed in metres where millimetres belong (0.003 for 3 mm): no pixel's footprint reaches a neighbour, and the
+    # warning says what the frame gets and which units the lengths are in (before: "the footprint has 0 pixels, more
+    # samples cannot help; it runs 1 samples")
+    tiny = sj.BurleyMaterial(MAT.albedo, np.asarray(MAT.d_mm) * 1e-3)
+    with pytest.warns(UserWarning, match=r"samples 32 clamped to 1: no pixel's footprint reaches a neighbouring "
+                                         r"pixel: the frame keeps its local shading \(the widest d 0.0035 mm\)"):
+        r = process_frames(str(frames / "f0.exr"), "burley", tiny, out_dir=tmp_path, progress=False,
+                           devices=jax.devices()[:1])
+    assert r.ok and "it runs 1 sample," in r.frames[0].message, r.frames[0].message
+
+
 def test_a_separable_kernel_under_a_pixel_clamps_to_its_centre_tap(frames, tmp_path):
     # a kernel that reaches no neighbouring pixel (d far under a pixel's width): the clamp once gave 2 taps, an even
     # count the pass then refused, so the frame failed ("taps must be an odd positive integer, got 2")
     f = _io.read_frame(frames / "f0.exr")
     tiny = sj.BurleyMaterial(MAT.albedo, np.full((3, 3), 1e-4, np.float32))
     assert sj.technique("separable", taps=25).reach_px(f.to_buffers(), tiny, sj.Camera(f.focal_px, 10.0)) == 0
-    with pytest.warns(UserWarning, match="taps 25 clamped to 1: a pass reaches 1 pixels"):
+    with pytest.warns(UserWarning, match="taps 25 clamped to 1: a pass reaches no neighbouring pixel: the frame "
+                                         "keeps its local shading \\(the widest d 0.0001 mm\\); if that is not meant, "
+                                         "the material's lengths are in millimetres"):
         r = process_frames(str(frames / "f0.exr"), "separable", tiny, out_dir=tmp_path, progress=False,
                            devices=jax.devices()[:1])
     assert r.ok, r.frames[0].message
