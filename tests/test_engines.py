@@ -347,6 +347,25 @@ def test_cli_convert_json_and_table(tmp_path, capsys):
     assert "unreal -> sss_jax" in table and "burley d (mm)" in table and "3, 1.4, 0.8" in table
 
 
+def test_cli_convert_takes_the_hdrp_colour_it_prints(tmp_path, capsys):
+    # convert prints HDRP's Scattering Color as the inspector's hex: that text goes back in as it came out
+    out = tmp_path / "hdrp.json"
+    assert main(["convert", "--from", "sss_jax", "--to", "hdrp", "--albedo", "0.8,0.6,0.5", "--d-mm", "3,1.4,0.8",
+                 "--json", str(out)]) == 0
+    profile = json.loads(out.read_text())["hdrp"]
+    shown = profile["Scattering Color (inspector hex)"]
+    assert shown.startswith("#") and len(shown) == 7
+    assert main(["convert", "--from", "hdrp", "--to", "sss_jax", "--albedo", "0.8,0.6,0.5", "--scattering-color-srgb",
+                 shown, "--multiplier", str(profile["Multiplier"]), "--json", str(tmp_path / "back.json")]) == 0
+    # 8 bits of sRGB a channel: the distance comes back within the hex's rounding (half a step of 255)
+    back = json.loads((tmp_path / "back.json").read_text())["burley"]["d_mm"]
+    assert back == pytest.approx([3.0, 1.4, 0.8], rel=0.01)
+    capsys.readouterr()
+    with pytest.raises(SystemExit):
+        main(["convert", "--from", "hdrp", "--to", "sss_jax", "--albedo", "0.8", "--scattering-color-srgb", "#C9E0B"])
+    assert "expected a hex colour #RRGGBB or R,G,B, got '#C9E0B'" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("argv, message", [
     (["--from", "blender", "--to", "hdrp", "--albedo", "0.5"], "--from blender needs --radius"),
     (["--from", "sss_jax", "--to", "hdrp", "--albedo", "0.5"], "exactly one of --d-mm"),

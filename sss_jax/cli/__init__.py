@@ -38,6 +38,16 @@ def rgb_triple(text: str) -> tuple[float, float, float]:
 
 
 
+def srgb_colour(text: str) -> tuple[float, float, float]:
+    """argparse type for an sRGB colour as an inspector shows it: R,G,B in [0, 1] or the hex ``#RRGGBB``."""
+    hex_digits = text.strip().removeprefix("#")
+    if text.strip().startswith("#"):
+        if len(hex_digits) != 6 or any(c not in "0123456789abcdefABCDEF" for c in hex_digits):
+            raise argparse.ArgumentTypeError(f"expected a hex colour #RRGGBB or R,G,B, got {text!r}")
+        return tuple(int(hex_digits[i:i + 2], 16) / 255 for i in (0, 2, 4))
+    return rgb_triple(text)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = Parser(
         prog="sss-jax",

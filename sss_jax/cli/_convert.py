@@ -8,7 +8,7 @@ import json
 import pathlib
 import sys
 
-from . import rgb_triple
+from . import rgb_triple, srgb_colour
 
 EPILOG = """examples:
   sss-jax convert --from sss_jax --to blender --albedo 0.8,0.6,0.5 --d-mm 3,1.4,0.8 --method random-walk
@@ -29,7 +29,7 @@ burley.d_mm, the target's parameters by their UI names, what is lossy or unverif
 conversion was read from; docs/engines.md has the formulas.
 """
 
-_TYPES = {"rgb": rgb_triple, "float": float, "int": int, "str": str}
+_TYPES = {"rgb": rgb_triple, "srgb": srgb_colour, "float": float, "int": int, "str": str}
 
 
 def _registry():

@@ -24,7 +24,8 @@ class Flag:
     """One ``sss-jax convert`` flag of an engine.
 
     ``key``: the name of the value in the engine's parameter dict (``--from``); ``option``: the keyword of its
-    ``to_engine`` (``--to``); either may be None. ``kind``: ``rgb`` (R,G,B or one number), ``float``, ``int`` or
+    ``to_engine`` (``--to``); either may be None. ``kind``: ``rgb`` (R,G,B or one number), ``srgb`` (that, or a hex
+    ``#RRGGBB``), ``float``, ``int`` or
     ``str`` (with ``choices``). Several engines may declare the same flag with the same kind.
     """
 
@@ -42,7 +43,8 @@ class Flag:
 
     @property
     def metavar(self) -> str:
-        return {"rgb": "R,G,B", "float": "X", "int": "N"}.get(self.kind, "|".join(self.choices or ("S",)))
+        return {"rgb": "R,G,B", "srgb": "R,G,B|#RRGGBB", "float": "X", "int": "N"}.get(self.kind,
+                                                                              "|".join(self.choices or ("S",)))
 
 
 ALBEDO_HELP = "surface albedo R,G,B in [0,1]"

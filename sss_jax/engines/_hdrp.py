@@ -46,8 +46,8 @@ class Hdrp(AbstractEngine):
     flags: ClassVar[tuple[Flag, ...]] = (
         Flag("--albedo", ALBEDO_HELP, key="Base Color", required=True),
         Flag("--scattering-color", "hdrp: Scattering Color as stored (linear)", key="Scattering Color"),
-        Flag("--scattering-color-srgb", "hdrp: Scattering Color as the inspector shows it (sRGB-encoded)",
-             key="Scattering Color (inspector sRGB)"),
+        Flag("--scattering-color-srgb", "hdrp: Scattering Color as the inspector shows it (sRGB-encoded: R,G,B in "
+             "[0, 1], or its hex #RRGGBB)", key="Scattering Color (inspector sRGB)", kind="srgb"),
         Flag("--multiplier", "hdrp: scattering distance Multiplier (default 1)", key="Multiplier", kind="float"),
         Flag("--world-scale", "hdrp: World Scale, metres per unit (default 1, Unity's)", key="World Scale",
              kind="float"),
