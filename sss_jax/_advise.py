@@ -256,8 +256,11 @@ def measure_candidates(material: BurleyMaterial, *, buffers: Buffers | None = No
 def choose(candidates: Sequence[Candidate], max_delta_e: float) -> tuple[Candidate | None, str]:
     """The fastest candidate whose ΔE is within the budget, and why. Candidates within the budget whose timings
     cannot be told from the fastest one's (``Candidate.within_noise_of``: interquartile ranges overlap) tie with it,
-    and the most accurate of the tie is the choice."""
-    within = [c for c in candidates if c.delta_e <= max_delta_e]
+    and the most accurate of the tie is the choice. A candidate less accurate than local shading (no SSS), when local
+    shading is a candidate, is never the choice: local shading is the better and cheaper one."""
+    local = [c for c in candidates if c.technique == "local"]
+    within = [c for c in candidates if c.delta_e <= max_delta_e
+              and not (local and c.technique != "local" and c.delta_e > local[0].delta_e)]
     if not within:
         best = min(candidates, key=lambda c: (c.delta_e, c.ms))
         return None, (f"no candidate stays within mean dE2000 {max_delta_e:g}; the most accurate is {best.label} "
@@ -288,6 +291,8 @@ def choose(candidates: Sequence[Candidate], max_delta_e: float) -> tuple[Candida
     if cheaper:
         c = min(cheaper, key=lambda c: c.delta_e)
         why += f"; the best cheaper one, {c.label}, misses the budget (dE {c.delta_e:.3f})"
+    if pick.technique == "local":
+        why += "; local shading already meets the budget on this scene: subsurface scattering is not needed here"
     return pick, why
 
 

@@ -822,6 +822,22 @@ def test_choose_prefers_the_more_accurate_where_timings_are_within_the_noise():
     assert choose(NOISY, 0.45)[0].count == 32
 
 
+def test_choose_never_picks_a_candidate_worse_than_local_shading():
+    # burley 4 is the fastest within a loose budget and within the noise of local shading, but less accurate than no
+    # SSS at all: local shading is the choice, and the advice says SSS is not needed (before: burley 4 could be picked
+    # and was listed "within the noise" beside its own "worse than local shading" flag)
+    table = [Candidate("local", None, 1.30, 1.0, 1.20, 1.45), Candidate("burley", 4, 1.25, 1.4, 1.10, 1.40),
+             Candidate("separable", 9, 6.0, 0.8, 5.8, 6.2)]
+    pick, why = choose(table, 3.0)
+    assert pick.technique == "local", why
+    assert "burley 4" not in why and "subsurface scattering is not needed here" in why
+    # faster beyond the noise, still less accurate than no SSS: still not the choice (before, it was)
+    quick = [table[0], Candidate("burley", 4, 0.5, 1.4, 0.45, 0.55), table[2]]
+    assert choose(quick, 3.0)[0].technique == "local"
+    # without local shading among the candidates, nothing is held against it
+    assert choose(table[1:], 3.0)[0].count == 4
+
+
 def test_measure_candidates_keeps_the_median_and_spread_of_the_timings(monkeypatch):
     # injected timings (ms), no clock: median and quartiles as np.percentile's linear rule gives them by hand
     # ([1, 2, 3, 4, 100]: 25% at position 1 -> 2, 50% -> 3, 75% at position 3 -> 4)
