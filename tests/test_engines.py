@@ -335,6 +335,7 @@ def test_cli_convert_json_and_table(tmp_path, capsys):
     rc = main(["convert", "--from", "sss_jax", "--to", "unreal", "--albedo", "0.8,0.6,0.5", "--d-mm", "3,1.4,0.8",
                "--json", str(out)])
     assert rc == 0
+    assert "sss_jax -> unreal" in capsys.readouterr().out  # the table too, not only the file (before: only the file)
     data = json.loads(out.read_text())
     assert data["burley"]["d_mm"] == pytest.approx(D_MM.tolist())
     assert data["albedo"] == pytest.approx(ALBEDO.tolist())

@@ -81,7 +81,7 @@ def register(subparsers) -> None:
         p.add_argument("--to-" + f.flag[2:], dest="to_" + f.dest, type=_TYPES[f.kind], choices=f.choices,
                        metavar=f.metavar, help=f"the target's {f.flag[2:]} where it differs from the source's "
                        f"(default: {f.flag}'s value)")
-    p.add_argument("--json", type=pathlib.Path, help="write the result as JSON here (default: print a table)")
+    p.add_argument("--json", type=pathlib.Path, help="also write the result as JSON here (the table is printed either way)")
     p.set_defaults(func=run)
 
 
@@ -150,11 +150,10 @@ def run(args) -> int:
         hint = "".join(f" ({flag} set both --from and --to; --to-{flag[2:]} sets the target's alone)" for flag in both)
         print(f"sss-jax convert: {exc}{hint}", file=sys.stderr)
         return 2
+    print(_table(result))  # the table always; the JSON as well where asked
     if args.json is not None:
         from .._io import write_json_atomic
 
         write_json_atomic(args.json, result)
         print(f"wrote {args.json}", file=sys.stderr)
-    else:
-        print(_table(result))
     return 0
