@@ -104,6 +104,9 @@ def _summary(samples: np.ndarray, fetches: np.ndarray, flops: np.ndarray, active
             "frames": int(frames), "rule": rule}
 
 
+_PASSES = {"separable": 2}  # the 1D passes a count runs in (``cost_per_pixel``'s separable model)
+
+
 def _count_cost(t, buffers, material, camera, active=None) -> dict[str, Any]:
     """separable and burley: the count model on every pixel the pass computes (``active``: the pixels it computes;
     the others keep their own irradiance, one fetch)."""
@@ -119,9 +122,6 @@ def _count_cost(t, buffers, material, camera, active=None) -> dict[str, Any]:
     per_pass = f"{passes} passes x " if passes > 1 else ""
     return _summary(samples, fetches, flops, active, getattr(t, "frames", 1),
                     f"{per_pass}{count} {t.count_option} per pixel ({interpolation} fetches)")
-
-
-_PASSES = {"separable": 2}  # the 1D passes a count runs in (``cost_per_pixel``'s separable model)
 
 
 def _burley_cost(t, buffers, material, camera) -> dict[str, Any]:
