@@ -345,5 +345,9 @@ def test_blenders_half_float_passes_read_as_blender_wrote_them(tmp_path):
                  ",".join(map(str, a)), "--d-mm", ",".join(map(str, d))]) == 0
     got = raw_read(out)
     rgb = np.stack([got[c] for c in "RGB"], -1)
-    want = np.asarray(sj.burley(b, sj.BurleyMaterial(np.float32(a), np.float32(d)), cam, samples=8), np.float64)
-    np.testing.assert_allclose(rgb[mask], want[mask], rtol=2e-6, atol=1e-7)
+    with jax.enable_x64(False):  # as the CLI computes
+        want = np.asarray(sj.burley(b, sj.BurleyMaterial(np.float32(a), np.float32(d)), cam, samples=8), np.float64)
+    # float32 either way, but the API's call and the batch's may round differently (alone they agree to 2e-6; in
+    # the whole suite's order 5e-5 of a value apart was seen); a misread frame (another unit, layer or channel) is
+    # off by far more
+    np.testing.assert_allclose(rgb[mask], want[mask], rtol=2e-4, atol=1e-6)
