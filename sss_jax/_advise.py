@@ -86,10 +86,7 @@ class Advice:
     @property
     def worse_than_local(self) -> list[Candidate]:
         """The candidates whose error is above local shading's (no SSS at all) on this scene: the floor."""
-        local = [c for c in self.candidates if c.technique == "local"]
-        if not local:
-            return []
-        return [c for c in self.candidates if c.technique != "local" and c.delta_e > local[0].delta_e]
+        return worse_than_local(self.candidates)
 
     def table(self) -> str:
         width = max([14] + [len(c.label) for c in self.candidates])
@@ -253,14 +250,21 @@ def measure_candidates(material: BurleyMaterial, *, buffers: Buffers | None = No
     return out
 
 
+def worse_than_local(candidates: Sequence[Candidate]) -> list[Candidate]:
+    """The candidates less accurate than local shading (no SSS), where local shading is one of them."""
+    local = [c for c in candidates if c.technique == "local"]
+    if not local:
+        return []
+    return [c for c in candidates if c.technique != "local" and c.delta_e > local[0].delta_e]
+
+
 def choose(candidates: Sequence[Candidate], max_delta_e: float) -> tuple[Candidate | None, str]:
     """The fastest candidate whose ΔE is within the budget, and why. Candidates within the budget whose timings
     cannot be told from the fastest one's (``Candidate.within_noise_of``: interquartile ranges overlap) tie with it,
     and the most accurate of the tie is the choice. A candidate less accurate than local shading (no SSS), when local
     shading is a candidate, is never the choice: local shading is the better and cheaper one."""
-    local = [c for c in candidates if c.technique == "local"]
-    within = [c for c in candidates if c.delta_e <= max_delta_e
-              and not (local and c.technique != "local" and c.delta_e > local[0].delta_e)]
+    worse = worse_than_local(candidates)
+    within = [c for c in candidates if c.delta_e <= max_delta_e and c not in worse]
     if not within:
         best = min(candidates, key=lambda c: (c.delta_e, c.ms))
         return None, (f"no candidate stays within mean dE2000 {max_delta_e:g}; the most accurate is {best.label} "

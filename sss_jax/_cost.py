@@ -48,11 +48,13 @@ _JIMENEZ_FLOPS_PER_TAP_FLAT = 2 + 8 + 2 + 6  # SSSS_FOLLOW_SURFACE 0: no depth t
 
 # pixels a filtered fetch reads (bilinear 2D: 4; a linear 1D fetch: 2) by registry name
 _PIXELS_PER_FETCH = {"burley": 4}
+_PASSES = {"separable": 2}  # the 1D passes a count runs in, each its own taps and centre
 _COST_MODELS: dict[str, Callable[[int | None, int], dict[str, int]]] = {
     "sta": lambda count, per_fetch: dict(_STA_COST),
     "separable": lambda count, per_fetch: {
-        "fetches": 2 * (count * per_fetch + 1),
-        "flops": 2 * (count * _SEPARABLE_FLOPS_PER_TAP + count * per_fetch * _SEPARABLE_FLOPS_PER_FETCH)},
+        "fetches": _PASSES["separable"] * (count * per_fetch + 1),
+        "flops": _PASSES["separable"] * (count * _SEPARABLE_FLOPS_PER_TAP
+                                         + count * per_fetch * _SEPARABLE_FLOPS_PER_FETCH)},
     "burley": lambda count, per_fetch: {
         "fetches": count * per_fetch + 1,
         "flops": count * _BURLEY_FLOPS_PER_SAMPLE + count * per_fetch * _BURLEY_FLOPS_PER_FETCH},
@@ -102,9 +104,6 @@ def _summary(samples: np.ndarray, fetches: np.ndarray, flops: np.ndarray, active
     return {"samples": round(float(samples.sum()) / n, 2), "fetches": round(float(fetches.sum()) / n, 2),
             "flops": round(float(flops.sum()) / n, 1), "active_fraction": round(float(active.sum()) / n, 4),
             "frames": int(frames), "rule": rule}
-
-
-_PASSES = {"separable": 2}  # the 1D passes a count runs in (``cost_per_pixel``'s separable model)
 
 
 def _count_cost(t, buffers, material, camera, active=None) -> dict[str, Any]:
