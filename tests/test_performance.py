@@ -415,6 +415,36 @@ def test_wide_separable_kernels_stay_in_chunks_after_compilation():
     assert _largest_fusion_reads(65) < _largest_fusion_reads(33)
 
 
+def _equations(jaxpr) -> int:
+    """Equations of a jaxpr and of every jaxpr inside it (loop and branch bodies): the program XLA compiles."""
+    inner = lambda p: p.jaxpr if isinstance(p, jax.extend.core.ClosedJaxpr) else p
+    return sum(1 + sum(_equations(inner(sub)) for value in e.params.values()
+                       for sub in (value if isinstance(value, (list, tuple)) else [value])
+                       if isinstance(inner(sub), jax.extend.core.Jaxpr)) for e in jaxpr.eqns)
+
+
+def test_the_separable_derivative_does_not_grow_with_the_taps():
+    # the derivatives evaluate the pass in chunks of 3 taps (``_separable._separable_passes``): with the taps fused
+    # as the call fuses them, the gradient's program grew with the taps (19,075 equations at 25 taps, 34,867 at 49,
+    # 2026-12-07) and so did its compile time (an 8x8 frame's gradient: 35-40 s at 25 taps on the 2-core CPU, 9.7 s in
+    # chunks of 3)
+    h, w = 8, 8
+    irr = jnp.asarray(np.random.default_rng(0).uniform(0.2, 1.0, (h, w, 3)))
+    z, cam = jnp.full((h, w), 20.0), sj.Camera(50.0, 10.0)
+    a = jnp.asarray([0.8, 0.55, 0.45])
+
+    def size(taps: int) -> tuple[int, int]:
+        f = lambda e, d: jnp.sum(sj.separable(sj.Buffers(irradiance=e, depth=z), sj.BurleyMaterial(a, d), cam,
+                                              taps=taps))
+        d = jnp.asarray([3.0, 1.4, 0.8])
+        return (_equations(jax.make_jaxpr(f)(irr, d).jaxpr),
+                _equations(jax.make_jaxpr(jax.grad(f, argnums=(0, 1)))(irr, d).jaxpr))
+
+    (call_25, grad_25), (call_49, grad_49) = size(25), size(49)
+    assert call_49 > 1.5 * call_25  # the call fuses every tap (one chunk up to 49): its program grows
+    assert grad_49 <= 1.05 * grad_25 and grad_25 < 1.5 * call_25, (call_25, grad_25, call_49, grad_49)
+
+
 @pytest.mark.parametrize("axis", [2, 1])
 @pytest.mark.parametrize("linear", [True, False])
 @pytest.mark.parametrize("taps_per_fusion", [33, 3])

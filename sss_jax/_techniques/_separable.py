@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 import warnings
 from collections.abc import Callable
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -106,12 +107,16 @@ def _leaving(outside_pad: Array, pad: int, length: int, unit_offsets: Array, rea
 frame_truncation = spec.frame_truncation  # the spec's (the host check and the tests read it here too)
 
 
-def tap_chunks(taps: int) -> tuple[int, int]:
+def tap_chunks(taps: int, *, derivative: bool = False) -> tuple[int, int]:
     """(chunks, taps per chunk) of a separable pass, the taps spread evenly over the chunks: one chunk up to
     ``_TAPS_PER_FUSION`` taps; beyond, chunks of at most ``_TAPS_PER_LOOP_CHUNK`` taps, never fewer than three. The
     first chunk runs on its own and a loop runs the rest (``_separable_level``): with two chunks that loop would run
     once, and XLA removes a loop of one iteration and fuses both chunks' taps into one expression again, the case
-    the chunks are there to avoid."""
+    the chunks are there to avoid. ``derivative``: the pass as its derivatives evaluate it (``_separable_passes``),
+    in chunks of at most ``_TAPS_PER_DERIVATIVE_CHUNK`` taps."""
+    if derivative:
+        chunks = max(3, -(-taps // _TAPS_PER_DERIVATIVE_CHUNK))
+        return chunks, -(-taps // chunks)
     if taps <= _TAPS_PER_FUSION:
         return 1, taps
     chunks = max(3, -(-taps // _TAPS_PER_LOOP_CHUNK))
@@ -128,6 +133,13 @@ def tap_chunks(taps: int) -> tuple[int, int]:
 # chunks of 12-17; 49 taps at 360x640 23 ms against 29, at 1080x1920 191 ms against 202).
 _TAPS_PER_FUSION = 49
 _TAPS_PER_LOOP_CHUNK = 17
+# Taps per chunk where the pass is differentiated (``_separable_passes``' JVP rule). A chunk's taps unrolled are the
+# program XLA compiles for the forward pass, its tangent and their transpose: the derivative's compile time grew
+# with the taps per chunk (2026-12-07, 2-core CPU, an 8x8 frame, gradients in d, the albedo and the irradiance at the
+# suite's XLA flags: 25 taps in one chunk 35-40 s, in chunks of 9 31 s, of 5 16 s, of 3 9.7 s; 9 taps 12.7 s, 5 taps
+# 8.8 s), and at the default flags a jitted gradient at 256x256, 25 taps, compiled in 52.7 s and ran in 1.29 s in
+# one chunk against 19.9 s and 1.03 s in chunks of 3 (24.5 s and 0.99 s in chunks of 5).
+_TAPS_PER_DERIVATIVE_CHUNK = 3
 
 
 def _band_rows(height: int, width: int) -> int:
@@ -173,7 +185,8 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
                     mm_per_unit: Array, follow_surface: bool, interpolation: str,
                     rows_per_band: int | None = None, axis: int = 2, border: str = "leaves",
                     origin_along: int = 0, frame_length: int | None = None, block_cols: int | None = None,
-                    skip_centre: bool = False, cut_table: Callable[[], Array] | Array | None = None) -> Array:
+                    skip_centre: bool = False, cut_table: Callable[[], Array] | Array | None = None,
+                    derivative: bool = False) -> Array:
     """One 1D pass of planar ``e (3, H, W)`` along ``axis``: 2 horizontal, 1 vertical (no transposes: both read
     whole rows). Each material row's levels (``level_reach_px (M, L)``, or ``(L,)`` shared) are shifted-slice passes
     blended per pixel by ``level_weights (L, H, W)`` and ``onehot (M, H, W)`` (the pixel's row; ``None`` for one
@@ -190,7 +203,8 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
     last row and column, overlapping the one before where the size is no multiple of the block: same values): no
     reassembly copy. A tile of a larger frame passes its first pixel along the pass in the frame
     (``origin_along``) and the frame's extent along it (``frame_length``): the border and the cut of wide kernels
-    follow the frame. ``skip_centre``: the first unit offset is the centre's (0), whose tap adds nothing."""
+    follow the frame. ``skip_centre``: the first unit offset is the centre's (0), whose tap adds nothing.
+    ``derivative``: the taps in the chunks derivatives take (``tap_chunks``)."""
     if axis not in (1, 2):
         raise ValueError(f"axis must be 1 (vertical) or 2 (horizontal), got {axis!r}")
     _, h, w = e.shape
@@ -238,7 +252,7 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
         w_levels = jax.lax.cond(jnp.any(level_scale < 1.0), cut_levels, lambda: uncut)
     if not leaves:  # the cut kernel renormalised: its part beyond the frame counts as the part inside
         w_levels = spec.renormalised(w_levels, jnp.sum(w_table, axis=-1, keepdims=True)[:, None])
-    chunks, per_chunk = tap_chunks(unit_offsets.shape[0])
+    chunks, per_chunk = tap_chunks(unit_offsets.shape[0], derivative=derivative)
     extra_taps = chunks * per_chunk - unit_offsets.shape[0]  # padding taps: weight 0 at offset 0 (the centre: adds 0)
     unit_offsets = jnp.pad(unit_offsets, (0, extra_taps))
     w_levels = jnp.pad(w_levels, [(0, 0), (0, 0), (0, 0), (0, extra_taps)])
@@ -314,6 +328,45 @@ def _separable_impl(buffers: Buffers, material, camera: Camera, taps: int, albed
                     kernel_groups: tuple[int, ...] | None = None, border: str = "leaves",
                     origin: tuple[int, int] = (0, 0), frame_shape: tuple[int, int] | None = None,
                     kernels: tuple[Array, Array, Array | None] | None = None) -> Array:
+    options = _PassOptions(taps, albedo_mode, follow_surface, interpolation, scale_levels, min_footprint_px,
+                           kernel_groups, border, tuple(origin), None if frame_shape is None else tuple(frame_shape))
+    return _separable_passes(options, buffers, material, camera, kernels)
+
+
+class _PassOptions(NamedTuple):
+    """``_separable_impl``'s static arguments, one hashable value (``_separable_passes``' non-differentiable one)."""
+    taps: int
+    albedo_mode: str
+    follow_surface: bool
+    interpolation: str
+    scale_levels: int
+    min_footprint_px: float
+    kernel_groups: tuple[int, ...] | None
+    border: str
+    origin: tuple[int, int]
+    frame_shape: tuple[int, int] | None
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
+def _separable_passes(options: _PassOptions, buffers: Buffers, material, camera: Camera,
+                      kernels: tuple[Array, Array, Array | None] | None) -> Array:
+    """The pass (``_separable_body``), its taps fused as ``tap_chunks`` fuses them for speed; its derivatives (the
+    JVP rule, and reverse mode through it) evaluate the same pass, the same sums in chunks of at most
+    ``_TAPS_PER_DERIVATIVE_CHUNK`` taps: a program XLA compiles several times faster, and runs no slower, where it
+    is differentiated (the comment above ``_TAPS_PER_DERIVATIVE_CHUNK``). The value beside a derivative is that
+    evaluation's: the same as the call's but for the sums' rounding."""
+    return _separable_body(options, buffers, material, camera, kernels)
+
+
+@_separable_passes.defjvp
+def _separable_passes_jvp(options: _PassOptions, primals, tangents):
+    return jax.jvp(functools.partial(_separable_body, options, derivative=True), primals, tangents)
+
+
+def _separable_body(options: _PassOptions, buffers: Buffers, material, camera: Camera,
+                    kernels: tuple[Array, Array, Array | None] | None, *, derivative: bool = False) -> Array:
+    (taps, albedo_mode, follow_surface, interpolation, scale_levels, min_footprint_px, kernel_groups, border, origin,
+     frame_shape) = options
     dtype = _work_dtype(buffers.irradiance.dtype)
     prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
     rows = prep.rows
@@ -362,7 +415,7 @@ def _separable_impl(buffers: Buffers, material, camera: Camera, taps: int, albed
     w_table = jnp.moveaxis(weights, -1, 1)  # (M, 3, n)
     common = dict(unit_offsets=unit_offsets, mm_per_unit=mm_per_unit, follow_surface=follow_surface,
                   interpolation=interpolation, border=border, skip_centre=True,  # the pass order is centre first
-                  cut_table=kernels[2])
+                  cut_table=kernels[2], derivative=derivative)
     frame_shape = tuple(buffers.depth.shape) if frame_shape is None else tuple(frame_shape)
     # planar (3, H, W): the fused loops run along rows (stacked channel slices: XLA's CPU transpose of moveaxis and
     # its layout copy take 2.5x as long at 640x360)
