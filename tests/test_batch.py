@@ -604,6 +604,26 @@ def test_a_separable_kernel_under_a_pixel_clamps_to_its_centre_tap(frames, tmp_p
     np.testing.assert_allclose(read_rgb(tmp_path / "f0.exr"), single, rtol=1e-6, atol=1e-7)
 
 
+def test_a_count_of_taps_typed_far_too_large_is_clamped_without_building_its_kernel(frames, tmp_path, monkeypatch):
+    # the reach (the outermost tap) is the same for every count above 1; it was read off the kernel of the count
+    # asked for, so --taps 200001 pre-integrated 200001 taps per material (50 s and 5.9 GB at 256x192) before the
+    # clamp cut them to what the frame can use
+    f = _io.read_frame(frames / "f0.exr")
+    b, cam = f.to_buffers(), sj.Camera(f.focal_px, 10.0)
+    built = []
+    kernels = sj.BurleyMaterial.separable_kernels
+    monkeypatch.setattr(sj.BurleyMaterial, "separable_kernels",
+                        lambda self, taps, dtype: built.append(taps) or kernels(self, taps, dtype))
+    reach = sj.technique("separable", taps=25).reach_px(b, MAT, cam)
+    assert reach > 1 and sj.technique("separable", taps=200001).reach_px(b, MAT, cam) == reach
+    assert max(built) <= 25, built
+    bound = next(2**k + 1 for k in range(30) if 2**k >= 2 * reach)  # the next 2^k + 1 above the pixels a pass reads
+    with pytest.warns(UserWarning, match=f"taps 200001 clamped to {bound}: a pass reaches {2 * reach + 1} pixels"):
+        r = process_frames(str(frames / "f0.exr"), "separable", MAT, out_dir=tmp_path, progress=False, taps=200001,
+                           devices=jax.devices()[:1])
+    assert r.ok and max(built) <= bound, (r.frames[0].message, max(built))
+
+
 STA_MATERIAL = (sj.STAParams(thickness_mm=2.0), sj.DirectionalLight([0.3, -0.4, 0.9]))
 
 

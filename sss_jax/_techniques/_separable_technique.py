@@ -74,7 +74,10 @@ class Separable(AbstractTechnique):
         valid = np.asarray(_sss_mask(buffers))
         if not valid.any():
             return 0
-        kernels = material.separable_kernels(int(self.taps), jax.dtypes.canonicalize_dtype(jnp.float64))
+        # every pattern of n > 1 taps ends at +-1 of the kernel's reach (``unit_tap_offsets``): the 3-tap kernel has
+        # the outermost tap of any count (a count typed far too large, 200001: building its kernel took 50 s and
+        # 5.9 GB on a 256x192 frame, before the batch's clamp cut it to 65 taps)
+        kernels = material.separable_kernels(min(int(self.taps), 3), jax.dtypes.canonicalize_dtype(jnp.float64))
         reach_mm = np.max(np.abs(np.asarray(kernels.offsets_mm, np.float64)), axis=-1)  # (M,)
         rows = np.asarray(_material_rows(buffers, reach_mm.shape[0]))
         depth = np.asarray(buffers.depth, np.float64)
