@@ -798,6 +798,11 @@ def test_advise_cli(tmp_path, monkeypatch, capsys):
     assert main(["advise", "--material", "unobtainium", "--max-delta-e", "1"]) == 2
     assert main(["advise", "--material", "skin", "--max-delta-e", "-1"]) == 2
     assert "must be >= 0" in capsys.readouterr().err
+    # one timing a candidate has no spread to tell noise by: said, as the choice may flip between runs
+    assert main(["advise", "--material", "marble", "--max-delta-e", "1.0", "--repeats", "1"]) == 0
+    assert "--repeats 1 times each candidate once" in capsys.readouterr().err
+    assert main(["advise", "--material", "marble", "--max-delta-e", "1.0", "--repeats", "3"]) == 0
+    assert "--repeats" not in capsys.readouterr().err
 
 
 def test_advise_measures_for_real():

@@ -32,6 +32,10 @@ than local shading is flagged either way.
 """
 
 
+# the fewest timings whose interquartile range says something about the noise (``choose``'s ties)
+_TIE_REPEATS = 3
+
+
 def _size(text: str) -> tuple[int, int]:
     """WIDTHxHEIGHT, as ``sss-jax demo`` takes it; returns (height, width)."""
     try:
@@ -180,6 +184,12 @@ def run(args) -> int:
         where = f"scene {args.scene or 'demo'} {w}x{h} x{args.scene_scale or 1.0:g}"
     print(f"material {advice.material}, {where}, budget mean dE2000 <= {args.max_delta_e:g}")
     print(advice.table())
+    if args.repeats < _TIE_REPEATS and advice.choice is not None:
+        # an interquartile range of one or two timings is their spread at most: candidates that differ by the
+        # machine's noise are not seen to tie, and the choice can change from one run to the next
+        print(f"note: --repeats {args.repeats} times each candidate {'once' if args.repeats == 1 else 'twice'}: too few "
+              "to tell a real difference in time from noise, so the choice may differ between runs; "
+              f"--repeats {_TIE_REPEATS} or more (the default 5) shows which candidates tie", file=sys.stderr)
     if args.json:
         from .._io import write_json_atomic
 
