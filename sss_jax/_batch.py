@@ -89,9 +89,7 @@ from ._checks import check_host_count
 from ._io import (EXR_MAGIC, Frame, SSSInputError, Window, _frame_from_decoded, _read_image, check_depth_kind,
                   check_writable, exr_is_complete, load_channel_map, no_focal_length, read_header, write_exr,
                   write_json_atomic, write_png_preview)
-from ._kernels import separable_kernel_from_profile, two_gaussian_kernel
-from ._materials import BurleyMaterial, DirectionalLight, ProfileMaterial, STAParams, TwoGaussianMaterial
-from ._profiles import BurleyProfile
+from ._materials import DirectionalLight, ProfileMaterial, STAParams
 from ._scene import Buffers, Camera, validate_buffers
 from ._errors import ReferenceWindowWarning, SamplingWarning, TilePlacementError
 from ._techniques import AbstractTechnique, get_technique
@@ -399,18 +397,6 @@ def _largest_px(frame, camera: Camera, per_row_mm: np.ndarray, *, active_r99: fl
         if px * active_r99 >= MIN_FOOTPRINT_PX and px > 0:
             best = max(best, float(px))
     return best
-
-
-def _separable_reach_mm(material, taps: int) -> np.ndarray:
-    """Each material's kernel reach in mm: the largest tap offset, as ``separable`` builds its kernels."""
-    if isinstance(material, TwoGaussianMaterial):
-        rows = [two_gaussian_kernel(w, a, b, taps=taps) for w, a, b in
-                zip(material.w, material.sigma_near_mm, material.sigma_far_mm)]
-    elif isinstance(material, BurleyMaterial):
-        rows = [separable_kernel_from_profile(BurleyProfile(d), taps=taps) for d in material.d_mm]
-    else:
-        rows = [separable_kernel_from_profile(material.profile, taps=taps)]
-    return np.asarray([float(np.max(np.abs(np.asarray(k.offsets_mm, np.float64)))) for k in rows])
 
 
 def _next_pow2(n: Real) -> int:
