@@ -415,10 +415,10 @@ def test_wide_separable_kernels_stay_in_chunks_after_compilation():
     assert _largest_fusion_reads(65) < _largest_fusion_reads(33)
 
 
-def _equations(jaxpr) -> int:
+def _program_size(jaxpr) -> int:
     """Equations of a jaxpr and of every jaxpr inside it (loop and branch bodies): the program XLA compiles."""
     inner = lambda p: p.jaxpr if isinstance(p, jax.extend.core.ClosedJaxpr) else p
-    return sum(1 + sum(_equations(inner(sub)) for value in e.params.values()
+    return sum(1 + sum(_program_size(inner(sub)) for value in e.params.values()
                        for sub in (value if isinstance(value, (list, tuple)) else [value])
                        if isinstance(inner(sub), jax.extend.core.Jaxpr)) for e in jaxpr.eqns)
 
@@ -437,8 +437,8 @@ def test_the_separable_derivative_does_not_grow_with_the_taps():
         f = lambda e, d: jnp.sum(sj.separable(sj.Buffers(irradiance=e, depth=z), sj.BurleyMaterial(a, d), cam,
                                               taps=taps))
         d = jnp.asarray([3.0, 1.4, 0.8])
-        return (_equations(jax.make_jaxpr(f)(irr, d).jaxpr),
-                _equations(jax.make_jaxpr(jax.grad(f, argnums=(0, 1)))(irr, d).jaxpr))
+        return (_program_size(jax.make_jaxpr(f)(irr, d).jaxpr),
+                _program_size(jax.make_jaxpr(jax.grad(f, argnums=(0, 1)))(irr, d).jaxpr))
 
     (call_25, grad_25), (call_49, grad_49) = size(25), size(49)
     assert call_49 > 1.5 * call_25  # the call fuses every tap (one chunk up to 49): its program grows
