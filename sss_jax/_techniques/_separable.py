@@ -136,10 +136,11 @@ _TAPS_PER_LOOP_CHUNK = 17
 # Taps per chunk where the pass is differentiated (``_separable_passes``' JVP rule). A chunk's taps unrolled are the
 # program XLA compiles for the forward pass, its tangent and their transpose: the derivative's compile time grew
 # with the taps per chunk (2026-12-07, 2-core CPU, an 8x8 frame, gradients in d, the albedo and the irradiance at the
-# suite's XLA flags: 25 taps in one chunk 35-40 s, in chunks of 9 31 s, of 5 16 s, of 3 9.7 s; 9 taps 12.7 s, 5 taps
-# 8.8 s), and at the default flags a jitted gradient at 256x256, 25 taps, compiled in 52.7 s and ran in 1.29 s in
-# one chunk against 19.9 s and 1.03 s in chunks of 3 (24.5 s and 0.99 s in chunks of 5).
-_TAPS_PER_DERIVATIVE_CHUNK = 3
+# suite's XLA flags: 25 taps in one chunk 35-40 s, in chunks of 9 31 s, of 5 16 s, of 3 9.7-12.0 s, of 2 9.5 s, of 1
+# 7.1 s; 9 taps 12.7 s, 5 taps 8.8 s), and at the default flags a jitted gradient at 256x256, 25 taps, compiled in
+# 52.7 s and ran in 1.29 s in one chunk against 19.9-24.8 s and 1.03-1.34 s in chunks of 3 (24.5 s and 0.99 s in
+# chunks of 5; 14.3 s and 1.08 s one tap at a time, measured beside 24.8 s and 1.34 s for chunks of 3).
+_TAPS_PER_DERIVATIVE_CHUNK = 1
 
 
 def _band_rows(height: int, width: int) -> int:
@@ -351,7 +352,7 @@ class _PassOptions(NamedTuple):
 def _separable_passes(options: _PassOptions, buffers: Buffers, material, camera: Camera,
                       kernels: tuple[Array, Array, Array | None] | None) -> Array:
     """The pass (``_separable_body``), its taps fused as ``tap_chunks`` fuses them for speed; its derivatives (the
-    JVP rule, and reverse mode through it) evaluate the same pass, the same sums in chunks of at most
+    JVP rule, and reverse mode through it) evaluate the same pass, the same sums in chunks of
     ``_TAPS_PER_DERIVATIVE_CHUNK`` taps: a program XLA compiles several times faster, and runs no slower, where it
     is differentiated (the comment above ``_TAPS_PER_DERIVATIVE_CHUNK``). The value beside a derivative is that
     evaluation's: the same as the call's but for the sums' rounding."""
