@@ -7,7 +7,8 @@ import pathlib
 import sys
 
 from . import rgb_triple
-from ._options import WarningPrinter, add_technique_flags, given_technique_options, sta_thickness_warning
+from ._options import (MM_PER_UNIT_HELP, WarningPrinter, add_technique_flags, given_technique_options,
+                       sta_thickness_warning)
 from ._options import add_sta_flags, check_option_taken, given_sta_flag_names, sta_params, technique_options
 
 EPILOG = """examples:
@@ -61,7 +62,7 @@ def register(subparsers) -> None:
     p.add_argument("--preset", help="material preset: a name (fits/<name>.json, or a directory in SSS_JAX_PRESETS) "
                    "or a preset JSON file")
     p.add_argument("--focal-px", type=float, help="focal length in pixels")
-    p.add_argument("--mm-per-unit", type=float, help="millimetres per scene unit of the depth buffer (default: the EXR header's or the sidecar's; else 1, or 1000 for a Blender file)")
+    p.add_argument("--mm-per-unit", type=float, help=MM_PER_UNIT_HELP)
     p.add_argument("--depth-kind", choices=("planar", "distance"), default="planar",
                    help="Z is planar view depth (default) or distance to the camera")
     p.add_argument("--channel-map", help="JSON/TOML file mapping buffers (irradiance, depth, albedo, normal, thickness, id) to channels, or naming the Blender view layer to read ({\"layer\": \"ViewLayer\"})")

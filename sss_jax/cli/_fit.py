@@ -9,7 +9,7 @@ import sys
 
 from . import rgb_triple
 from ._options import add_sta_flags, add_technique_flags, given_sta_flag_names, given_technique_options
-from ._options import option_arguments, technique_options
+from ._options import MM_PER_UNIT_HELP, option_arguments, technique_options
 from ._report import check_report_out, report_dir
 
 # the techniques `fit --render` matches
@@ -179,7 +179,7 @@ def _register_match(p) -> None:
                    help="with --score held: the share of the kernel's energy inside the frame a scored pixel needs "
                         "(default 0.95)")
     m.add_argument("--focal-px", type=float, help="focal length in pixels")
-    m.add_argument("--mm-per-unit", type=float, help="millimetres per scene unit of the depth buffer (default: the EXR header's or the sidecar's; else 1, or 1000 for a Blender file)")
+    m.add_argument("--mm-per-unit", type=float, help=MM_PER_UNIT_HELP)
     m.add_argument("--depth-kind", choices=("planar", "distance"), default="planar")
     m.add_argument("--channel-map", help="JSON/TOML channel map for the input frames (as in `apply`)")
     m.add_argument("--json", type=pathlib.Path, metavar="OUT.json", help="write the result as JSON")

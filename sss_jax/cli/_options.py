@@ -68,6 +68,11 @@ class OptionSpec:
 
 
 
+# --mm-per-unit of every command that reads a frame: where the unit comes from when the flag is not given
+MM_PER_UNIT_HELP = ("millimetres per scene unit of the depth buffer (default: the EXR header's or the sidecar's; "
+                    "else 1, or 1000 for a Blender file)")
+
+
 def comma_separated_counts(text: str) -> tuple[int, ...]:
     """``--taps 9,25`` and the like: comma-separated positive integers (argparse's ``type=``)."""
     try:  # an empty item ("9,,17") is a typo, not nothing

@@ -11,7 +11,8 @@ import sys
 import tempfile
 
 from . import rgb_triple
-from ._options import WarningPrinter, add_technique_flags, sta_thickness_warning, technique_entries
+from ._options import (MM_PER_UNIT_HELP, WarningPrinter, add_technique_flags, sta_thickness_warning,
+                       technique_entries)
 from ._options import add_sta_flags, comma_separated_counts, given_sta_flag_names, sta_params, technique_options
 
 EPILOG = """examples:
@@ -75,7 +76,7 @@ def register(subparsers) -> None:
     m.add_argument("--mfp-mm", type=rgb_triple, help="mean free path per channel, mm")
     c = p.add_argument_group("camera and channels (as sss-jax apply)")
     c.add_argument("--focal-px", type=float, help="focal length in pixels")
-    c.add_argument("--mm-per-unit", type=float, help="millimetres per scene unit of the depth buffer (default: the EXR header's or the sidecar's; else 1, or 1000 for a Blender file)")
+    c.add_argument("--mm-per-unit", type=float, help=MM_PER_UNIT_HELP)
     c.add_argument("--depth-kind", choices=("planar", "distance"), default="planar")
     c.add_argument("--channel-map", help="JSON/TOML file mapping buffers to channels, or naming the Blender view layer to read ({\"layer\": \"ViewLayer\"})")
     c.add_argument("--radius-px", type=int, help="reference window radius in px (default: 99.9%% of the energy, at most 96 px)")
