@@ -350,3 +350,22 @@ def test_separable_counts_its_taps_once_per_pass_as_jimenez_does():
     jim = frame_cost(sj.technique("jimenez", taps=17), sc.buffers, mat, sc.camera)
     assert (sep["samples"], sep["fetches"]) == (18, 38) and sep["rule"].startswith("2 passes x 9 taps")
     assert jim["samples"] == 34
+
+
+def test_the_commands_that_read_a_frame_describe_its_camera_and_channels_alike():
+    # apply, fit --render, report and advise --frame read a frame's buffers the same way, so their camera and
+    # channel flags must say the same thing: before, four copies had drifted apart (--depth-kind's meaning given by
+    # apply only, --channel-map's buffers named by apply only)
+    import argparse
+
+    from sss_jax.cli import build_parser
+
+    commands = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction)).choices
+    flags = ("--focal-px", "--mm-per-unit", "--depth-kind", "--channel-map")
+    described = {}
+    for name in ("apply", "fit", "report", "advise"):
+        actions = {s: a for a in commands[name]._actions for s in a.option_strings}
+        described[name] = [(actions[f].help, actions[f].choices, actions[f].default, actions[f].type) for f in flags]
+    assert all(d == described["apply"] for d in described.values()), described
+    assert all(h for h, *_ in described["apply"])  # every flag explained
+    assert "distance to the camera" in described["fit"][2][0] and "irradiance, depth" in described["report"][3][0]

@@ -7,7 +7,7 @@ import pathlib
 import sys
 
 from . import rgb_triple
-from ._options import (MM_PER_UNIT_HELP, WarningPrinter, add_counts, add_technique_flags, comma_separated_counts,
+from ._options import (WarningPrinter, add_camera_flags, add_counts, add_technique_flags, comma_separated_counts,
                        comma_separated_names, option_arguments, technique_options)
 
 # the techniques whose counts the advisor weighs by default (beside local shading)
@@ -87,10 +87,7 @@ def register(subparsers) -> None:
     fr.add_argument("--truth", type=pathlib.Path, metavar="TRUTH.exr", help="an offline render of --frame's view: "
                     "the errors are against it instead of the reference")
     fr.add_argument("--truth-channels", help="truth pass (Blender: Combined, the default) or R,G,B channel names")
-    fr.add_argument("--focal-px", type=float, help="focal length in pixels")
-    fr.add_argument("--mm-per-unit", type=float, help=MM_PER_UNIT_HELP)
-    fr.add_argument("--depth-kind", choices=("planar", "distance"), default="planar")
-    fr.add_argument("--channel-map", help="JSON/TOML file mapping buffers to channels, or naming the Blender view layer to read ({\"layer\": \"ViewLayer\"})")
+    add_camera_flags(fr)
     p.add_argument("--max-delta-e", type=float, required=True, help="budget: mean CIEDE2000 against the reference "
                    "(or the truth)")
     p.add_argument("--repeats", type=int, default=5,

@@ -7,7 +7,7 @@ import pathlib
 import sys
 
 from . import rgb_triple
-from ._options import (MM_PER_UNIT_HELP, WarningPrinter, add_technique_flags, given_technique_options,
+from ._options import (WarningPrinter, add_camera_flags, add_technique_flags, given_technique_options,
                        sta_thickness_warning)
 from ._options import add_sta_flags, check_option_taken, given_sta_flag_names, sta_params, technique_options
 
@@ -61,11 +61,7 @@ def register(subparsers) -> None:
     p.add_argument("--mfp-mm", type=rgb_triple, help="mean free path per channel, mm (d = mfp / s(A), diffuse-transmission fit)")
     p.add_argument("--preset", help="material preset: a name (fits/<name>.json, or a directory in SSS_JAX_PRESETS) "
                    "or a preset JSON file")
-    p.add_argument("--focal-px", type=float, help="focal length in pixels")
-    p.add_argument("--mm-per-unit", type=float, help=MM_PER_UNIT_HELP)
-    p.add_argument("--depth-kind", choices=("planar", "distance"), default="planar",
-                   help="Z is planar view depth (default) or distance to the camera")
-    p.add_argument("--channel-map", help="JSON/TOML file mapping buffers (irradiance, depth, albedo, normal, thickness, id) to channels, or naming the Blender view layer to read ({\"layer\": \"ViewLayer\"})")
+    add_camera_flags(p)
     p.add_argument("--samples", type=int, default=None, help="Burley spiral samples (default 32)")
     p.add_argument("--taps", type=int, default=None, help="separable taps per pass (default 25)")
     p.add_argument("--radius-px", type=int, help="reference window radius in pixels (default: 99.9%% of the energy, at most 96 px)")

@@ -9,7 +9,7 @@ import sys
 
 from . import rgb_triple
 from ._options import add_sta_flags, add_technique_flags, given_sta_flag_names, given_technique_options
-from ._options import MM_PER_UNIT_HELP, option_arguments, technique_options
+from ._options import add_camera_flags, option_arguments, technique_options
 from ._report import check_report_out, report_dir
 
 # the techniques `fit --render` matches
@@ -178,10 +178,7 @@ def _register_match(p) -> None:
     m.add_argument("--held-fraction", type=float, default=0.95,
                    help="with --score held: the share of the kernel's energy inside the frame a scored pixel needs "
                         "(default 0.95)")
-    m.add_argument("--focal-px", type=float, help="focal length in pixels")
-    m.add_argument("--mm-per-unit", type=float, help=MM_PER_UNIT_HELP)
-    m.add_argument("--depth-kind", choices=("planar", "distance"), default="planar")
-    m.add_argument("--channel-map", help="JSON/TOML channel map for the input frames (as in `apply`)")
+    add_camera_flags(m)
     m.add_argument("--json", type=pathlib.Path, metavar="OUT.json", help="write the result as JSON")
     m.add_argument("--html", type=pathlib.Path, metavar="OUT.html",
                    help="write a standalone HTML page: before/after renders, error maps, fitted parameters")

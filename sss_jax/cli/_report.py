@@ -11,7 +11,7 @@ import sys
 import tempfile
 
 from . import rgb_triple
-from ._options import (MM_PER_UNIT_HELP, WarningPrinter, add_technique_flags, sta_thickness_warning,
+from ._options import (WarningPrinter, add_camera_flags, add_technique_flags, sta_thickness_warning,
                        technique_entries)
 from ._options import add_sta_flags, comma_separated_counts, given_sta_flag_names, sta_params, technique_options
 
@@ -75,10 +75,7 @@ def register(subparsers) -> None:
     m.add_argument("--d-mm", type=rgb_triple, help="Burley scattering distance d per channel, mm")
     m.add_argument("--mfp-mm", type=rgb_triple, help="mean free path per channel, mm")
     c = p.add_argument_group("camera and channels (as sss-jax apply)")
-    c.add_argument("--focal-px", type=float, help="focal length in pixels")
-    c.add_argument("--mm-per-unit", type=float, help=MM_PER_UNIT_HELP)
-    c.add_argument("--depth-kind", choices=("planar", "distance"), default="planar")
-    c.add_argument("--channel-map", help="JSON/TOML file mapping buffers to channels, or naming the Blender view layer to read ({\"layer\": \"ViewLayer\"})")
+    add_camera_flags(c)
     c.add_argument("--radius-px", type=int, help="reference window radius in px (default: 99.9%% of the energy, at most 96 px)")
     c.add_argument("--repeats", type=int, default=3, help="timed runs per frame after compilation (default 3; 0: no timed run, the times are "
                    "the first, compiling run's and the report says so)")
