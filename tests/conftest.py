@@ -67,6 +67,31 @@ if not SHARED.exists():  # CI clones the repo with shared/ beside it; a develope
     SHARED = pathlib.Path(__file__).resolve().parents[1].parent / "shared"
 
 
+# The files that take longest, longest first (the sums of their tests' times, `--durations=0`, 2026-12-07 on the
+# 2-core CPU: test_match.py 182 s, test_performance.py 179, test_techniques.py 170 ... test_bad_input.py 37; the
+# suite's sum 2,028 s). `--dist loadfile` hands whole files to the workers in the queue's order as each worker frees
+# up; xdist's own order (`--loadscope-reorder`, its default) puts the files with the most tests first, so the
+# heaviest files, which hold few long tests (test_match.py's 11 fits and checks, test_stability.py's 8 around one
+# sweep), came last and one worker ran one of them alone at the end. Longest first (the classic rule for this kind
+# of schedule), the last files handed out are short ones. A file not named keeps its place after these; the tests
+# within a file keep theirs.
+LONGEST_FILES = ("test_match.py", "test_performance.py", "test_techniques.py", "test_oracle.py", "test_fidelity.py",
+                 "test_presets.py", "test_batch.py", "test_stability.py", "test_io_cli.py", "test_fitting.py",
+                 "test_real_frames.py", "test_engine_passes.py", "test_report_bench.py", "test_montecarlo.py",
+                 "test_report.py", "test_slab_transmission.py", "test_engines.py", "test_every_option.py",
+                 "test_bad_input.py")
+
+
+def pytest_configure(config):
+    if hasattr(config.option, "loadscopereorder"):  # with pytest-xdist: the order below, not the count of tests
+        config.option.loadscopereorder = False
+
+
+def pytest_collection_modifyitems(config, items):
+    rank = {name: i for i, name in enumerate(LONGEST_FILES)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(LONGEST_FILES)))  # stable: each file keeps its order
+
+
 @pytest.fixture(autouse=True, scope="module")
 def _fresh_compilation_caches():
     """Each test file starts from empty JAX caches: the compiled programs of 400 tests held in one process grew the
