@@ -61,3 +61,14 @@ def test_an_ordinary_install_carries_the_presets(wheel, tmp_path):
                          text=True, check=True)
     count, name, inside = run.stdout.split()
     assert int(count) >= 17 and name == "skin1" and inside == "True"
+
+
+def test_the_suite_s_longest_files_are_named_as_they_are_on_disk():
+    # conftest.py hands these files to the xdist workers first; a renamed or removed file would silently drop out of
+    # that order (and its long tests come last again)
+    from conftest import LONGEST_FILES
+
+    here = pathlib.Path(__file__).parent
+    missing = [name for name in LONGEST_FILES if not (here / name).is_file()]
+    assert not missing, missing
+    assert len(set(LONGEST_FILES)) == len(LONGEST_FILES)
