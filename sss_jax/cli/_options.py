@@ -68,17 +68,13 @@ class OptionSpec:
 
 
 
-# --mm-per-unit of every command that reads a frame: where the unit comes from when the flag is not given
-MM_PER_UNIT_HELP = ("millimetres per scene unit of the depth buffer (default: the EXR header's or the sidecar's; "
-                    "else 1, or 1000 for a Blender file)")
-
-
 def add_camera_flags(group) -> None:
     """--focal-px, --mm-per-unit, --depth-kind and --channel-map, one definition for every command that reads a
     frame's buffers as ``sss-jax apply`` does (apply, fit --render, report, advise --frame): how the frame's camera
     and channels are found. ``group``: the parser or argument group they belong to."""
     group.add_argument("--focal-px", type=float, help="focal length in pixels")
-    group.add_argument("--mm-per-unit", type=float, help=MM_PER_UNIT_HELP)
+    group.add_argument("--mm-per-unit", type=float, help="millimetres per scene unit of the depth buffer (default: "
+                       "the EXR header's or the sidecar's; else 1, or 1000 for a Blender file)")
     group.add_argument("--depth-kind", choices=("planar", "distance"), default="planar",
                        help="Z is planar view depth (default) or distance to the camera")
     group.add_argument("--channel-map", help="JSON/TOML file mapping buffers (irradiance, depth, albedo, normal, "
