@@ -67,7 +67,17 @@ def test_demo_report_has_every_section_and_embeds_its_images(tmp_path):
     assert not list(tmp_path.glob(".*tmp*"))
 
 
-def test_bench_reports_every_ratio_with_its_goal():
+def test_bench_reports_every_ratio_with_its_goal(monkeypatch):
+    import sss_jax._bench as bench
+
+    timed_together = []  # the names of the functions each side_by_side call timed, round by round
+
+    def spy(fns, **kwargs):
+        timed_together.append(set(fns))
+        return side_by_side(fns, **kwargs)
+
+    side_by_side = bench.side_by_side
+    monkeypatch.setattr(bench, "side_by_side", spy)
     # rows at the ratio resolution, which is also the error scene's (48x64): one shape for every pass. The burley row
     # uses 4 samples, a count nothing else compiles at this shape, so at least one compile time is measured (> 0).
     res = run_bench(repeats=1, grid=dict(taps=(DEMO_TAPS,), samples=(4,), resolutions=[(DEMO_W, DEMO_H)],
@@ -79,6 +89,11 @@ def test_bench_reports_every_ratio_with_its_goal():
         assert r["goal"] == f"{GOALS[name][0]} {GOALS[name][1]}"
         assert r["value"] is None or r["value"] > 0
     assert {"cv2.sepFilter2D_25", "cv2.filter2D_25x25", "scipy.fftconvolve_25x25"} == set(res["peers_ms"])
+    # every ratio's two sides timed in turn in one run (a drift of the machine's speed falls on both): one after the
+    # other, the 10% coverage once read 0.29 of the full frame where side by side it reads 0.11-0.13
+    for sides in ({"burley", "cv2.filter2D_25x25"}, {"separable", "xla_plain"}, {"full", "10"}, {"three", "one"},
+                  {"grey", "rgb"}, {"burley", "burley_nearest"}):
+        assert any(sides <= names for names in timed_together), sides
     techniques = {(r["technique"], r["count"]) for r in res["rows"]}
     assert techniques == {("sta", None), ("separable", DEMO_TAPS), ("burley", 4)}
     for r in res["rows"]:
