@@ -10,6 +10,7 @@ machine's changes of speed during the run fall on both sides of a ratio. Timings
 
 from __future__ import annotations
 
+import functools
 import platform
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -22,7 +23,7 @@ import numpy as np
 from ._cost import cost_per_pixel, frame_cost
 from ._metrics import rel_l2
 from ._sweep import as_counts, changed_options, run_label, technique_runs
-from ._timing import run_times, side_by_side, time_call
+from ._timing import side_by_side, time_call
 from ._demo import demo_burley_material
 from ._materials import BurleyMaterial, STAParams
 from ._scene import Buffers, Camera, demo_scene
@@ -51,10 +52,6 @@ def machine() -> dict[str, Any]:
             "backend": jax.default_backend(), "device": getattr(device, "device_kind", str(device)),
             "devices": [str(d) for d in jax.devices()], "jax": jax.__version__,
             "impl": f"burley {resolve_impl('auto', 'burley')}, separable {resolve_impl('auto', 'separable')}"}
-
-
-def _median_time(fn: Callable[[], Any], repeats: int) -> float:
-    return float(np.median(run_times(fn, repeats)))
 
 
 # Untimed runs after a pass's compiling run, before its timed ones: an XLA:CPU executable's first runs take 2-4x its
@@ -152,11 +149,14 @@ def _objects_result(rows, configs, res_grid, ratio_res, repeats, say, cv2, fftco
     say(f"peers and the techniques at {w}x{h} ...")
     scene = demo_scene(h, w)
     b, cam = scene.buffers, scene.camera
-    peers = _peers(b, repeats, cv2, fftconvolve)
+    # each technique beside the peers it is divided by, side by side as the defaults' ratios are
+    peer_fns = _peer_fns(b, cv2, fftconvolve)
+    runs = {run_label(obj): functools.partial(run_full, b, cam, scene) for _, _, run_full, _, _, obj, _ in configs}
+    side, _ = side_by_side({**peer_fns, **runs}, rounds=max(repeats, 11), warmup=WARMUP_RUNS)
+    peers = {name: side[name] for name in peer_fns}
     other = {}
-    for tech, n, run_full, _, _, obj, _ in configs:
-        _, seconds = _compile_and_time(lambda: run_full(b, cam, scene), repeats)
-        label = run_label(obj)
+    for label in runs:
+        seconds = side[label]
         other[f"{label} ms"] = round(1e3 * seconds, 3)
         for peer in ("cv2.sepFilter2D_25", "cv2.filter2D_25x25"):
             if peer in peers:
@@ -191,12 +191,6 @@ def _peer_fns(b: Buffers, cv2, fftconvolve) -> dict[str, Callable[[], Any]]:
     return {"cv2.sepFilter2D_25": lambda: cv2.sepFilter2D(img, -1, k25, k25),
             "cv2.filter2D_25x25": lambda: cv2.filter2D(img, -1, k_dense),
             "scipy.fftconvolve_25x25": lambda: fftconvolve(img, k_dense[..., None], mode="same", axes=(0, 1))}
-
-
-def _peers(b: Buffers, repeats: int, cv2, fftconvolve) -> dict[str, float]:
-    """The peers' median times (s) on ``b``'s irradiance (``_peer_fns``)."""
-    # the peers take milliseconds: more repeats cost little and steady the ratios' denominators
-    return {name: _median_time(fn, max(repeats, 11)) for name, fn in _peer_fns(b, cv2, fftconvolve).items()}
 
 
 def _peer_kernels() -> tuple[np.ndarray, np.ndarray]:
