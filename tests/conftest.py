@@ -111,6 +111,23 @@ def as_users_run_it():
     jaxtyping.config.update("jaxtyping_disable", False)
 
 
+@pytest.fixture
+def bench_timed_together(monkeypatch) -> list[set[str]]:
+    """The names of the functions each ``side_by_side`` call of the bench timed in turn, one set per call: a ratio's
+    two sides belong in one call (one after the other, a slow minute of the machine fell on one side only)."""
+    import sss_jax._bench as bench
+
+    calls: list[set[str]] = []
+    side_by_side = bench.side_by_side
+
+    def spy(fns, **kwargs):
+        calls.append(set(fns))
+        return side_by_side(fns, **kwargs)
+
+    monkeypatch.setattr(bench, "side_by_side", spy)
+    return calls
+
+
 @pytest.fixture(scope="session")
 def shared_dir() -> pathlib.Path:
     if not SHARED.exists():

@@ -131,18 +131,10 @@ def test_bench_takes_a_technique_and_its_options(monkeypatch, capsys, as_users_r
         assert rc == 2 and message in capsys.readouterr().err, argv
 
 
-def test_bench_runs_the_chosen_configurations_with_their_cost(monkeypatch):
-    import sss_jax._bench as bench
+def test_bench_runs_the_chosen_configurations_with_their_cost(bench_timed_together):
+    from sss_jax._bench import run_bench
 
-    timed_together = []  # the names each side_by_side call timed in turn
-
-    def spy(fns, **kwargs):
-        timed_together.append(set(fns))
-        return side_by_side(fns, **kwargs)
-
-    side_by_side = bench.side_by_side
-    monkeypatch.setattr(bench, "side_by_side", spy)
-    res = bench.run_bench(repeats=1, grid=dict(resolutions=[(24, 16)], ratio_resolution=(24, 16), error_size=(16, 24),
+    res = run_bench(repeats=1, grid=dict(resolutions=[(24, 16)], ratio_resolution=(24, 16), error_size=(16, 24),
                                          pattern_size=16), techniques=["hdrp"],
                     # the reference's own options reach the error columns' reference (a small window: cheap)
                     technique_options={"hdrp": {"quality": "low", "frames": 2},
@@ -156,7 +148,7 @@ def test_bench_runs_the_chosen_configurations_with_their_cost(monkeypatch):
     # its ratios to the peers timed side by side with them (one after the other, a slow minute fell on one side)
     assert "hdrp quality=low frames=2 vs cv2.filter2D_25x25" in res["other_ratios"]
     assert any({"hdrp quality=low frames=2", "cv2.filter2D_25x25", "cv2.sepFilter2D_25"} <= names
-               for names in timed_together)
+               for names in bench_timed_together)
     assert res["technique_options"]["reference"] == {"border": "leaves", "radius_px": "6"}
 
 

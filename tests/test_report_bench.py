@@ -67,17 +67,7 @@ def test_demo_report_has_every_section_and_embeds_its_images(tmp_path):
     assert not list(tmp_path.glob(".*tmp*"))
 
 
-def test_bench_reports_every_ratio_with_its_goal(monkeypatch):
-    import sss_jax._bench as bench
-
-    timed_together = []  # the names of the functions each side_by_side call timed, round by round
-
-    def spy(fns, **kwargs):
-        timed_together.append(set(fns))
-        return side_by_side(fns, **kwargs)
-
-    side_by_side = bench.side_by_side
-    monkeypatch.setattr(bench, "side_by_side", spy)
+def test_bench_reports_every_ratio_with_its_goal(bench_timed_together):
     # rows at the ratio resolution, which is also the error scene's (48x64): one shape for every pass. The burley row
     # uses 4 samples, a count nothing else compiles at this shape, so at least one compile time is measured (> 0).
     res = run_bench(repeats=1, grid=dict(taps=(DEMO_TAPS,), samples=(4,), resolutions=[(DEMO_W, DEMO_H)],
@@ -93,7 +83,7 @@ def test_bench_reports_every_ratio_with_its_goal(monkeypatch):
     # other, the 10% coverage once read 0.29 of the full frame where side by side it reads 0.11-0.13
     for sides in ({"burley", "cv2.filter2D_25x25"}, {"separable", "xla_plain"}, {"full", "10"}, {"three", "one"},
                   {"grey", "rgb"}, {"burley", "burley_nearest"}):
-        assert any(sides <= names for names in timed_together), sides
+        assert any(sides <= names for names in bench_timed_together), sides
     techniques = {(r["technique"], r["count"]) for r in res["rows"]}
     assert techniques == {("sta", None), ("separable", DEMO_TAPS), ("burley", 4)}
     for r in res["rows"]:
