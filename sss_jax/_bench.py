@@ -386,17 +386,17 @@ def run_bench(*, quick: bool = False, repeats: int = 3, progress: Callable[[str]
     rgb = BurleyMaterial(one.albedo, (d_grey, d_grey, d_grey * (1 + 1e-6)))
     # each ratio's two sides side by side, as the ones above: timed one after the other (medians of 3 calls), the
     # 10% coverage read 0.29 of the full frame in one run and 0.11-0.13 in the next three (2026-12-07, the same
-    # executables, 11 ms against 29 ms for the 10% frame right after the full one)
-    pair = lambda fns: side_by_side(fns, rounds=max(repeats, 7), warmup=WARMUP_RUNS)[0]
-    cover = pair({"full": lambda: burley(b100, one, cam, samples=32), "10": lambda: burley(b10, one, cam, samples=32)})
-    # the separable pass (shifted slices over blocks of rows and columns; blocks without SSS compute nothing): shown, not a goal
-    sep_cover = pair({"full": lambda: separable(b100, one, cam, taps=25),
-                      "10": lambda: separable(b10, one, cam, taps=25)})
-    mats = pair({"three": lambda: burley(b100_3, three, cam, samples=32, compact=False),
-                 "one": lambda: burley(b100_3, one, cam, samples=32, compact=False)})
-    chans = pair({"grey": lambda: burley(b100, grey, cam, samples=32), "rgb": lambda: burley(b100, rgb, cam, samples=32)})
-    t_full, t_10, t_sep_full, t_sep_10 = cover["full"], cover["10"], sep_cover["full"], sep_cover["10"]
-    t_three, t_one, t_grey, t_rgb = mats["three"], mats["one"], chans["grey"], chans["rgb"]
+    # executables, 11 ms against 29 ms for the 10% frame right after the full one). The separable pair (shifted
+    # slices over blocks of rows and columns; blocks without SSS compute nothing) is shown, not a goal
+    pairs, _ = side_by_side({
+        "full": lambda: burley(b100, one, cam, samples=32), "10": lambda: burley(b10, one, cam, samples=32),
+        "sep_full": lambda: separable(b100, one, cam, taps=25), "sep_10": lambda: separable(b10, one, cam, taps=25),
+        "three": lambda: burley(b100_3, three, cam, samples=32, compact=False),
+        "one": lambda: burley(b100_3, one, cam, samples=32, compact=False),
+        "grey": lambda: burley(b100, grey, cam, samples=32), "rgb": lambda: burley(b100, rgb, cam, samples=32),
+    }, rounds=max(repeats, 7), warmup=WARMUP_RUNS)
+    t_full, t_10, t_sep_full, t_sep_10, t_three, t_one, t_grey, t_rgb = (
+        pairs[k] for k in ("full", "10", "sep_full", "sep_10", "three", "one", "grey", "rgb"))
     say("footprint skip against the reference ...")
     footprint = _footprint_skip_errors(eb, ecam, mat)
     say("burley: error against samples x frames, bias and noise over seeds ...")
