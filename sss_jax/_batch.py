@@ -76,7 +76,7 @@ import sys
 import threading
 import time
 import warnings
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any, ClassVar
 
 import equinox as eqx
@@ -885,6 +885,8 @@ def _describe(exc: BaseException, path: pathlib.Path | None = None) -> str:
     text = str(exc)
     if isinstance(exc, OSError) and exc.strerror and not isinstance(exc, SSSInputError):
         text = exc.strerror if exc.errno is None else f"{exc.strerror} (errno {exc.errno})"
+    elif not isinstance(exc, (OSError, ValueError)):  # not a reader's message: what went wrong, by its type
+        text = f"{type(exc).__name__}: {text}"
     name = path or getattr(exc, "filename", None)
     if name is not None and str(name) not in text and pathlib.Path(str(name)).name not in text:
         text = f"{name}: {text}"
@@ -1309,14 +1311,15 @@ def _category(message: str) -> type[Warning]:
 def _camera(frame: Frame) -> Camera:
     """The frame's camera: one ``Camera`` per (focal length, unit) and precision, shared by the frames of a sequence
     (immutable; building one is device work: two conversions and two reads back)."""
-    return _camera_for(frame.focal_px, frame.scene_unit_mm,
+    return _camera_for(frame.focal_px, frame.scene_unit_mm, frame.principal_point,
                        jax.dtypes.canonicalize_dtype(jnp.float64))
 
 
 @functools.lru_cache(maxsize=64)
-def _camera_for(focal_px, mm_per_unit, widest) -> Camera:
-    """``widest``: the widest float JAX makes now (float64 with x64 on): a Camera's precision follows it."""
-    return Camera(focal_px, mm_per_unit)
+def _camera_for(focal_px, mm_per_unit, principal_point, widest) -> Camera:
+    """``Frame.camera``, kept. ``widest``: the widest float JAX makes now (float64 with x64 on): a Camera's
+    precision follows it."""
+    return Camera(focal_px, mm_per_unit, principal_point)
 
 
 @dataclasses.dataclass
@@ -1352,7 +1355,9 @@ class _Batch:
         self.computing: collections.deque[_Computing] = collections.deque()  # in the frames' order
         self.call_warnings = _CallWarnings()
         self.records: dict[_Job, tuple[dict[str, str], str]] = {}
-        self.windows: dict[_Job, Window | None] = {}  # each frame's windows from its read to its write
+        # each frame's windows and header from its read to its write (the output lies where the input does, an
+        # overscan margin kept, and keeps its colour primaries and camera)
+        self.framing: dict[_Job, tuple[Window | None, Mapping[str, Any]]] = {}
         self.read_said: dict[_Job, list[str]] = {}  # what reading each frame warned, for its result
         self.seeded = _has_seed(tech)
         self.tiles_allowed = True
@@ -1380,7 +1385,7 @@ class _Batch:
     def forget(self, job: _Job) -> None:
         """The job's record dropped: the frame is written, failed or skipped."""
         self.records.pop(job, None)
-        self.windows.pop(job, None)
+        self.framing.pop(job, None)
         self.read_said.pop(job, None)
 
     # -- results
@@ -1439,7 +1444,7 @@ class _Batch:
                 attrs[f"sss_jax:{name}"] = int(rules[name])
         if self.seeded:
             attrs["sss_jax:seed"] = str(self.seed_of(job))  # a uint32: past a header int
-        window = self.windows.get(job)
+        framing = self.framing.get(job, (None, {}))
         self.forget(job)
         done = FrameResult(str(job.src), str(job.dst), "done", "; ".join(notes + warned), seconds=seconds,
                            warnings=read + notes + warned)
@@ -1447,9 +1452,10 @@ class _Batch:
         if self.writer is None:
             self.writer = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="sss_jax-write")
         self.in_flight = (job, done, self.writer.submit(self.write_files, job, image, attrs,
-                                                        job.dst in self.existing, window))
+                                                        job.dst in self.existing, *framing))
 
-    def write_files(self, job: _Job, image: np.ndarray, attrs: dict, overwrite: bool, window: Window | None = None):
+    def write_files(self, job: _Job, image: np.ndarray, attrs: dict, overwrite: bool, window: Window | None = None,
+                    like: Mapping[str, Any] | None = None):
         """(In the writer thread.) The frame's files, atomically: the PNG preview first, then the EXR (an EXR with
         its resume record means the frame is complete). Returns None, or ``(error, file)`` of a failed write (a
         fresh preview of a frame that has no EXR removed)."""
@@ -1465,7 +1471,7 @@ class _Batch:
                 placed = preview.stat().st_ino
             current = job.dst
             write_exr(job.dst, image, channel_names=["R", "G", "B"], half=self.half, attributes=attrs,
-                      overwrite=overwrite, window=window)
+                      overwrite=overwrite, window=window, like=like)
         except (OSError, ValueError) as exc:
             if current == job.dst and fresh_png:  # no preview of a frame that has no output: this run's own only
                 with contextlib.suppress(OSError):
@@ -1517,7 +1523,7 @@ class _Batch:
                 raise no_focal_length(job.src)
             buffers = frame.to_buffers(use_albedo=use_albedo)
             validate_buffers(buffers, materials=_material_count(self.material))
-        except (OSError, ValueError) as exc:
+        except Exception as exc:  # noqa: BLE001 - a frame that cannot be read fails alone; the batch goes on
             return None, exc, said
         return (frame, buffers, _camera(frame)), None, said
 
@@ -1542,7 +1548,7 @@ class _Batch:
         t0 = time.perf_counter()
         try:
             frame, buffers, camera = self.read(job, read_options, use_albedo)
-            self.windows[job] = frame.window  # the output lies where the input does (an overscan margin kept)
+            self.framing[job] = (frame.window, frame.metadata)
             if following is not None and frame.shape[0] * frame.shape[1] <= tile_pixels:
                 # a sequence of frames that fit one call: the next one read meanwhile (larger frames, in tiles,
                 # gain nothing from it and would hold two frames in memory)
@@ -1640,7 +1646,7 @@ class _Batch:
 
     def queue(self, job, buffers, camera, plan, warned, read_s) -> None:
         present = tuple(getattr(buffers, n) is not None for n in ("albedo", "normal", "thickness", "material_id"))
-        key = (buffers.depth.shape, present, _technique_options(plan.tech).get("samples"),
+        key = (buffers.depth.shape, present, camera.principal_point, _technique_options(plan.tech).get("samples"),
                _technique_options(plan.tech).get("taps"), _technique_options(plan.tech).get("radius_px"))
         self.pending.setdefault(key, []).append(dict(job=job, buffers=buffers, camera=camera, plan=plan,
                                                      warned=warned, read_s=read_s))

@@ -283,7 +283,6 @@ def evaluate_frames(
     from tqdm import tqdm
 
     from ._batch import expand_inputs
-    from ._scene import Camera
     from ._techniques import reference, reference_radius_px
 
     # ---- every check first: nothing is rendered or written for bad input
@@ -371,7 +370,7 @@ def evaluate_frames(
         for f in frames:
             name = pathlib.Path(f.path).name
             b = f.to_buffers(use_albedo=use_albedo_pass)
-            cam = Camera(f.focal_px, f.scene_unit_mm)
+            cam = f.camera()
             ids = f.material_id if f.material_id is not None else np.ones(f.shape, np.int32)
             mask = frame_sss_mask(f)
             albedo = (f.albedo if use_albedo_pass and f.albedo is not None else _material_albedo(material, ids))
@@ -407,7 +406,7 @@ def evaluate_frames(
                 bar.update(1)
             frame_images.append(FrameImages(name=name, shaded=shaded, reference=ref_images[-1], material_id=ids,
                                             truth=truth_images[len(frame_images)] if truth_images else None,
-                                            mask=mask, window=f.window))
+                                            mask=mask, window=f.window, header=f.metadata))
             inputs_info.append({"path": str(f.path), "name": name, "width": f.shape[1], "height": f.shape[0],
                                 "layout": f.layout, "focal_px": f.focal_px, "mm_per_unit": f.scene_unit_mm,
                                 "sss_pixels": int(mask.sum()), "reference_radius_px": int(radius),

@@ -123,6 +123,9 @@ class Frame:
     layout: str = "generic"
     metadata: Mapping[str, Any] = dataclasses.field(default_factory=dict)
     window: Window | None = None  # the file's data and display windows (None: both the array's, at (0, 0))
+    # the camera's principal point in the array's pixels, where it is not the array's centre: the caller's, or the
+    # display window's centre of a frame with an overscan margin (``Window.principal_point``)
+    principal_point: tuple[float, float] | None = None
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -141,6 +144,16 @@ class Frame:
         if self.material_id is not None:
             mask &= self.material_id > 0
         return int(np.count_nonzero(mask))
+
+    def camera(self):
+        """The frame's ``sss_jax.Camera``: its focal length, its unit (``scene_unit_mm``) and its principal point (the
+        display window's centre where the file has an overscan margin). ``SSSInputError`` where nothing gave the
+        focal length."""
+        from ._scene import Camera
+
+        if self.focal_px is None:
+            raise no_focal_length(self.path)
+        return Camera(self.focal_px, self.scene_unit_mm, self.principal_point)
 
     def to_buffers(self, *, use_albedo: bool = True):
         """The frame as ``sss_jax.Buffers`` (``use_albedo=False`` drops the albedo buffer so materials decide)."""
@@ -217,6 +230,9 @@ def _read_image(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[st
         sub = 0
         while inp.seek_subimage(sub, 0):
             spec = inp.spec()
+            if spec.deep:  # samples per pixel, not pixels: read as a flat image they are memory, not light
+                raise SSSInputError(f"{path}: a deep image (subimage {sub} holds deep samples); the techniques take "
+                                    f"flat buffers: flatten it first (oiiotool {path.name} --flatten -o flat.exr)")
             if shape is None:
                 shape, data_window = _frame_shape(spec), (spec.x, spec.y, spec.width, spec.height)
                 placed = _frame_window(spec)
@@ -459,6 +475,9 @@ def load_channel_map(source: str | os.PathLike | Mapping[str, Any]) -> dict[str,
             text = p.read_text()
         except OSError as exc:
             raise SSSInputError(f"{p}: cannot read channel map ({exc.strerror})") from None
+        except UnicodeDecodeError as exc:
+            raise SSSInputError(f"{p}: a channel map is UTF-8 text (JSON or TOML); byte {exc.start} is not "
+                                f"UTF-8 ({exc.reason})") from None
         try:
             if p.suffix.lower() == ".toml":
                 import tomllib
@@ -589,6 +608,10 @@ def _resolve(channels: dict[str, np.ndarray], channel_map: Mapping[str, Any] | N
             if i:
                 plan["id"] = [i]
     for required in ("irradiance", "depth"):
+        if required not in plan and layout == "channel-map":  # a map says where every buffer is, or it is not read
+            raise SSSInputError(f"{path}: the channel map names no {required} channel(s); a map names the "
+                                f"irradiance and the depth, and any of albedo, normal, thickness, id; channels "
+                                f"found: {found}")
         if required not in plan:
             what = "R, G, B" if required == "irradiance" else "Z"
             raise SSSInputError(
@@ -596,6 +619,37 @@ def _resolve(channels: dict[str, np.ndarray], channel_map: Mapping[str, Any] | N
                 f"channels found: {found}"
             )
     return plan, layout
+
+
+def _flat_names(spec) -> list[str]:
+    """The channel names of a plan's entry (a list, or ``("sum", a, b)`` of two lists)."""
+    if isinstance(spec, tuple) and spec[0] == "sum":
+        return _flat_names(spec[1]) + _flat_names(spec[2])
+    return list(spec)
+
+
+def _names(spec) -> str:
+    return ", ".join(repr(n) for n in _flat_names(spec))
+
+
+def _pass_read(path: pathlib.Path, what: str, spec, values: np.ndarray, scattered: np.ndarray, *,
+               posinf: bool = False) -> np.ndarray:
+    """A pass (``albedo``, ``normal``, ``thickness``) as float32, its non-finite values where nothing reads them
+    (``~scattered``: background, id 0) read as 0, and ``SSSInputError`` naming the file, the channels, how many
+    values and the first pixel where a scattered pixel's value is not finite (``posinf``: inf is a value, as an
+    infinite thickness): a renderer's NaN there would silently become a black, a bright or a flat pixel."""
+    from ._scene import _first_pixel
+
+    values = values.astype(np.float32)
+    mask = scattered if values.ndim == scattered.ndim else scattered[..., None]
+    valid = np.isfinite(values) | (posinf & (values == np.inf))
+    bad = ~valid & mask
+    if bad.any():
+        pixel = bad if bad.ndim == scattered.ndim else bad.any(-1)
+        raise SSSInputError(f"{path}: {what} channel(s) {_names(spec)} have {int(bad.sum())} non-finite value(s) on "
+                            f"pixels that scatter (the first at {_first_pixel(pixel)}); the {what} pass must be finite "
+                            "there")
+    return values if valid.all() else np.where(valid, values, np.float32(0.0))
 
 
 def _stack(channels: dict[str, np.ndarray], spec) -> np.ndarray:
@@ -691,29 +745,50 @@ def _sidecar(path: pathlib.Path) -> dict[str, Any]:
     return data if isinstance(data, dict) else {}
 
 
-def world_to_camera_rotation(metadata: Mapping[str, Any], side: Mapping[str, Any]) -> tuple[np.ndarray, str] | None:
+def world_to_camera_rotation(metadata: Mapping[str, Any], side: Mapping[str, Any],
+                             path: str | os.PathLike = "") -> tuple[np.ndarray, str] | None:
     """The rotation ``R (3, 3)`` taking world-space directions to sss_jax's camera space (x right, y down, z forward:
     ``n_cam = R @ n_world``) and where it came from, or None when neither source has the camera's orientation.
 
     Sources, in order: the EXR header's standard ``worldToCamera`` (OpenEXR: row vectors, ``p' = p M``; its camera
     space is x right, y up, z the viewing direction), then the sidecar's ``camera.matrix_world`` (Blender: the
     camera's 4x4 camera-to-world, columns; the camera looks down its -Z with +Y up) or ``camera.location`` and
-    ``camera.look_at`` (with ``camera.up``, default Blender's world +Z)."""
+    ``camera.look_at`` (with ``camera.up``, default Blender's world +Z). A value that is not the numbers it must be
+    (an exporter's ``{"x": ..}`` object, a 3x3 matrix, a camera looking at itself) is an ``SSSInputError`` naming the
+    file (``path``, the frame) and the field."""
+    sidecar = pathlib.Path(path).with_suffix(".json") if path else "the sidecar"
+
+    def numbers(value, size: int, where: str) -> np.ndarray:
+        try:
+            a = np.asarray(value, np.float64)
+        except (TypeError, ValueError):
+            a = None
+        if a is None or a.size != size or not np.all(np.isfinite(a)):
+            raise SSSInputError(f"{where} must be {size} finite numbers, got {value!r}")
+        return a.reshape(-1)
+
+    def unit(v: np.ndarray, where: str) -> np.ndarray:
+        norm = float(np.linalg.norm(v))
+        if not norm > 0:
+            raise SSSInputError(f"{where} has no direction (a zero vector): no camera orientation")
+        return v / norm
+
     flip_y = np.diag([1.0, -1.0, 1.0])
     m = metadata.get("worldToCamera")
     if m is not None:
-        m = np.asarray(m, np.float64).reshape(4, 4)
+        m = numbers(m, 16, f"{path}: the header's worldToCamera").reshape(4, 4)
         return flip_y @ m[:3, :3].T, "the EXR header's worldToCamera"
     cam = side.get("camera") if isinstance(side.get("camera"), dict) else {}
     if cam.get("matrix_world") is not None:
-        c2w = np.asarray(cam["matrix_world"], np.float64).reshape(4, 4)[:3, :3]
+        c2w = numbers(cam["matrix_world"], 16, f"{sidecar}: camera.matrix_world").reshape(4, 4)[:3, :3]
         # columns: the camera's x (right), y (up), z (backwards) in world space
-        right, up, back = (c2w[:, k] / np.linalg.norm(c2w[:, k]) for k in range(3))
+        right, up, back = (unit(c2w[:, k], f"{sidecar}: camera.matrix_world's column {k}") for k in range(3))
         return np.stack([right, -up, -back]), "the sidecar's camera.matrix_world"
     if cam.get("location") is not None and cam.get("look_at") is not None:
-        forward = np.asarray(cam["look_at"], np.float64) - np.asarray(cam["location"], np.float64)
-        world_up = np.asarray(cam.get("up", (0.0, 0.0, 1.0)), np.float64)
-        forward = forward / np.linalg.norm(forward)
+        location = numbers(cam["location"], 3, f"{sidecar}: camera.location")
+        forward = unit(numbers(cam["look_at"], 3, f"{sidecar}: camera.look_at") - location,
+                       f"{sidecar}: camera.look_at - camera.location")
+        world_up = numbers(cam.get("up", (0.0, 0.0, 1.0)), 3, f"{sidecar}: camera.up")
         right = np.cross(forward, world_up)
         if not np.linalg.norm(right) > 1e-9:
             return None
@@ -767,6 +842,13 @@ def _frame_from_decoded(path: pathlib.Path, decoded, *, channel_map, depth_kind:
     channels, integers, metadata, shape, window = decoded
     if principal_point is None and window is not None and not window.plain(shape):
         principal_point = window.principal_point()  # an overscan margin: the framed image's centre
+    aspect = _header_number(path, "PixelAspectRatio", None, (metadata.get("PixelAspectRatio"), "the header"))
+    if aspect is not None and not math.isclose(aspect, 1.0, rel_tol=1e-4):
+        w = shape[1]
+        raise SSSInputError(f"{path}: pixels are not square (PixelAspectRatio {aspect:g}): the techniques measure a "
+                            f"material's reach in square pixels, so its kernel would be {aspect:g}x off along x; "
+                            f"resample the frame to square pixels first (e.g. oiiotool {path.name} --resize "
+                            f"{round(w * aspect)}x{shape[0]} -o square.exr)")
     cmap = load_channel_map(channel_map) if channel_map is not None else None
     if depth_path is not None:
         d_channels, _, d_shape = read_channels(depth_path)
@@ -788,6 +870,13 @@ def _frame_from_decoded(path: pathlib.Path, decoded, *, channel_map, depth_kind:
         warn(f"{path}: no diffuse light passes (DiffDir, DiffInd): the irradiance is the Combined pass, which is "
              "shaded already (the surface colour, specular and emission in it), so the albedo counts twice and the "
              "highlights scatter; render the Diffuse Direct, Indirect and Color passes", UserWarning)
+    if "sss_jax:file_format" not in metadata:  # an EXR's integer channel holds ids or counts, never light or lengths
+        for key, names in plan.items():
+            stored = [n for n in _flat_names(names) if n in integers]
+            if key != "id" and stored:
+                raise SSSInputError(f"{path}: {key} channel(s) {_names(stored)} are stored as unsigned integers (an "
+                                    f"id or count pass, not {key}); map {key} to half or float channels "
+                                    "(channel_map, --channel-map)")
     buffers = {k: _stack(channels, v) for k, v in plan.items()}
 
     side = _sidecar(path)
@@ -855,14 +944,22 @@ def _frame_from_decoded(path: pathlib.Path, decoded, *, channel_map, depth_kind:
                                 f"materials 1, 2, ... and must be below 2^31 (a hashed id such as Cryptomatte's "
                                 "needs a channel map to a small-integer id pass)")
         ids = ids.astype(np.int32)
+    scattered = np.isfinite(depth) if ids is None else np.isfinite(depth) & (ids > 0)
     albedo = buffers.get("albedo")
     if albedo is not None:
-        albedo = np.clip(np.nan_to_num(albedo.astype(np.float32)), 0.0, 1.0)
+        albedo = _pass_read(path, "albedo", plan["albedo"], albedo, scattered)
+        outside = scattered[..., None] & ((albedo < -1e-3) | (albedo > 1 + 1e-3))  # beyond a lossy codec's ringing
+        if outside.any():
+            low, high = float(albedo[scattered].min()), float(albedo[scattered].max())
+            warn(f"{path}: albedo channels {_names(plan['albedo'])} have {int(outside.sum())} value(s) outside "
+                 f"[0, 1] on scattered pixels ({low:.3g} to {high:.3g}; the first at {_first_pixel(outside.any(-1))}), "
+                 "read clipped to [0, 1]: a diffuse colour pass reflects at most the light it receives", UserWarning)
+        albedo = np.clip(albedo, 0.0, 1.0)
     normal = buffers.get("normal")
     if normal is not None:
-        normal = np.nan_to_num(normal.astype(np.float32))
+        normal = _pass_read(path, "normal", plan["normal"], normal, scattered)
         if layout == "blender":  # Blender's Normal pass is in world space; the techniques take camera space
-            rotation = world_to_camera_rotation(metadata, side)
+            rotation = world_to_camera_rotation(metadata, side, path)
             if rotation is None:
                 warn(f"{path}: the Normal pass is in world space (Blender) and neither the header "
                      f"(worldToCamera) nor a sidecar {path.with_suffix('.json').name} (camera.location and "
@@ -872,11 +969,11 @@ def _frame_from_decoded(path: pathlib.Path, decoded, *, channel_map, depth_kind:
             else:
                 normal = (normal.astype(np.float64) @ rotation[0].T).astype(np.float32)
     thickness = buffers.get("thickness")
-    if thickness is not None:
-        thickness = np.maximum(np.nan_to_num(thickness.astype(np.float32), nan=0.0, posinf=np.inf), 0.0)
+    if thickness is not None:  # inf: infinitely thick, as the models read it; negative: 0
+        thickness = np.maximum(_pass_read(path, "thickness", plan["thickness"], thickness, scattered, posinf=True), 0.0)
     frame = Frame(irradiance=irradiance, depth=depth, albedo=albedo, normal=normal, thickness=thickness,
                   material_id=ids, focal_px=focal_px, mm_per_unit=mm_per_unit, path=str(path), layout=layout,
-                  metadata=metadata, window=window)
+                  metadata=metadata, window=window, principal_point=principal_point)
     surface = np.isfinite(depth)
     lost = None if ids is None else (ids > 0) & ~surface  # a material without a surface to scatter on
     if frame.sss_pixels == 0:
@@ -1056,6 +1153,29 @@ def _json_default(o):
     raise TypeError(f"{type(o).__name__} is not JSON serialisable")
 
 
+# The standard EXR attributes an output takes from its input's header (``write_exr(like=...)``): what its pixels'
+# colours mean (the primaries and white of an ACEScg or a P3 render; a compositor reads an EXR without them as
+# Rec.709) and where its camera was (the projection a compositor's 3D tools read). Name: (number of floats,
+# OpenImageIO's type).
+CARRIED_ATTRIBUTES = {"chromaticities": (8, "float[8]"), "whiteLuminance": (1, "float"),
+                      "adoptedNeutral": (2, "float2"), "worldToCamera": (16, "matrix"), "worldToNDC": (16, "matrix"),
+                      "screenWindowCenter": (2, "float2"), "screenWindowWidth": (1, "float")}
+
+
+def carried_attributes(header: Mapping[str, Any] | None) -> dict[str, tuple[float, ...]]:
+    """The ``CARRIED_ATTRIBUTES`` a header (``Frame.metadata``: OpenImageIO's names) holds, as tuples of floats;
+    one of another size or not numbers is left out."""
+    out = {}
+    for name, (size, _) in CARRIED_ATTRIBUTES.items():
+        try:
+            values = tuple(float(v) for v in np.ravel(np.asarray(header[name], np.float64)))
+        except (KeyError, TypeError, ValueError):
+            continue
+        if len(values) == size:
+            out[name] = values
+    return out
+
+
 def write_exr(
     path: str | os.PathLike,
     image: np.ndarray | Mapping[str, np.ndarray],
@@ -1065,12 +1185,15 @@ def write_exr(
     attributes: Mapping[str, Any] | None = None,
     overwrite: bool = True,
     window: Window | None = None,
+    like: Mapping[str, Any] | None = None,
 ) -> pathlib.Path:
     """Write an ``(H, W, C)`` image (or a dict of named ``(H, W)`` channels) as a ZIP-compressed EXR, float32 or
     half, with ``attributes`` (str, int, float) in the header. Atomic; ``overwrite=False`` never replaces a file
     that exists when the write completes (see ``atomic_path``). ``window``: the data window's corner and the display
     window (``Frame.window`` of the frame the image came from: an overscan margin or a display window away from
-    (0, 0) kept); None, both the image's at (0, 0).
+    (0, 0) kept); None, both the image's at (0, 0). ``like``: the header of the frame the image came from
+    (``Frame.metadata``): its ``CARRIED_ATTRIBUTES`` (colour primaries and white, camera matrices and screen window)
+    are written too.
 
     The path must end in ``.exr``: the values are linear scene-referred floats, and another extension would make
     OpenImageIO write them into a format that means something else (an 8-bit PNG labelled sRGB holding linear
@@ -1112,9 +1235,10 @@ def write_exr(
         window = None
     if window is not None and (window.display[2] < 1 or window.display[3] < 1):
         raise SSSInputError(f"{path}: display window {window.display[2]}x{window.display[3]} is empty")
+    carried = carried_attributes(like) if like is not None else {}
     if _openexr() is not None and len(set(channel_names)) == len(channel_names) and \
             all(_exr_attribute(k, v) for k, v in attributes.items()):
-        return _write_scanline_exr(path, pixels, channel_names, attributes, overwrite, window)
+        return _write_scanline_exr(path, pixels, channel_names, attributes, overwrite, window, carried)
     spec = oiio.ImageSpec(w, h, c, oiio.HALF if half else oiio.FLOAT)
     if window is not None:
         spec.x, spec.y = window.x, window.y
@@ -1123,6 +1247,8 @@ def write_exr(
     spec.attribute("compression", "zip")
     for key, value in attributes.items():
         spec.attribute(key, value)
+    for key, values in carried.items():
+        spec.attribute(key, oiio.TypeDesc(CARRIED_ATTRIBUTES[key][1]), values if len(values) > 1 else values[0])
     # checked from the file's chunk table, not decoded: the write's own errors are caught (write_image, close), and
     # what a lost write leaves (a chunk missing, misplaced or cut short) shows in the table at a fraction of a decode
     with atomic_path(path, overwrite=overwrite, verify=exr_chunks_complete) as tmp:
@@ -1160,13 +1286,17 @@ def _exr_attribute(key: str, value: int | float | str) -> bool:
 
 def _write_scanline_exr(path, pixels: np.ndarray, channel_names: list[str],
                         attributes: Mapping[str, int | float | str], overwrite: bool,
-                        window: Window | None = None) -> pathlib.Path:
+                        window: Window | None = None,
+                        carried: Mapping[str, tuple[float, ...]] | None = None) -> pathlib.Path:
     """``write_exr`` through OpenEXR's binding: the same file OpenImageIO writes (ZIP, scan lines, increasing y, the
     attributes with their types, the time of the write as ``capDate``, which OpenImageIO calls ``DateTime``, the
     windows)."""
     exr = _openexr()
     header: dict[str, Any] = {"compression": exr.ZIP_COMPRESSION, "type": exr.scanlineimage,
                               "capDate": time.strftime("%Y:%m:%d %H:%M:%S"), **attributes}
+    for key, values in (carried or {}).items():  # the binding's types: a tuple (chromaticities), arrays, a float
+        header[key] = values if key == "chromaticities" else values[0] if len(values) == 1 else \
+            np.asarray(values, np.float32).reshape((4, 4) if len(values) == 16 else (-1,))
     if window is not None:  # OpenEXR's boxes: (min, max) corners, both inclusive
         h, w = pixels.shape[:2]
         dx, dy, dw, dh = window.display

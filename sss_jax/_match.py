@@ -136,7 +136,7 @@ def load_match_frame(render: str | os.PathLike, truth: str | os.PathLike, *, tru
     if frame.focal_px is None:
         raise no_focal_length(render)
     rgb = read_truth(truth, truth_channels, frame=frame)  # the report's reader: one rule for a truth
-    camera = Camera(frame.focal_px, frame.scene_unit_mm)
+    camera = frame.camera()
     return match_frame(frame.to_buffers(use_albedo=use_albedo_pass), camera, rgb, name=pathlib.Path(render).name)
 
 

@@ -4,6 +4,7 @@ import json
 import math
 import os
 import pathlib
+import re
 import stat
 import warnings
 
@@ -1292,3 +1293,206 @@ def test_technique_flags_reach_the_library_or_are_refused(monkeypatch, capsys, a
     _bench.run_bench = old_run_bench
     assert main(["bench", "--quick", "--border", "renormalise"]) == 2
     assert "--border: this version's bench cannot pass options to" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# files as renderers write them, and what the reader must refuse (a review of 2026-12-07 found each of these read
+# silently wrong or stopping a batch)
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def _lit_sphere(h=24, w=32):
+    """Light and planar depth of a disc of surface on background (inf), as NumPy arrays (no sss_jax involved)."""
+    yy, xx = np.mgrid[0:h, 0:w] + 0.5
+    inside = ((yy - h / 2) ** 2 + (xx - w / 2) ** 2) < (0.35 * min(h, w)) ** 2
+    light = np.where(inside[..., None], np.array([1.0, 0.7, 0.5], np.float32), 0.0).astype(np.float32)
+    return light, np.where(inside, 100.0, np.inf).astype(np.float32), inside
+
+
+@pytest.mark.parametrize("buffer, channels, row_col", [
+    ("albedo", ("albedo.R", "albedo.G", "albedo.B"), (12, 16)),
+    ("normal", ("N.X", "N.Y", "N.Z"), (10, 14)),
+    ("thickness", ("thickness",), (13, 17)),
+])
+def test_a_non_finite_pass_value_on_a_scattering_pixel_is_named_and_elsewhere_ignored(tmp_path, buffer, channels,
+                                                                                      row_col):
+    # before, the reader turned NaN into 0 silently: a NaN albedo pixel came out black, a NaN thickness under STA
+    # as fully transmitting (brighter), a NaN normal as a zero vector
+    light, depth, inside = _lit_sphere()
+    ch = {"R": light[..., 0], "G": light[..., 1], "B": light[..., 2], "Z": depth}
+    fill = {"albedo": 0.7, "normal": 0.0, "thickness": 0.5}[buffer]
+    for c in channels:
+        ch[c] = np.full(depth.shape, fill, np.float32)
+    if buffer == "normal":
+        ch["N.Z"][:] = -1.0
+    background = ch[channels[0]].copy()
+    background[0, 0] = np.nan  # no surface there: nothing reads it
+    bad = background.copy()
+    bad[row_col] = np.nan
+    assert inside[row_col] and not inside[0, 0]
+    write_raw_exr(tmp_path / "ok.exr", {**ch, channels[0]: background}, {"sss_jax:focal_px": 200.0})
+    f = _io.read_frame(tmp_path / "ok.exr")
+    assert np.all(np.isfinite(getattr(f, buffer)))
+    write_raw_exr(tmp_path / "bad.exr", {**ch, channels[0]: bad}, {"sss_jax:focal_px": 200.0})
+    with pytest.raises(_io.SSSInputError, match=rf"bad.exr: {buffer} channel\(s\) '{channels[0]}'.* 1 non-finite "
+                                                rf"value\(s\) on pixels that scatter \(the first at row {row_col[0]}, "
+                                                rf"column {row_col[1]}\)"):
+        _io.read_frame(tmp_path / "bad.exr")
+
+
+def test_an_albedo_outside_0_1_is_said_and_clipped(tmp_path):
+    light, depth, inside = _lit_sphere()
+    alb = np.full(depth.shape, 0.6, np.float32)
+    alb2 = alb.copy()
+    alb2[12, 16] = 2.0  # a colour pass scaled wrongly
+    alb2[12, 17] = 1.0004  # a lossy codec's ringing: said nowhere
+    ch = {"R": light[..., 0], "G": light[..., 1], "B": light[..., 2], "Z": depth, "albedo.R": alb, "albedo.G": alb2,
+          "albedo.B": alb}
+    write_raw_exr(tmp_path / "a.exr", ch, {"sss_jax:focal_px": 200.0})
+    with pytest.warns(UserWarning, match=r"a.exr: albedo channels .* 1 value\(s\) outside \[0, 1\] on scattered "
+                                         r"pixels \(0.6 to 2; the first at row 12, column 16\), read clipped"):
+        f = _io.read_frame(tmp_path / "a.exr")
+    assert f.albedo[12, 16, 1] == 1.0 and f.albedo[12, 17, 1] == 1.0 and f.albedo.min() == pytest.approx(0.6)
+
+
+def test_a_deep_exr_is_refused_with_how_to_flatten_it(tmp_path):
+    # read as a flat image, a deep file's pixels were uninitialised memory (irradiance up to 7.9e34): apply wrote it
+    h = w = 8
+    light, depth, inside = _lit_sphere(h, w)
+    spec = oiio.ImageSpec(w, h, 5, oiio.FLOAT)
+    spec.channelnames = ("R", "G", "B", "A", "Z")
+    spec.deep, spec.alpha_channel, spec.z_channel = True, 3, 4
+    spec.attribute("sss_jax:focal_px", 200.0)
+    deep = oiio.DeepData()
+    deep.init(spec)
+    for p in np.flatnonzero(inside):
+        deep.set_samples(int(p), 1)
+        for c, v in enumerate([*light.reshape(-1, 3)[p], 1.0, depth.reshape(-1)[p]]):
+            deep.set_deep_value(int(p), c, 0, float(v))
+    out = oiio.ImageOutput.create(str(tmp_path / "deep.exr"))
+    assert out.open(str(tmp_path / "deep.exr"), spec) and out.write_deep_image(deep)
+    out.close()
+    with pytest.raises(_io.SSSInputError, match=r"deep.exr: a deep image .* flatten it first \(oiiotool deep.exr "
+                                                r"--flatten"):
+        _io.read_frame(tmp_path / "deep.exr")
+
+
+def test_light_or_depth_stored_as_integers_is_refused(tmp_path):
+    # OpenImageIO's float conversion divides a uint32 by 2^32 - 1: a stored depth of 90 read as 2.1e-08 units
+    light, depth, _ = _lit_sphere()
+    ch = {"R": light[..., 0].astype(np.float16), "G": light[..., 1].astype(np.float16),
+          "B": light[..., 2].astype(np.float16), "Z": np.where(np.isfinite(depth), 90, 0).astype(np.uint32)}
+    write_renderer_exr(tmp_path / "z.exr", ch, {"sss_jax:focal_px": 200.0})
+    with pytest.raises(_io.SSSInputError, match=r"z.exr: depth channel\(s\) 'Z' are stored as unsigned integers"):
+        _io.read_frame(tmp_path / "z.exr")
+
+
+def test_non_square_pixels_are_refused(tmp_path):
+    # the kernels are round in square pixels: an anamorphic frame's output was the square-pixel frame's, bit for bit
+    light, depth, _ = _lit_sphere()
+    ch = {"R": light[..., 0], "G": light[..., 1], "B": light[..., 2], "Z": depth}
+    write_raw_exr(tmp_path / "square.exr", ch, {"sss_jax:focal_px": 200.0, "PixelAspectRatio": 1.0})
+    _io.read_frame(tmp_path / "square.exr")
+    write_raw_exr(tmp_path / "wide.exr", ch, {"sss_jax:focal_px": 200.0, "PixelAspectRatio": 2.0})
+    with pytest.raises(_io.SSSInputError, match=r"wide.exr: pixels are not square \(PixelAspectRatio 2\).* resample "
+                                                r"the frame to square pixels first \(e.g. oiiotool wide.exr --resize "
+                                                r"64x24"):
+        _io.read_frame(tmp_path / "wide.exr")
+
+
+def test_a_sidecar_of_the_wrong_shape_fails_its_frame_and_the_batch_goes_on(tmp_path):
+    # an exporter's {"x": .., "y": .., "z": ..} for camera.location raised a TypeError past the batch's per-frame
+    # handling: the batch stopped, the next frames never ran, the message named no file
+    light, depth, _ = _lit_sphere()
+    ch = {f"ViewLayer.DiffDir.{c}": light[..., k] for k, c in enumerate("RGB")}
+    ch.update({f"ViewLayer.Normal.{c}": np.full(depth.shape, v, np.float32) for c, v in zip("XYZ", (0, 0, 1))})
+    ch["ViewLayer.Depth.Z"] = np.where(np.isfinite(depth), depth / 1000, 1e10).astype(np.float32)
+    (tmp_path / "in").mkdir()
+    for n in (1, 2, 3):
+        write_raw_exr(tmp_path / "in" / f"shot.{n}.exr", ch, {"sss_jax:focal_px": 200.0, "sss_jax:mm_per_unit": 1e3})
+        (tmp_path / "in" / f"shot.{n}.json").write_text(json.dumps(
+            {"camera": {"location": [0, -5, 1] if n != 2 else {"x": 0, "y": -5, "z": 1}, "look_at": [0, 0, 0]}}))
+    result = sj.process_frames(sorted((tmp_path / "in").glob("*.exr")), "burley",
+                               sj.BurleyMaterial((0.8, 0.6, 0.5), (3.0, 1.4, 0.8)), out_dir=tmp_path / "out",
+                               progress=False, samples=8)
+    status = {pathlib.Path(f.input).name: (f.status, f.message) for f in result.frames}
+    assert {k: v[0] for k, v in status.items()} == {"shot.1.exr": "done", "shot.2.exr": "failed", "shot.3.exr": "done"}
+    assert re.search(r"shot.2.json: camera.location must be 3 finite numbers, got \{'x': 0", status["shot.2.exr"][1])
+    for bad, message in (({"matrix_world": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}, "camera.matrix_world must be 16"),
+                         ({"location": [1, 2, 3], "look_at": [1, 2, 3]}, "has no direction")):
+        with pytest.raises(_io.SSSInputError, match=re.escape(message)):
+            _io.world_to_camera_rotation({}, {"camera": bad}, tmp_path / "f.exr")
+    with pytest.raises(_io.SSSInputError, match=r"f.exr: the header's worldToCamera must be 16 finite numbers"):
+        _io.world_to_camera_rotation({"worldToCamera": (1.0, 2.0)}, {}, tmp_path / "f.exr")
+
+
+def test_outputs_keep_the_input_s_colour_primaries_and_camera(tmp_path, monkeypatch):
+    # an ACEScg render's output lost its chromaticities (a compositor then read it as Rec.709) and its camera
+    ap1 = (0.713, 0.293, 0.165, 0.830, 0.128, 0.044, 0.32168, 0.33767)  # ACEScg's primaries and white (S-2014-004)
+    w2c = tuple(float(v) for v in np.arange(16) / 10)
+    light, depth, _ = _lit_sphere()
+    spec = oiio.ImageSpec(32, 24, 4, oiio.FLOAT)
+    spec.channelnames = ("R", "G", "B", "Z")
+    spec.attribute("sss_jax:focal_px", 200.0)
+    spec.attribute("chromaticities", oiio.TypeDesc("float[8]"), ap1)
+    spec.attribute("worldToCamera", oiio.TypeDesc("matrix"), w2c)
+    spec.attribute("screenWindowWidth", 1.5)
+    out = oiio.ImageOutput.create(str(tmp_path / "aces.exr"))
+    assert out.open(str(tmp_path / "aces.exr"), spec)
+    assert out.write_image(np.ascontiguousarray(np.concatenate([light, depth[..., None]], -1)))
+    out.close()
+    for openexr in (True, False):  # the binding writes the output, then OpenImageIO
+        if not openexr:
+            monkeypatch.setattr(_io, "_openexr", lambda: None)
+        dst = tmp_path / f"out_{openexr}.exr"
+        result = sj.process_frames([tmp_path / "aces.exr"], "separable", sj.BurleyMaterial((0.8, 0.6, 0.5),
+                                   (3.0, 1.4, 0.8)), outputs=[dst], progress=False, manifest=None, taps=9)
+        assert result.ok
+        header = {a.name: a.value for a in oiio.ImageInput.open(str(dst)).spec().extra_attribs}
+        np.testing.assert_allclose(header["chromaticities"], ap1, rtol=1e-6)
+        np.testing.assert_allclose(header["worldToCamera"], w2c, rtol=1e-6)
+        assert header["screenWindowWidth"] == 1.5
+
+
+def test_a_channel_map_that_is_not_text_or_names_too_little_says_so(tmp_path):
+    (tmp_path / "map.json").write_bytes(b'{"irradiance": ["R\xe9", "G", "B"]}')
+    with pytest.raises(_io.SSSInputError, match=r"map.json: a channel map is UTF-8 text"):
+        _io.load_channel_map(tmp_path / "map.json")
+    light, depth, _ = _lit_sphere()
+    write_raw_exr(tmp_path / "f.exr", {"R": light[..., 0], "G": light[..., 1], "B": light[..., 2], "Z": depth,
+                                       "id": np.ones(depth.shape)})
+    with pytest.raises(_io.SSSInputError, match=r"f.exr: the channel map names no irradiance channel\(s\); a map "
+                                                r"names the irradiance and the depth"):
+        _io.read_frame(tmp_path / "f.exr", channel_map={"id": "id"}, focal_px=200.0)
+
+
+def test_an_overscan_frame_s_camera_is_centred_on_its_display_window(tmp_path):
+    # STA's view rays come from the principal point: the batch built the camera at the array's centre, so a frame
+    # whose overscan margin lies on one side came out different from the same frame without the margin (0.003)
+    light, depth, _ = _lit_sphere(40, 48)
+    sphere = np.where(np.isfinite(depth), 100.0 - 8 * np.cos(np.arange(48) / 7.0)[None, :], np.inf).astype(np.float32)
+    ch = {"R": light[..., 0], "G": light[..., 1], "B": light[..., 2], "Z": sphere}
+    write_raw_exr(tmp_path / "plain.exr", ch, {"sss_jax:focal_px": 60.0, "sss_jax:mm_per_unit": 10.0})
+    pad = lambda a: np.pad(a, ((0, 8), (0, 16)), constant_values=np.inf if a is sphere else 0.0)
+    names = list(ch)
+    data = np.stack([pad(ch[n]) for n in names], -1).astype(np.float32)
+    spec = oiio.ImageSpec(64, 48, 4, oiio.FLOAT)  # data window 64x48 at (0, 0), display window 48x40
+    spec.channelnames = tuple(names)
+    spec.full_width, spec.full_height = 48, 40
+    spec.attribute("sss_jax:focal_px", 60.0)
+    spec.attribute("sss_jax:mm_per_unit", 10.0)
+    out = oiio.ImageOutput.create(str(tmp_path / "overscan.exr"))
+    assert out.open(str(tmp_path / "overscan.exr"), spec) and out.write_image(data)
+    out.close()
+    frame = _io.read_frame(tmp_path / "overscan.exr")
+    assert frame.camera().principal_point == (24.0, 20.0)
+    material = (sj.STAParams(distortion=0.2, power=4.0, thickness_mm=(4.0, 2.5, 1.5)),
+                sj.DirectionalLight(direction=(0.3, -0.4, 0.9)))
+    outs = []
+    for name in ("plain", "overscan"):
+        r = sj.process_frames([tmp_path / f"{name}.exr"], "sta", material, outputs=[tmp_path / f"{name}_out.exr"],
+                              sta_thickness=0.5, progress=False, manifest=None)
+        assert r.ok
+        outs.append(_io.read_channels(tmp_path / f"{name}_out.exr")[0])
+    for c in "RGB":
+        np.testing.assert_allclose(outs[1][c][:40, :48], outs[0][c], rtol=1e-6, atol=1e-6)

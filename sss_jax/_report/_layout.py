@@ -374,7 +374,7 @@ def _write(out_dir, doc: dict, page_html: str, frames: Sequence[FrameImages], ru
                 (staging / rel).parent.mkdir(parents=True, exist_ok=True)
                 write_exr(staging / rel, np.asarray(run.images[fi], np.float32),
                           attributes={"sss_jax:technique": run.technique, "sss_jax:count": run.count or 0},
-                          window=frames[fi].window)
+                          window=frames[fi].window, like=frames[fi].header)
                 files.append(rel)
         write_json_atomic(staging / "report.json", doc)
         write_bytes_atomic(staging / "report.html", page_html.encode())

@@ -31,7 +31,8 @@ class FrameImages:
     ``reference``: the dense reference. ``truth``: an offline render of the same view (e.g. Cycles' Combined) or
     None. ``material_id``: 0 where there is no SSS; the metrics use the pixels with id > 0 and finite depth
     (``mask``, computed by the caller; defaults to id > 0). ``window``: the input's windows, which the report's
-    images keep (an overscan frame's lie over it in a compositor)."""
+    images keep (an overscan frame's lie over it in a compositor); ``header``: the input's header, whose colour
+    primaries and camera they keep (``_io.CARRIED_ATTRIBUTES``)."""
 
     name: str
     shaded: np.ndarray
@@ -40,6 +41,7 @@ class FrameImages:
     truth: np.ndarray | None = None
     mask: np.ndarray | None = None
     window: Any = None  # the input's data and display windows (``_io.Window``; an overscan margin), or None
+    header: Any = None  # the input's header (``_io.Frame.metadata``): the images keep its colour primaries and camera
 
     def __post_init__(self):
         ref = _rgb(f"{self.name}: reference", self.reference)

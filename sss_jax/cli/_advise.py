@@ -126,7 +126,6 @@ def _material(args):
 
 def _frame(args, material):
     """``{buffers, camera, truth}`` for ``advise`` from ``--frame``/``--truth``; {} for the demo scene."""
-    from .._scene import Camera
 
     if args.frame is None:
         if args.truth is not None:
@@ -154,7 +153,7 @@ def _frame(args, material):
         raise no_focal_length(args.frame)
     # the frame's albedo pass where it has one and no --albedo overrides it
     buffers = f.to_buffers(use_albedo=args.albedo is None)
-    out = {"buffers": buffers, "camera": Camera(f.focal_px, f.scene_unit_mm)}
+    out = {"buffers": buffers, "camera": f.camera()}
     if args.truth is not None:
         out["truth"] = read_truth(args.truth, args.truth_channels, frame=f)
     return out

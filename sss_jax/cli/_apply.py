@@ -280,7 +280,6 @@ def _check_frames(inputs, args, material, light, counts, *, technique_checks: bo
 
     from .._io import read_frame
     from .._materials import STAParams
-    from .._scene import Camera
     from .._techniques import TECHNIQUES
 
     cls = TECHNIQUES[args.technique]
@@ -306,7 +305,7 @@ def _check_frames(inputs, args, material, light, counts, *, technique_checks: bo
             if message:
                 warnings.warn(f"{path}: {message}", UserWarning, stacklevel=2)
         if tech is not None and f.focal_px is not None:
-            cam = Camera(f.focal_px, f.scene_unit_mm)
+            cam = f.camera()
             for w in tech.check(f.to_buffers(use_albedo=args.albedo is None), material, cam):
                 warnings.warn(f"{path}: {w}", type(w), stacklevel=2)
 
@@ -314,7 +313,6 @@ def _check_frames(inputs, args, material, light, counts, *, technique_checks: bo
 def _reference_radius(inputs, args, material) -> int:
     """One reference window for the whole sequence: the largest any readable frame needs."""
     from .._io import read_frame
-    from .._scene import Camera
     from .._techniques import reference_radius_px
 
     radius = 1
@@ -325,6 +323,6 @@ def _reference_radius(inputs, args, material) -> int:
         except (OSError, ValueError):
             continue  # reported when the batch reaches it
         if f.focal_px is not None:
-            cam = Camera(f.focal_px, f.scene_unit_mm)
+            cam = f.camera()
             radius = max(radius, reference_radius_px(f.to_buffers(), material, cam))
     return radius
