@@ -132,3 +132,63 @@ def test_reference_window_past_the_frame_is_the_frames():
     mat = sj.BurleyMaterial((0.8, 0.5, 0.4), (30.0, 14.0, 8.0))
     far = np.asarray(sj.reference(sc.buffers, mat, sc.camera, radius_px=100000))
     assert np.array_equal(far, np.asarray(sj.reference(sc.buffers, mat, sc.camera, radius_px=7)))
+
+
+def test_burley_float32_gradients_stay_finite_across_a_depth_step():
+    # one pixel 200 mm in front of a wall, 8 samples: every sample of that pixel lands on the wall, its weight total
+    # is ~1e-27, and the quotient's derivative -num/den^2 overflowed float32: the gradients in d (and 17 in depth)
+    # were NaN, the forward pass finite (float64 finite: 9.53, -1.08, 2.65)
+    e = np.random.default_rng(26).uniform(0, 2, (24, 24, 3))
+    depth = np.full((24, 24), 60.0)
+    depth[12, 12] = 40.0
+    cam = sj.Camera(focal_px=3000.0, mm_per_unit=10.0)
+    grads = {}
+    for dt in (np.float32, np.float64):
+        def loss(d, z):
+            b = sj.Buffers(irradiance=jnp.asarray(e, dt), depth=z)
+            return jnp.sum(sj.burley(b, sj.BurleyMaterial(albedo=(0.8, 0.7, 0.6), d_mm=d), cam, samples=8))
+        gd, gz = jax.grad(loss, argnums=(0, 1))(jnp.asarray((3.0, 1.4, 0.8), dt), jnp.asarray(depth, dt))
+        assert np.all(np.isfinite(np.asarray(gz))), dt
+        grads[dt] = np.asarray(gd, np.float64)
+    assert np.all(np.isfinite(grads[np.float32]))
+    # the forward passes differ at the pixel whose weights float32 cannot hold (it keeps its own light): 2% in d_R
+    np.testing.assert_allclose(grads[np.float32], grads[np.float64], rtol=0.05)
+
+
+def test_burley_a_channel_far_narrower_than_the_widest_scatters_alike_in_float32_and_float64():
+    # d_B 1e4 times below d_R, 4 samples: the weights were scaled by a lower bound of the nearest sample's radius,
+    # ~10% short, so every weight of B was exp(-83) or less: 0 in float32, where the pixels kept their own light
+    # and the gradient was NaN or -48.8 against float64's 0
+    cam = sj.Camera(focal_px=100.0, mm_per_unit=10.0)
+    e = np.random.default_rng(3).uniform(0, 2, (6, 7, 3))
+    depth = np.full((6, 7), 50.0)
+    out, grad = {}, {}
+    for dt in (np.float32, np.float64):
+        b = sj.Buffers(irradiance=jnp.asarray(e, dt), depth=jnp.asarray(depth, dt))
+        f = lambda d: sj.burley(b, sj.BurleyMaterial(albedo=np.ones(3, dt), d_mm=d), cam, samples=4)
+        d = jnp.asarray([1.0, 1.0, 1e-4], dt)
+        out[dt] = np.asarray(f(d), np.float64)
+        grad[dt] = np.asarray(jax.grad(lambda d: jnp.sum(f(d)))(d), np.float64)
+    np.testing.assert_allclose(out[np.float32], out[np.float64], rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(grad[np.float32], grad[np.float64], rtol=2e-3, atol=1e-4)
+
+
+def test_reference_gradients_in_depth_and_focal_length_are_finite_past_six_pixels():
+    # the outer ring's one-point rule evaluated the skipped centre at r = 0 (R = inf) and masked it after: 0 inf = NaN
+    # in every depth and focal gradient once radius_px > 6 (float64 too)
+    e = jnp.ones((12, 12, 3))
+    mat = sj.BurleyMaterial((0.8, 0.6, 0.5), (3.0, 1.4, 0.8))
+
+    def loss(z, focal):
+        return jnp.sum(sj.reference(sj.Buffers(irradiance=e, depth=z), mat, sj.Camera(focal, 10.0), radius_px=7))
+
+    z = jnp.asarray(50.0 + np.random.default_rng(5).uniform(0, 1, (12, 12)))
+    gz, gf = jax.grad(loss, argnums=(0, 1))(z, jnp.asarray(60.0))
+    assert np.all(np.isfinite(np.asarray(gz))) and np.isfinite(float(gf))
+    # against central differences of the same function (float64)
+    h = 1e-4
+    step = jnp.zeros_like(z).at[5, 5].set(h)
+    fd = (loss(z + step, 60.0) - loss(z - step, 60.0)) / (2 * h)
+    assert float(gz[5, 5]) == pytest.approx(float(fd), rel=1e-4, abs=1e-9)
+    fd_f = (loss(z, 60.0 + h) - loss(z, 60.0 - h)) / (2 * h)
+    assert float(gf) == pytest.approx(float(fd_f), rel=1e-4, abs=1e-9)

@@ -236,6 +236,24 @@ def frame_energy_fraction(cdf, rows: Array, cols: Array, height: int, width: int
     return total / (2 * math.pi)
 
 
+@jax.custom_jvp
+def weighted_mean(num: Array, den: Array) -> Array:
+    """``num / den`` (a normalised sum of weights) whose derivative is ``(dnum - (num / den) dden) / den``: the
+    quotient rule's form without the square of ``den``. A Burley pixel whose samples all land far across a depth step
+    has a weight total of ~1e-27; ``num / den`` is fine there, but the derivative JAX writes, ``-num / den^2``,
+    overflows float32 (den^2 = 1e-54 -> 0): the gradients in d and depth came out NaN."""
+    return num / den
+
+
+@weighted_mean.defjvp
+def _weighted_mean_jvp(primals, tangents):
+    num, den = primals
+    d_num, d_den = tangents
+    out = num / den
+    return out, (d_num - out * d_den) / den
+
+
+
 from .._errors import SamplingWarning as SamplingWarning  # noqa: E402  (the one definition is in _errors)
 
 

@@ -25,6 +25,7 @@ from ._common import (
     _work_dtype,
     check_one_image,
     frame_energy_fraction,
+    weighted_mean,
 )
 from ._dispatch import check_tile
 
@@ -135,7 +136,10 @@ def _reference_impl(buffers: Buffers, material, camera: Camera, radius_px: int, 
             dy = idx // side - outer
             dx = idx % side - outer
             skip = (jnp.abs(dy) <= inner) & (jnp.abs(dx) <= inner)
-            wgt, e_q = neighbour_weight(dy, dx, sub)
+            # a skipped offset is evaluated at a kept one, (outer, outer), and dropped: evaluated where it is, the
+            # centre's one-point rule is R(0) = inf, whose gradient through the mask is 0 inf = NaN (every depth
+            # and focal gradient, for radius_px > 6)
+            wgt, e_q = neighbour_weight(jnp.where(skip, outer, dy), jnp.where(skip, outer, dx), sub)
             wgt = jnp.where(skip, 0.0, wgt)
             return num + wgt * e_q, den + wgt
 
@@ -149,7 +153,7 @@ def _reference_impl(buffers: Buffers, material, camera: Camera, radius_px: int, 
             acc = ring(acc, inner, outer, sub)
     num, den = acc
     ok = den > 0
-    scattered = jnp.where(ok, num / jnp.where(ok, den, 1.0), e)
+    scattered = jnp.where(ok, weighted_mean(num, jnp.where(ok, den, 1.0)), e)
     return _finish(buffers, prep, scattered)
 
 
