@@ -466,7 +466,7 @@ def simulate(
         raise ValueError(f"g must lie in (-1, 1), got {g}")
     if not (eta >= 1.0 and math.isfinite(eta)):
         raise ValueError(f"eta must be a finite number >= 1, got {eta}")
-    photons = check_host_count(photons, "photons")
+    photons = check_host_count(photons, "photons", lo=2)  # a standard error needs two: one photon's is undefined
     bins = check_host_count(bins, "bins")
     lanes = check_host_count(lanes, "lanes")  # 0 lanes walked no photon, forever
     batch_photons = check_host_count(batch_photons, "batch_photons")
@@ -549,9 +549,9 @@ def simulate(
     seconds = time.perf_counter() - t0
     N = float(photons)
 
-    def mean_err(s, s2):
+    def mean_err(s, s2):  # the mean and its standard error, from the sample variance (N - 1: unbiased)
         mean = s / N
-        var = np.maximum(s2 / N - mean * mean, 0.0)
+        var = np.maximum(s2 / N - mean * mean, 0.0) * (N / (N - 1))
         return mean, np.sqrt(var / N)
 
     edges = np.linspace(0.0, r_max_mfp, bins + 1)

@@ -848,3 +848,67 @@ def test_a_display_image_given_as_a_frame_says_what_it_is(tmp_path):
     write_ok.close()
     with pytest.raises(_io.SSSInputError, match=r"shot.png: missing depth channel\(s\) .* \(a PNG file, not OpenEXR"):
         _io.read_frame(path)
+
+
+# ---- what a review of the commands found on 2026-12-07: each a traceback, a late failure or a silent choice ----
+
+
+@pytest.mark.parametrize("argv, message", [
+    # unknown names and bad values were "failed" presets (exit 1) after the folder, its README and schema were written
+    (["fit", "--material", "nosuch"], "unknown material(s) 'nosuch'; known: "),
+    (["fit", "--name", "velvet", "--albedo", "1,0.7,0.5", "--d-mm", "3,2,1"], "albedo must be 3 values in (0, 1)"),
+    # an output that cannot be a folder was FileNotFoundError's traceback
+    (["fit", "--material", "skin", "--out", "/proc/sss_jax_cannot"], "output directory is not writable"),
+    # two colours for one: the linear one was taken without a word
+    (["convert", "--from", "hdrp", "--to", "sss_jax", "--albedo", "0.8", "--scattering-color", "0.2",
+      "--scattering-color-srgb", "0.9"], "are two colours"),
+    # one photon's standard error is undefined: it printed +- 0.00000
+    (["montecarlo", "--albedo", "0.9", "--photons", "1", "--json", "mc.json"], "photons must be an integer >= 2"),
+])
+def test_commands_refuse_bad_input_before_any_work_and_write_nothing(tmp_path, monkeypatch, capsys, argv, message):
+    monkeypatch.chdir(tmp_path)
+    out = ["--out", "fits"] if argv[0] == "fit" and "--out" not in argv else []
+    assert main([*argv, *out]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_report_refuses_sta_s_flags_where_no_sta_runs(tmp_path, capsys):
+    # --thickness -1 (and --light-dir) with --techniques separable ran with exit 0: the flag was dropped unsaid
+    frame = tmp_path / "f.exr"
+    good_exr(frame)
+    base = ["report", str(frame), "--out", str(tmp_path / "rep"), "--d-mm", "3,1.4,0.8", "--focal-px", "50"]
+    assert main([*base, "--techniques", "separable", "--thickness", "-1"]) == 2
+    assert "--thickness: for STA, and --techniques separable runs no STA" in capsys.readouterr().err
+    assert main([*base, "--thickness", "1"]) == 2  # the default techniques, STA left out: no light
+    assert "STA needs --light-dir X,Y,Z too" in capsys.readouterr().err
+    assert not (tmp_path / "rep").exists()
+
+
+def test_fit_render_checks_its_report_s_window_before_the_fit(tmp_path, capsys):
+    # --radius-px 0 failed in the report after the whole fit (~25 s), with a traceback, and wrote no report
+    argv = ["fit", "--render", str(MITSUBA / "skin_closeup_buffers.exr"), "--truth",
+            str(MITSUBA / "skin_closeup_truth.exr"), "--technique", "burley", "--preset", "skin1",
+            "--report", str(tmp_path / "rep"), "--radius-px", "0", "--json", str(tmp_path / "fit.json")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "--radius-px must be a positive integer, got 0" in err and "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_advise_refuses_a_scene_size_the_demo_refuses(capsys):
+    # 100000x100000 ended in numpy's _ArrayMemoryError traceback; the demo's bounds hold for both
+    with pytest.raises(SystemExit) as exc:
+        main(["advise", "--material", "marble", "--size", "100000x100000"])
+    assert exc.value.code == 2
+    assert "--size must be between 8x8 and 8192x8192" in capsys.readouterr().err
+
+
+def test_a_jimenez_kernel_of_strength_0_converts_to_no_scattering():
+    # strength 0 is the centre tap alone (the identity): the bounded search gave d = 1.97 mm, while 0.001 gave 0.039
+    from sss_jax.engines._registry import REGISTRY
+
+    albedo, d = REGISTRY["jimenez"].from_engine({"sssWidth": 0.01, "strength": [0.0, 0.0, 0.001],
+                                                 "falloff": [0.5, 0.5, 0.5]})
+    assert d[0] == 0.0 and d[1] == 0.0 and 0 < d[2] < 0.1

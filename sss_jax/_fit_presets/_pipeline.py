@@ -22,7 +22,7 @@ from .._fitting import (
     fit_two_gaussian_profile,
     fit_two_gaussian_to_burley,
 )
-from .._io import SSSInputError, write_bytes_atomic
+from .._io import SSSInputError, check_output_folder, write_bytes_atomic
 from .._kernels import _check_taps, two_gaussian_kernel
 from .._montecarlo import to_tabulated_profile
 from .._presets import preset_from_data
@@ -172,8 +172,9 @@ def fit_presets(names: Iterable[str] | None = None, *, out_dir: str | os.PathLik
                 plots: bool = True, readme: bool = True, measured_csv=None,
                 artist: dict[str, dict] | None = None, log: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Fit and write ``out_dir/<name>.json`` for each material (default: all measured and artist materials) and the
-    schema, plots and README; a material that fails is reported and the others go on. Returns
-    ``{"written": [paths], "failed": {name: message}}``."""
+    schema, plots and README; a material whose fit fails is reported and the others go on. Returns
+    ``{"written": [paths], "failed": {name: message}}``. What the caller gave wrong (an unknown name, a material's
+    values, an output folder that cannot be one) is an ``SSSInputError`` before any work, and nothing is written."""
     log = log or (lambda s: print(s, file=sys.stderr, flush=True))
     artist = dict(artist or {})
     for name in artist:  # before any work: the name is a file of out_dir (and of its Monte Carlo cache)
@@ -184,23 +185,22 @@ def fit_presets(names: Iterable[str] | None = None, *, out_dir: str | os.PathLik
                          f"{MEDIUM_SLAB_PHOTONS_FRACTION} each), got {photons!r}")
     _check_taps(taps)  # the exported kernel has a centre tap
     out = pathlib.Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    check_output_folder(out, "out_dir")
     todo = list(names) if names is not None else (sorted(measured_materials(measured_csv)) + sorted(ARTIST_MATERIALS))
     todo += [n for n in artist if n not in todo]
     known = set(measured_materials(measured_csv)) | set(ARTIST_MATERIALS) | set(artist)
+    unknown = [name for name in todo if name not in known]
+    if unknown:
+        raise SSSInputError(f"unknown material(s) {', '.join(map(repr, unknown))}; known: {', '.join(sorted(known))}")
+    for name in todo:  # the materials' own values: their errors are the input's, found before any fit
+        try:
+            material_source(name, measured_csv=measured_csv, artist=artist.get(name))
+        except ValueError as exc:  # (its message names the material)
+            raise SSSInputError(str(exc)) from None
+    out.mkdir(parents=True, exist_ok=True)
     written, failed = [], {}
     for i, name in enumerate(todo, 1):
         log(f"[{i}/{len(todo)}] {name}")
-        if name not in known:
-            failed[name] = f"unknown material {name!r}; known: {', '.join(sorted(known))}"
-            log(f"  failed: {failed[name]}")
-            continue
-        try:  # the material's own values first: their errors are the input's, not the photon count's
-            material_source(name, measured_csv=measured_csv, artist=artist.get(name))
-        except (SSSInputError, ValueError) as exc:
-            failed[name] = f"{type(exc).__name__}: {exc}"
-            log(f"  failed: {failed[name]}")
-            continue
         try:
             preset = fit_preset(name, photons=photons, seed=seed, solver=solver, taps=taps,
                                 cache_dir=out / "montecarlo", measured_csv=measured_csv, artist=artist.get(name),

@@ -37,13 +37,14 @@ _TIE_REPEATS = 3
 
 
 def _size(text: str) -> tuple[int, int]:
-    """WIDTHxHEIGHT, as ``sss-jax demo`` takes it; returns (height, width)."""
+    """WIDTHxHEIGHT, as ``sss-jax demo`` takes it (its bounds: 100000x100000 ran out of memory here); returns
+    (height, width)."""
+    from ._demo import _parse_size
+
     try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--size must be WIDTHxHEIGHT (e.g. 96x72), got {text!r}") from None
-    if h < 8 or w < 8:
-        raise argparse.ArgumentTypeError(f"--size must be at least 8x8, got {text!r}")
+        w, h = _parse_size(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
     return h, w
 
 

@@ -22,11 +22,10 @@ Parameters per engine (all lengths per channel as R,G,B; one number means all th
 --mm-per-unit is the scene unit in mm for both sides (default: each engine's usual unit). A flag that is both a
 parameter of the source and an option of the target (--blender-version, --method, --scale, --mm-per-unit, ...)
 sets both; --to-<flag> sets the target's alone, e.g. a Blender 2.93 material in Blender 4.2:
-  sss-jax convert --from blender --to blender --albedo 0.8,0.6,0.5 --radius 1,0.2,0.1 --blender-version 2.93 \
+  sss-jax convert --from blender --to blender --albedo 0.8,0.6,0.5 --radius 1,0.2,0.1 --blender-version 2.93 \\
     --to-blender-version 4.2 --to-method random-walk
- The JSON holds albedo,
-burley.d_mm, the target's parameters by their UI names, what is lossy or unverified, and the sources each
-conversion was read from; docs/engines.md has the formulas.
+The JSON holds albedo, burley.d_mm, the target's parameters by their UI names, what is lossy or unverified, and the
+sources each conversion was read from; docs/engines.md has the formulas.
 """
 
 _TYPES = {"rgb": rgb_triple, "srgb": srgb_colour, "float": float, "int": int, "str": str}

@@ -105,7 +105,7 @@ def run(args) -> int:
         fit_presets,
         measured_materials,
     )
-    from .._io import SSSInputError
+    from .._io import SSSInputError, check_output_folder
 
     try:
         measured = measured_materials(args.measured_csv)
@@ -134,8 +134,7 @@ def run(args) -> int:
             check_preset_name(args.name)
             artist = {args.name: {"albedo": list(args.albedo), "d_mm": list(args.d_mm)}}
         names = args.material if args.material else ([] if artist and not args.all else None)
-        if args.out.exists() and not args.out.is_dir():
-            raise ValueError(f"--out {args.out} exists and is not a directory")
+        check_output_folder(args.out, "--out")
         result = fit_presets(names, out_dir=args.out, photons=photons, seed=args.seed, solver=args.solver,
                              taps=args.taps, plots=not args.no_plots, measured_csv=args.measured_csv, artist=artist)
     except (ValueError, SSSInputError) as exc:
@@ -199,6 +198,7 @@ def _register_match(p) -> None:
 
 
 def _run_match(args) -> int:
+    from .._checks import check_host_count
     from .._io import SSSInputError, check_writable, write_json_atomic
     from .._match import load_match_frame, match_render, write_match_html
     from ._apply import _material
@@ -250,6 +250,8 @@ def _run_match(args) -> int:
             check_report_out(args.report, "--report")
         if args.report is not None and args.technique == "sta":
             raise ValueError("--report needs --technique burley or separable (the report's reference is a profile)")
+        if args.report is not None and args.radius_px is not None:  # the report's, checked before the fit
+            check_host_count(args.radius_px, "--radius-px")
         result = match_render(frames, material, technique=args.technique, holdout=holdout, samples=args.samples,
                               taps=args.taps, light=light, thickness=args.thickness, fit_albedo=args.fit_albedo,
                               loss=args.loss, huber_delta=args.huber_delta, max_steps=args.max_steps,

@@ -250,6 +250,10 @@ def run(args) -> int:
             techniques = [n for n, _ in entries]
             notes.append("STA left out: it needs the back light's direction (--light-dir X,Y,Z).")
         run_sta = "sta" in techniques
+        sta_only = [f"--{n.replace('_', '-')}" for n in ("thickness", "light_dir") if getattr(args, n) is not None]
+        if sta_only and not run_sta:  # STA's alone: said, as its --sta-* flags are, not dropped
+            why = ("STA needs --light-dir X,Y,Z too" if notes else f"--techniques {args.techniques} runs no STA")
+            raise ValueError(f"{', '.join(sta_only)}: for STA, and {why}")
         runs = _runs(entries, args, sta)
         # the reference cache lives in OUT/cache; on a first run it is built in a scratch folder and moved in only
         # when the report is complete, so bad input or an interruption leaves nothing in OUT
