@@ -301,7 +301,7 @@ def test_run_options_that_walk_no_photon_or_misplace_them_are_refused(as_users_r
                             ({"r_max_mfp": -5.0}, "r_max_mfp must be a finite positive radius"),
                             ({"r_max_mfp": 0.0}, "r_max_mfp must be"), ({"r_max_mfp": float("nan")}, "r_max_mfp"),
                             ({"bins": 0}, "bins must be a positive integer"), ({"bins": 2.5}, "bins must be"),
-                            ({"photons": True}, "photons must be a positive integer"),
+                            ({"photons": True}, "photons must be an integer >= 2"),
                             ({"unroll": 0}, "unroll must be a positive integer")):
         with pytest.raises(ValueError, match=message):
             simulate(0.5, **{"photons": 200, **kwargs})
