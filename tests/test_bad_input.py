@@ -909,6 +909,6 @@ def test_a_jimenez_kernel_of_strength_0_converts_to_no_scattering():
     # strength 0 is the centre tap alone (the identity): the bounded search gave d = 1.97 mm, while 0.001 gave 0.039
     from sss_jax.engines._registry import REGISTRY
 
-    albedo, d = REGISTRY["jimenez"].from_engine({"sssWidth": 0.01, "strength": [0.0, 0.0, 0.001],
+    _, d = REGISTRY["jimenez"].from_engine({"sssWidth": 0.01, "strength": [0.0, 0.0, 0.001],
                                                  "falloff": [0.5, 0.5, 0.5]})
     assert d[0] == 0.0 and d[1] == 0.0 and 0 < d[2] < 0.1

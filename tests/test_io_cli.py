@@ -1341,7 +1341,7 @@ def test_a_non_finite_pass_value_on_a_scattering_pixel_is_named_and_elsewhere_ig
 
 
 def test_an_albedo_outside_0_1_is_said_and_clipped(tmp_path):
-    light, depth, inside = _lit_sphere()
+    light, depth, _ = _lit_sphere()
     alb = np.full(depth.shape, 0.6, np.float32)
     alb2 = alb.copy()
     alb2[12, 16] = 2.0  # a colour pass scaled wrongly

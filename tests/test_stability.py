@@ -144,7 +144,7 @@ def test_burley_float32_gradients_stay_finite_across_a_depth_step():
     cam = sj.Camera(focal_px=3000.0, mm_per_unit=10.0)
     grads = {}
     for dt in (np.float32, np.float64):
-        def loss(d, z):
+        def loss(d, z, dt=dt):
             b = sj.Buffers(irradiance=jnp.asarray(e, dt), depth=z)
             return jnp.sum(sj.burley(b, sj.BurleyMaterial(albedo=(0.8, 0.7, 0.6), d_mm=d), cam, samples=8))
         gd, gz = jax.grad(loss, argnums=(0, 1))(jnp.asarray((3.0, 1.4, 0.8), dt), jnp.asarray(depth, dt))
@@ -165,10 +165,10 @@ def test_burley_a_channel_far_narrower_than_the_widest_scatters_alike_in_float32
     out, grad = {}, {}
     for dt in (np.float32, np.float64):
         b = sj.Buffers(irradiance=jnp.asarray(e, dt), depth=jnp.asarray(depth, dt))
-        f = lambda d: sj.burley(b, sj.BurleyMaterial(albedo=np.ones(3, dt), d_mm=d), cam, samples=4)
+        f = lambda d, b=b, dt=dt: sj.burley(b, sj.BurleyMaterial(albedo=np.ones(3, dt), d_mm=d), cam, samples=4)
         d = jnp.asarray([1.0, 1.0, 1e-4], dt)
         out[dt] = np.asarray(f(d), np.float64)
-        grad[dt] = np.asarray(jax.grad(lambda d: jnp.sum(f(d)))(d), np.float64)
+        grad[dt] = np.asarray(jax.grad(lambda d, f=f: jnp.sum(f(d)))(d), np.float64)
     np.testing.assert_allclose(out[np.float32], out[np.float64], rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(grad[np.float32], grad[np.float64], rtol=2e-3, atol=1e-4)
 
