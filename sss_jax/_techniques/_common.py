@@ -253,7 +253,6 @@ def _weighted_mean_jvp(primals, tangents):
     return out, (d_num - out * d_den) / den
 
 
-
 from .._errors import SamplingWarning as SamplingWarning  # noqa: E402  (the one definition is in _errors)
 
 
