@@ -12,6 +12,7 @@ import pytest
 from sss_jax._bench import GOALS, cost_per_pixel, run_bench, xla_plain_separable
 from sss_jax._demo import demo_montecarlo, demo_trade, run_demo
 from sss_jax._reporting import write_demo_report
+from sss_jax.cli import main
 
 # One frame size and one sample/tap count for the demo, the report and the bench (and `sss-jax demo` in
 # tests/test_io_cli.py): the report's trade table (burley 8/32/64, separable 9/25) and the bench's error scene
@@ -137,3 +138,21 @@ def test_cost_per_pixel_counts_the_shaders_fetches():
     assert cost_per_pixel("separable", 9, "linear")["flops"] < cost_per_pixel("separable", 25, "linear")["flops"]
     with pytest.raises(ValueError, match="no cost model for technique 'reference'"):
         cost_per_pixel("reference", None)
+
+
+def test_bench_says_the_techniques_warnings_as_every_command_does(monkeypatch, capsys):
+    # bench printed Python's raw form (the file, the line, the source line) where the other commands print
+    # "sss-jax <command>: warning: <message>"
+    import warnings
+
+    import sss_jax._bench as bench
+    from sss_jax._errors import SamplingWarning
+
+    def run_bench(**kwargs):
+        warnings.warn("separable: 9 taps leave tap cells wide", SamplingWarning, stacklevel=2)
+        raise ValueError("stopped here")
+
+    monkeypatch.setattr(bench, "run_bench", run_bench)
+    assert main(["bench", "--quick", "--technique", "separable"]) == 2
+    err = capsys.readouterr().err
+    assert "sss-jax bench: warning: separable: 9 taps leave tap cells wide" in err and "warnings.warn" not in err

@@ -8,8 +8,8 @@ import io
 import pathlib
 import sys
 
-from ._options import (add_counts, add_technique_flags, comma_separated_counts, comma_separated_names,
-                       option_arguments, technique_options)
+from ._options import (WarningPrinter, add_counts, add_technique_flags, comma_separated_counts,
+                       comma_separated_names, option_arguments, technique_options)
 
 EPILOG = """examples:
   sss-jax bench --quick                       # reduced grid, under two minutes on a 2-core CPU
@@ -99,8 +99,9 @@ def run(args) -> int:
         extra = option_arguments(run_bench, options, "bench")
         if args.technique:
             extra["techniques"] = list(args.technique)
-        result = run_bench(quick=args.quick, repeats=args.repeats,
-                           progress=lambda m: print(m, file=sys.stderr, flush=True), **extra)
+        with WarningPrinter("sss-jax bench"):  # the techniques' warnings as every command says them
+            result = run_bench(quick=args.quick, repeats=args.repeats,
+                               progress=lambda m: print(m, file=sys.stderr, flush=True), **extra)
     except (ValueError, TypeError) as exc:
         print(f"sss-jax bench: {exc}", file=sys.stderr)
         return 2
