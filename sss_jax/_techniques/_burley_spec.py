@@ -79,12 +79,12 @@ def burley_weight(r: Array, decay: Array, ok_d: Array, scale: Array, r0: Array |
     return scale * e3 * (1 + e3_squared) / jnp.where(ok_d & (r > 0), r, 1.0)
 
 
-def weight_offset(pix: dict, samples: int, *, truncate: bool, weight_channels: int, inverse_ccdf=None) -> dict:
+def weight_offset(pix: dict, samples: int, *, truncate: bool, weight_channels: int) -> dict:
     """The planes ``burley_weight`` scales each channel's weights by (``r0`` and its ``tail`` per weight channel),
     for the pixels of ``pix``; none for one (grey) weight channel, whose d is d_max (the weights stay of order 1).
 
     ``r0`` is sample 0's in-plane radius, the smallest of the pixel's samples (the stratified radii grow with the
-    sample's index), computed as ``sample_place`` computes it (the same expression: the same rounding): every fetch
+    sample's index), computed as ``sample_place`` computes it (``sample_radius``: the same rounding): every fetch
     of the pixel lies at least that far (r3 >= r), so no scaled weight exceeds 1, and the nearest sample on the
     pixel's own surface weighs ~1 however narrow the channel. (A lower bound, ``2 u_0 d_max``, was ~10% short at 4
     samples: a channel 1e4 times narrower than the widest then weighed every sample exp(-83) or less, flushed to 0 in
@@ -92,10 +92,8 @@ def weight_offset(pix: dict, samples: int, *, truncate: bool, weight_channels: i
     normalised result does not depend on it."""
     if weight_channels == 1:
         return {}
-    inverse_ccdf = inverse_ccdf or unit_inverse_ccdf  # ``sample_place``'s
     u0, _ = spiral_sample(jnp.asarray(0).astype(pix["z"].dtype), samples)
-    rho0 = unit_radius_for_cdf(u0 * pix["inside"], inverse_ccdf) if truncate else inverse_ccdf(1 - u0)
-    r0 = jax.lax.stop_gradient(rho0 * pix["dmax"])
+    r0 = jax.lax.stop_gradient(sample_radius(u0, pix, truncate=truncate) * pix["dmax"])
     return {"r0": r0, "tail": [jnp.where(ok_d, jnp.exp(-2 * (r0 * decay)), 0.0)
                                for decay, ok_d in zip(pix["decay"], pix["ok_d"])]}
 
@@ -223,6 +221,15 @@ def unit_radius_for_cdf(u: Array, inverse_ccdf=unit_inverse_ccdf) -> Array:
     return profile_unit_radius_for_cdf(u, inverse_ccdf)
 
 
+def sample_radius(u: Array, pix: dict, *, truncate: bool, inverse_ccdf=unit_inverse_ccdf) -> Array:
+    """The radius, in units of d_max, of the sample at stratified CDF position ``u``: the inverse CDF of the pixel's
+    widest-channel profile truncated at the frame's diagonal (per pixel) where ``truncate``, else of the whole
+    profile (the tail beyond the diagonal is negligible, ``needs_truncation``: one scalar radius per sample)."""
+    if truncate:
+        return unit_radius_for_cdf(u * pix["inside"], inverse_ccdf)
+    return inverse_ccdf(1 - u)
+
+
 def needs_truncation(widest_d_px: float, frame_shape: tuple[int, int]) -> bool:
     """Host side: whether the widest profile among the active pixels (``widest_d_px``: its d in px) has more than
     ``TRUNCATION_ENERGY`` of its energy beyond the frame's diagonal (Burley's CCDF ``(exp(-x) + 3 exp(-x/3)) / 4``)."""
@@ -346,10 +353,7 @@ def sample_place(i: Array | int, samples: int, cos_phi: Array, sin_phi: Array, p
     with ``border="leaves"``, ``in_frame`` (the part of the fetch inside the frame)."""
     dtype = pix["z"].dtype
     u, theta = spiral_sample(jnp.asarray(i).astype(dtype), samples)
-    if truncate:
-        rho = unit_radius_for_cdf(u * pix["inside"], inverse_ccdf)  # radius in units of d_max, per pixel
-    else:  # the tail beyond the diagonal is negligible (``needs_truncation``): one scalar radius per sample
-        rho = inverse_ccdf(1 - u)
+    rho = sample_radius(u, pix, truncate=truncate, inverse_ccdf=inverse_ccdf)  # in units of d_max
     off = rho * pix["dmax"] * pix["ppm"]
     cos_t = jnp.cos(theta) * cos_phi - jnp.sin(theta) * sin_phi  # the spiral turned by the pixel's angle
     sin_t = jnp.sin(theta) * cos_phi + jnp.cos(theta) * sin_phi

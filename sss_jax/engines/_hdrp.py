@@ -94,10 +94,11 @@ class Hdrp(AbstractEngine):
             color = rgb("scattering_color", linear, lo=0.0)
             if shown is not None:  # both (to_engine writes both): they must be one colour, to the inspector's 8 bits
                 encoded = rgb("scattering_color_srgb", shown, lo=0.0, hi=1.0)
-                if np.max(np.abs(srgb_encode(np.minimum(color, 1.0)) - encoded)) > 0.5 / 255 + 1e-6:
+                expected = srgb_encode(np.minimum(color, 1.0))
+                if np.max(np.abs(expected - encoded)) > 0.5 / 255 + 1e-6:
                     raise ValueError(f"hdrp: Scattering Color {color.tolist()} (linear) and its inspector sRGB "
                                      f"{encoded.tolist()} are two colours (the linear one encodes to "
-                                     f"{np.round(srgb_encode(np.minimum(color, 1.0)), 4).tolist()}): give one")
+                                     f"{np.round(expected, 4).tolist()}): give one")
         else:
             color = srgb_decode(rgb("scattering_color_srgb", shown, lo=0.0, hi=1.0))
         mult = scalar("multiplier", params.get("Multiplier", 1.0), positive=False, lo=0.0)
