@@ -268,23 +268,10 @@ def run_bench(*, quick: bool = False, repeats: int = 3, progress: Callable[[str]
         if not objects:
             raise ValueError("techniques: give at least one technique")
 
-    # --- errors against the reference (resolution-independent: measured once on a small frame) --------------------
-    say("reference images for the error columns ...")
+    # the runs' objects built before any reference is computed: a bad option (--taps 8) is an error at once
     eb, ecam = err_scene.buffers, err_scene.camera
-    emask = np.asarray(eb.material_id) > 0
-    ref_options = opt("reference")
-    ref_demo = np.asarray(reference(eb, mat, ecam, **ref_options))
     pat_cam = Camera(80.0, 10.0)
     pat_mat = BurleyMaterial(albedo=(1.0, 1.0, 1.0), d_mm=(8.0, 4.0, 2.0))
-    patterns = test_patterns(int((grid or {}).get("pattern_size", 32 if grid else 64)))
-    ref_pat = {k: np.asarray(reference(b, pat_mat, pat_cam, **ref_options)) for k, b in patterns.items()}
-
-    def errors(run_demo: Callable, run_pattern: Callable) -> dict[str, float]:
-        out = {"demo": rel_l2(run_demo(eb, ecam), ref_demo, mask=emask)}
-        for k, b in patterns.items():
-            out[k] = rel_l2(run_pattern(b, pat_cam), ref_pat[k])
-        return out
-
     # (technique name, count, run on a bench frame, on the error frame, on a pattern, the object, its material)
     configs: list[tuple[str, int | None, Callable, Callable, Callable, Any, Any]] = []
     if objects is not None:
@@ -314,6 +301,20 @@ def run_bench(*, quick: bool = False, repeats: int = 3, progress: Callable[[str]
                             lambda b, c, n=n: burley(b, mat, c, samples=n, **opt("burley")),
                             lambda b, c, n=n: burley(b, pat_mat, c, samples=n, **opt("burley")),
                             Burley(samples=n, **opt("burley")), mat))
+
+    # --- errors against the reference (resolution-independent: measured once on a small frame) --------------------
+    say("reference images for the error columns ...")
+    emask = np.asarray(eb.material_id) > 0
+    ref_options = opt("reference")
+    ref_demo = np.asarray(reference(eb, mat, ecam, **ref_options))
+    patterns = test_patterns(int((grid or {}).get("pattern_size", 32 if grid else 64)))
+    ref_pat = {k: np.asarray(reference(b, pat_mat, pat_cam, **ref_options)) for k, b in patterns.items()}
+
+    def errors(run_demo: Callable, run_pattern: Callable) -> dict[str, float]:
+        out = {"demo": rel_l2(run_demo(eb, ecam), ref_demo, mask=emask)}
+        for k, b in patterns.items():
+            out[k] = rel_l2(run_pattern(b, pat_cam), ref_pat[k])
+        return out
 
     rows = []
     for (w, h) in res_grid:

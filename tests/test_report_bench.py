@@ -156,3 +156,20 @@ def test_bench_says_the_techniques_warnings_as_every_command_does(monkeypatch, c
     assert main(["bench", "--quick", "--technique", "separable"]) == 2
     err = capsys.readouterr().err
     assert "sss-jax bench: warning: separable: 9 taps leave tap cells wide" in err and "warnings.warn" not in err
+
+
+@pytest.mark.parametrize("flags, message", [(["--taps", "8"], "taps must be an odd positive integer"),
+                                            (["--scale-levels", "-1"], "scale_levels must be"),
+                                            (["--technique", "separable", "--taps", "8"], "taps must be an odd")])
+def test_bench_refuses_a_bad_count_before_any_reference_runs(monkeypatch, capsys, flags, message):
+    # `bench --taps 8` failed only after the reference images and the STA rows (~20 s): the runs' technique objects
+    # are built (and checked) first
+    import sss_jax._bench as bench
+
+    def no_reference(*args, **kwargs):
+        raise AssertionError("the reference ran before the options were checked")
+
+    monkeypatch.setattr(bench, "reference", no_reference)
+    assert main(["bench", "--quick", *flags]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "reference images" not in err

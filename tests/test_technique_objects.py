@@ -200,6 +200,7 @@ def _emitted(call):
     (sj.Burley(samples=64), BURLEY, 50.0),  # every channel well sampled: no warning
     (sj.Separable(taps=5), TWO_G, 2.0),  # 5 taps over a kernel ~40 px wide
     (sj.Separable(taps=25), TWO_G, 50.0),
+    (sj.Separable(taps=25), sj.BurleyMaterial(albedo=[1.0, 1.0, 1.0], d_mm=[1e9, 1e9, 1e9]), 50.0),  # reach 1e7 frames
     (sj.Reference(radius_px=1, near_subsamples=2), BURLEY, 5.0),  # a 1-px window for a kernel of many px
     (sj.Reference(radius_px=3, near_subsamples=2), BURLEY, 500.0),
 ])
@@ -217,6 +218,25 @@ def test_check_finds_the_undersampled_cases():
     assert [type(w) for w in sj.Separable(taps=5).check(frame(7, depth=2.0), TWO_G, CAM)] == [sj.SamplingWarning]
     assert [type(w) for w in sj.Reference(radius_px=1).check(frame(7, depth=5.0), BURLEY, CAM)] == [
         sj.ReferenceWindowWarning]
+
+
+def test_separable_says_where_its_cut_at_the_frame_loses_its_precision():
+    # a kernel reaching ~1e7 times past the frame (d of 1e9 mm at 0.2 px/mm: a unit gone wrong) gave an image that
+    # held no trace of the profile, without a word; d = 1e4 mm (reach ~100 frames) is a wide material, not a mistake
+    b = frame(7)
+    far = sj.BurleyMaterial(albedo=[1.0, 1.0, 1.0], d_mm=[1e9, 1e9, 1e9])
+    said = [str(w) for w in sj.Separable(taps=25).check(b, far, CAM)]
+    assert len(said) == 1 and "times the frame's shorter extent" in said[0] and "is d in mm?" in said[0]
+    assert _emitted(lambda: sj.separable(b, far, CAM)) == [(sj.SamplingWarning, said[0])]
+    wide = sj.BurleyMaterial(albedo=[1.0, 1.0, 1.0], d_mm=[1e4, 1e4, 1e4])
+    assert sj.Separable(taps=25).check(b, wide, CAM) == [] and _emitted(lambda: sj.separable(b, wide, CAM)) == []
+
+
+def test_separable_objects_check_their_counts_when_made():
+    # Separable(taps=8) was made without a word and failed only when it ran (a bench ran its reference first)
+    for bad in (dict(taps=8), dict(taps=0), dict(taps=True), dict(scale_levels=-1), dict(min_footprint_px=-1.0)):
+        with pytest.raises(ValueError):
+            sj.Separable(**bad)
 
 
 def test_a_tile_cannot_be_placed_by_a_function_without_origin():

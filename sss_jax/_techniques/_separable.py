@@ -322,6 +322,15 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
     return jax.lax.fori_loop(0, bands * col_blocks, block, e)
 
 
+def check_separable_counts(taps, scale_levels, min_footprint_px) -> None:
+    """``separable``'s taps (odd, positive), reach levels (a positive integer) and footprint floor (>= 0): what the
+    function checks before it runs and a ``Separable`` object when it is made."""
+    _check_taps(taps)
+    check_host_count(scale_levels, "scale_levels")
+    if not (float(min_footprint_px) >= 0):
+        raise ValueError(f"min_footprint_px must be >= 0, got {min_footprint_px!r}")
+
+
 @functools.partial(jax.jit, static_argnames=("taps", "albedo_mode", "follow_surface", "interpolation", "scale_levels",
                                              "min_footprint_px", "kernel_groups", "border", "origin", "frame_shape"))
 def _separable_impl(buffers: Buffers, material, camera: Camera, taps: int, albedo_mode: str, follow_surface: bool,
@@ -484,6 +493,32 @@ def _may_cut(material, taps: int, frame_shape: tuple[int, int], px_per_mm: float
     return widest > min(frame_shape) * (1 - 1e-4)
 
 
+# ``far_cut_message``: past this ratio of the widest kernel's reach to the frame's shorter extent, the kernel cut at
+# the frame is no longer the re-integrated profile: its cells' masses (differences of the cut table near 0, in the
+# pass's dtype) lose their precision and the formulations part (the demo frame, Burley d = d/3 = 0: the gather and the
+# banded pass within 1e-3 up to a ratio of 6e5 (d 1e7 mm), 0.012 at 6e6, and at 6e7 the output jumps to a limit that
+# holds no trace of the profile; a table of 16 decades instead of 8 moved that by one decade only)
+FAR_CUT_RATIO = 1e6
+
+
+def far_cut_message(material, taps: int, frame_shape: tuple[int, int], px_per_mm: float) -> str | None:
+    """Host side: what to say where the widest kernel, at the nearest active depth, reaches more than
+    ``FAR_CUT_RATIO`` times the frame's shorter extent (a d of ~1e7 mm on a close-up: a unit gone wrong, or a fit
+    that wandered): there its cut at the frame loses its precision. ``None`` where it does not."""
+    if not px_per_mm > 0:
+        return None
+    offsets, _ = _host_kernels(material, taps)
+    reach_mm = np.max(np.abs(offsets), axis=-1)  # (M,)
+    widest = reach_mm * px_per_mm * spec.cell_edge(taps)
+    ratio = float(np.max(widest)) / min(frame_shape)
+    if not ratio > FAR_CUT_RATIO:
+        return None
+    m = int(np.argmax(widest))
+    return (f"separable: material {m + 1}'s kernel reaches {float(widest[m]):.3g} px, {ratio:.2g} times the frame's "
+            f"shorter extent: past {FAR_CUT_RATIO:.0e} its cut at the frame loses its precision, and the result "
+            f"is not the profile's (is d in mm?)")
+
+
 def _nearest_px_per_mm(buffers: Buffers, camera: Camera) -> float:
     """Host side: px per mm at the active pixel nearest the camera (0 where none is active)."""
     depth = np.asarray(buffers.depth)  # the buffer's own type: its least valid depth is one of its values
@@ -569,10 +604,7 @@ def separable(
                         + type(material).__name__)
     if interpolation not in ("linear", "nearest"):
         raise ValueError(f"interpolation={interpolation!r} is not one of ('linear', 'nearest')")
-    _check_taps(taps)
-    check_host_count(scale_levels, "scale_levels")
-    if not (float(min_footprint_px) >= 0):
-        raise ValueError(f"min_footprint_px must be >= 0, got {min_footprint_px!r}")
+    check_separable_counts(taps, scale_levels, min_footprint_px)
     mode = "bilinear" if interpolation == "linear" else "nearest"
     which = resolve_impl(impl, "separable", dict(border=border, interpolation=interpolation))
     origin, frame_shape = check_tile(tuple(buffers.depth.shape[-2:]), origin, frame_shape)
@@ -593,6 +625,9 @@ def separable(
             warnings.warn(f"separable: {taps} taps at a reach of {implied[1]:.0f} px leave tap cells up to "
                           f"{implied[2]:.1f} px wide: a hard edge may be off by up to {implied[0]:.3f} of its "
                           f"contrast (more taps lower it)", SamplingWarning, stacklevel=2)
+        far = far_cut_message(material, int(taps), frame_shape, ppm)
+        if far is not None:
+            warnings.warn(far, SamplingWarning, stacklevel=2)
     groups = kernel_groups(material)
     cut = ppm is None or _may_cut(material, int(taps), frame_shape, ppm)  # no table where no kernel is cut
     return _separable_impl(buffers, material, camera, int(taps), albedo_mode, bool(follow_surface), mode,

@@ -25,13 +25,19 @@ _f = _separable.separable
 def separable_sampling_warnings(buffers: Buffers, material, camera: Camera, *, taps: int,
                                 min_footprint_px: float) -> list[Warning]:
     """Host side: the ``SamplingWarning`` the taps' resolution at the widest reach implies for a hard edge
-    (``separable_edge_error``), where it exceeds ``SAMPLING_ERROR_LIMIT``."""
+    (``separable_edge_error``), where it exceeds ``SAMPLING_ERROR_LIMIT``; and where that reach is so far past the
+    frame that the pixels keep their local shading (``far_cut_message``)."""
+    found = []
+    far = _separable.far_cut_message(material, int(taps), tuple(buffers.depth.shape[-2:]),
+                                     _separable._nearest_px_per_mm(buffers, camera))
+    if far is not None:
+        found.append(SamplingWarning(far))
     implied = _separable.separable_edge_error(buffers, material, camera, int(taps), float(min_footprint_px))
     if implied[0] <= SAMPLING_ERROR_LIMIT:
-        return []
-    return [SamplingWarning(f"separable: {taps} taps at a reach of {implied[1]:.0f} px leave tap cells up to "
-                            f"{implied[2]:.1f} px wide: a hard edge may be off by up to {implied[0]:.3f} of its "
-                            f"contrast (more taps lower it)")]
+        return found
+    return found + [SamplingWarning(f"separable: {taps} taps at a reach of {implied[1]:.0f} px leave tap cells up "
+                                    f"to {implied[2]:.1f} px wide: a hard edge may be off by up to {implied[0]:.3f} "
+                                    f"of its contrast (more taps lower it)")]
 
 
 class Separable(AbstractTechnique):
@@ -57,6 +63,10 @@ class Separable(AbstractTechnique):
                        "the backend)", choices=IMPLS)
     border: str = option(default_of(_f, "border"), "light reaching past the frame leaves ('leaves') or the "
                          "kernel is renormalised over the frame ('renormalise')", choices=BORDERS)
+
+    def __check_init__(self):
+        # checked when the object is made, not only when it runs (a bench or a batch builds its runs first)
+        _separable.check_separable_counts(self.taps, self.scale_levels, self.min_footprint_px)
 
     def __call__(self, buffers: Buffers, material: TwoGaussianMaterial | BurleyMaterial | ProfileMaterial,
                  camera: Camera, *, origin: tuple[int, int] = (0, 0),
