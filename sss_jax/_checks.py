@@ -29,6 +29,8 @@ def check_host_range(x, name: str, *, low: float = 0.0, high: float = math.inf, 
     (kernels, profiles, transmittances) that a user calls directly."""
     if isinstance(x, jax.core.Tracer):
         return
+    if is_bool(x):  # True reads as 1.0: a flag given where a number belongs
+        raise TypeError(f"{name} must be a number or an array of numbers, not a bool, got {x!r}")
     try:
         v = np.asarray(x, np.float64)
     except (TypeError, ValueError):
@@ -38,6 +40,16 @@ def check_host_range(x, name: str, *, low: float = 0.0, high: float = math.inf, 
         bound = f"{'>' if low_open else '>='} {low:g}" + (f" and <= {high:g}" if high < math.inf else "")
         shown = _shown(x) if v.size <= 8 else f"{v.size} values, {int(np.sum(~ok))} of them outside"
         raise ValueError(f"{name} must be {'finite and ' if finite else ''}{bound}, got {shown}")
+
+
+def is_bool(x) -> bool:
+    """Whether host value ``x`` is a bool, or an array or sequence holding one (``(True, 0.0, 1.0)``)."""
+    if isinstance(x, (bool, np.bool_)):
+        return True
+    if isinstance(x, (list, tuple)):
+        return any(is_bool(v) for v in x)
+    dtype = getattr(x, "dtype", None)
+    return dtype is not None and np.dtype(dtype) == np.bool_
 
 
 def _shown(x) -> str:

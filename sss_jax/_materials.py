@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._checks import check_host_range, checked
+from ._checks import check_host_range, checked, is_bool
 from ._custom_types import ParamLike
 from ._kernels import (
     SeparableKernel,
@@ -39,6 +39,8 @@ __all__ = ["AbstractMaterial", "BurleyMaterial", "TwoGaussianMaterial", "Profile
 
 
 def _table(name: str, value: ParamLike, dtype=None) -> Array:
+    if is_bool(value):  # True would read as 1.0
+        raise TypeError(f"{name} must be numbers, not bools, got {value!r}")
     x = jnp.asarray(value, dtype=dtype)
     if not jnp.issubdtype(x.dtype, jnp.floating):
         x = x.astype(jnp.float32)
@@ -239,14 +241,34 @@ class STAParams(eqx.Module):
     thickness_mm: Float[Array, " 3"]
 
     def __init__(self, *, distortion=0.2, power=4.0, scale=1.0, ambient=0.0, thickness_mm=1.0, dtype=None):
+        given = dict(distortion=distortion, power=power, scale=scale, ambient=ambient, thickness_mm=thickness_mm)
+        arrays = {}
+        for name, value in given.items():  # each named where it is not a number (a string, None, a bool)
+            if is_bool(value):
+                raise TypeError(f"STAParams: {name} must be a number, not a bool, got {value!r}")
+            try:
+                arrays[name] = jnp.asarray(value)
+            except TypeError:
+                raise TypeError(f"STAParams: {name} must be a number, got {value!r}") from None
+            if not jnp.issubdtype(arrays[name].dtype, jnp.number):
+                raise TypeError(f"STAParams: {name} must be a number, got {value!r}")
         if dtype is None:  # follow the inputs (float64 under x64), at least float32
-            dtype = jnp.result_type(*(jnp.asarray(v).dtype for v in (distortion, power, scale, ambient, thickness_mm)),
-                                    jnp.float32)
-        self.distortion = jnp.asarray(distortion, dtype=dtype)
-        self.power = jnp.asarray(power, dtype=dtype)
-        self.scale = jnp.broadcast_to(jnp.asarray(scale, dtype=dtype), (3,))
-        self.ambient = jnp.broadcast_to(jnp.asarray(ambient, dtype=dtype), (3,))
-        self.thickness_mm = jnp.broadcast_to(jnp.asarray(thickness_mm, dtype=dtype), (3,))
+            dtype = jnp.result_type(*(a.dtype for a in arrays.values()), jnp.float32)
+        elif not jnp.issubdtype(dtype, jnp.floating):  # an int32 table would read 0.7 as 0
+            raise TypeError(f"STAParams: dtype must be a floating type, got {dtype!r}")
+        for name in ("distortion", "power"):  # one number: a per-channel value would bend the normal's x, y, z
+            if arrays[name].ndim != 0:
+                raise ValueError(f"STAParams: {name} must be one number (it is not per channel), got shape "
+                                 f"{arrays[name].shape}")
+        for name in ("scale", "ambient", "thickness_mm"):
+            if arrays[name].shape not in ((), (1,), (3,)):
+                raise ValueError(f"STAParams: {name} must be one number or 3 (R, G, B), got shape "
+                                 f"{arrays[name].shape}")
+        self.distortion = arrays["distortion"].astype(dtype)
+        self.power = arrays["power"].astype(dtype)
+        self.scale = jnp.broadcast_to(arrays["scale"].astype(dtype), (3,))
+        self.ambient = jnp.broadcast_to(arrays["ambient"].astype(dtype), (3,))
+        self.thickness_mm = jnp.broadcast_to(arrays["thickness_mm"].astype(dtype), (3,))
 
     def __check_init__(self):
         # finite: an inf scale, power or light makes an inf or NaN image, not a bright one
@@ -263,9 +285,14 @@ class DirectionalLight(eqx.Module):
     colour: Float[Array, " 3"]
 
     def __init__(self, direction: ParamLike, colour: ParamLike = (1.0, 1.0, 1.0)):
+        for name, value in (("direction", direction), ("colour", colour)):
+            if is_bool(value):
+                raise TypeError(f"light {name} must be numbers, not bools, got {value!r}")
         direction = jnp.asarray(direction, dtype=jnp.result_type(jnp.asarray(direction).dtype, jnp.float32))
         if direction.shape != (3,):
             raise ValueError(f"light direction must have shape (3,), got {direction.shape}")
+        if np.shape(colour) not in ((), (1,), (3,)):
+            raise ValueError(f"light colour must be one number or 3 (R, G, B), got shape {np.shape(colour)}")
         if _is_concrete(direction):
             n = float(np.linalg.norm(np.asarray(direction)))
             if not np.isfinite(n) or n == 0:

@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
+from ._checks import is_bool
 from ._custom_types import ParamLike
 from ._materials import DirectionalLight
 
@@ -35,6 +36,9 @@ class Camera(eqx.Module):
     principal_point: tuple[float, float] | None = eqx.field(static=True, default=None)
 
     def __init__(self, focal_px: ParamLike, mm_per_unit: ParamLike = 1.0, principal_point=None):
+        for name, value in (("focal_px", focal_px), ("mm_per_unit", mm_per_unit)):
+            if is_bool(value):  # True reads as 1
+                raise TypeError(f"camera {name} must be a number, not a bool, got {value!r}")
         self.focal_px = jnp.asarray(focal_px, dtype=jnp.result_type(jnp.asarray(focal_px).dtype, jnp.float32))
         self.mm_per_unit = jnp.asarray(mm_per_unit, dtype=self.focal_px.dtype)
         self.principal_point = None if principal_point is None else (float(principal_point[0]), float(principal_point[1]))
@@ -212,7 +216,11 @@ BACKGROUND_DEPTH = 1e9
 
 def surface_mask(depth: Array | np.ndarray) -> Array | np.ndarray:
     """Pixels with a surface: positive depth below ``BACKGROUND_DEPTH`` (inf, NaN, 0 and a background's huge
-    finite depth are none). Operators only: a NumPy depth gives a NumPy mask (host side, no dispatch)."""
+    finite depth are none). Operators only: a NumPy depth gives a NumPy mask (host side, no dispatch). A float16
+    depth cannot hold ``BACKGROUND_DEPTH`` (its largest value is 65504): every finite positive value is a surface."""
+    dtype = getattr(depth, "dtype", None)
+    if dtype is not None and np.dtype(dtype) == np.float16:  # 1e9 cast to float16 overflowed, with numpy's warning
+        return (depth > 0) & (depth < math.inf)
     return (depth > 0) & (depth < BACKGROUND_DEPTH)
 
 
@@ -251,6 +259,19 @@ def _positions(depth: Array, camera: Camera) -> Array:
     ys = (jnp.arange(h, dtype=dtype) + 0.5 - cy) / camera.focal_px.astype(dtype)
     z = jnp.where(surface_mask(depth), depth, jnp.ones_like(depth))
     return jnp.stack([xs[None, :] * z, ys[:, None] * z, z], axis=-1)
+
+
+def view_directions(depth: Array, camera: Camera) -> Array:
+    """Unit camera-space directions ``(H, W, 3)`` from each pixel centre towards the camera: its ray's, which a
+    surface's depth only scales (``-p / |p|`` of ``camera_positions`` underflowed in float32 at a depth of 1e-20,
+    the squares of its components flushed to 0, and gave 0/0)."""
+    h, w = _depth_plane(depth, camera, "view_directions").shape
+    cx, cy = _principal_point(camera, (h, w))
+    dtype = depth.dtype
+    xs = (jnp.arange(w, dtype=dtype) + 0.5 - cx) / camera.focal_px.astype(dtype)
+    ys = (jnp.arange(h, dtype=dtype) + 0.5 - cy) / camera.focal_px.astype(dtype)
+    ray = jnp.stack(jnp.broadcast_arrays(xs[None, :], ys[:, None], jnp.ones((h, w), dtype)), axis=-1)
+    return -ray / jnp.linalg.norm(ray, axis=-1, keepdims=True)
 
 
 def normals_from_depth(depth: Array, camera: Camera) -> Array:

@@ -192,3 +192,40 @@ def test_reference_gradients_in_depth_and_focal_length_are_finite_past_six_pixel
     assert float(gz[5, 5]) == pytest.approx(float(fd), rel=1e-4, abs=1e-9)
     fd_f = (loss(z, 60.0 + h) - loss(z, 60.0 - h)) / (2 * h)
     assert float(gf) == pytest.approx(float(fd_f), rel=1e-4, abs=1e-9)
+
+
+def test_sta_gradients_stay_finite_where_the_distorted_light_vanishes():
+    # a flat surface facing the camera, the light straight behind it and distortion 1: L + d N = 0. The forward
+    # pass gave 0 there, but |L + d N|'s derivative at 0 made every parameter's gradient NaN
+    b = sj.Buffers(jnp.full((4, 4, 3), 0.5), jnp.full((4, 4), 2.0))  # normals derived from depth: (0, 0, -1)
+    cam, light = sj.Camera(100.0, 10.0), sj.DirectionalLight(jnp.array([0.0, 0.0, 1.0]))
+
+    def loss(params):
+        return jnp.sum(sj.translucency(b, params, cam, light, thickness=0.1))
+
+    g = jax.grad(loss)(sj.STAParams(distortion=1.0, power=4.0, scale=1.0, ambient=0.1, thickness_mm=3.0))
+    assert all(np.all(np.isfinite(np.asarray(leaf))) for leaf in jax.tree.leaves(g))
+    # with the light off the axis the norm is the same expression: its gradient is the forward pass's slope
+    # (central differences, float64)
+    tilted = sj.DirectionalLight(jnp.array([0.4, -0.2, 0.9]))
+    f = lambda x: jnp.sum(sj.translucency(b, sj.STAParams(distortion=x, power=4.0, scale=1.0, ambient=0.1,
+                                                          thickness_mm=3.0), cam, tilted, thickness=0.1))
+    d, step = 0.7, 1e-6
+    slope = (float(f(d + step)) - float(f(d - step))) / (2 * step)
+    assert abs(slope) > 1e-3 and float(jax.grad(f)(jnp.asarray(d))) == pytest.approx(slope, rel=1e-6)
+
+
+def test_sta_view_directions_hold_at_a_tiny_float32_depth():
+    # the view vector was -p / |p| of the camera position: at a depth of 1e-20 its squares flushed to 0 in float32
+    # and the back light vanished (0 where 0.797). The direction towards the camera does not depend on the depth
+    with jax.enable_x64(False):
+        light = sj.DirectionalLight([0.2, -0.1, 0.97])
+        params = sj.STAParams(distortion=0.2, power=2.0, scale=1.0, ambient=0.0, thickness_mm=1.0)
+        cam = sj.Camera(50.0, 1.0)
+        out = [np.asarray(sj.translucency(sj.Buffers(jnp.full((3, 4, 3), 0.5, jnp.float32),
+                                                     jnp.full((3, 4), z, jnp.float32),
+                                                     normal=jnp.broadcast_to(jnp.asarray([0.0, 0.0, -1.0]),
+                                                                             (3, 4, 3)).astype(jnp.float32)),
+                                          params, cam, light, thickness=0.0)) for z in (1.0, 1e-20)]
+    assert out[0].max() > 0.6
+    np.testing.assert_allclose(out[1], out[0], rtol=1e-6)

@@ -11,11 +11,11 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._checks import check_host_range, checked
+from .._checks import check_host_range, checked, is_bool
 from .._custom_types import ParamLike
 from .._materials import BurleyMaterial, DirectionalLight, STAParams
 from .._profiles import burley_cdf
-from .._scene import Buffers, Camera, camera_positions, normals_from_depth
+from .._scene import Buffers, Camera, normals_from_depth, view_directions
 from .._slab import MediumMaterial, slab_diffuse_transmittance, slab_exit_lookup, slab_exit_table, slab_optical
 from ._common import _is_concrete, _prepare, _work_dtype, check_one_image
 
@@ -34,13 +34,20 @@ def sta_term(normal: Array, view: Array, light: DirectionalLight, params: STAPar
     """
     dtype = normal.dtype
     l = light.direction.astype(dtype)
-    lt = l.reshape(1, 1, 3) + params.distortion.astype(dtype) * normal
-    norm = jnp.linalg.norm(lt, axis=-1, keepdims=True)
-    ok = norm > 1e-12
-    lt = jnp.where(ok, lt / jnp.where(ok, norm, 1.0), 0.0)
+    # every parameter checked where it is traced too (a host value was checked when STAParams was made): under jit
+    # a negative scale gave negative light, a NaN ambient a NaN image
+    distortion = checked(params.distortion.astype(dtype), "STA distortion")
+    lt = l.reshape(1, 1, 3) + distortion * normal
+    # the norm through a square kept off 0: where L + d N vanishes (d = 1, the light straight behind a surface that
+    # faces it) the forward pass gives 0, and |x|'s derivative at 0 would be NaN in every parameter
+    sq = jnp.sum(lt * lt, axis=-1, keepdims=True)
+    ok = sq > 1e-24
+    lt = jnp.where(ok, lt / jnp.sqrt(jnp.where(ok, sq, 1.0)), 0.0)
     cos_back = jnp.clip(jnp.sum(view * -lt, axis=-1), 0.0, 1.0)
     power = checked(params.power.astype(dtype), "STA power")
-    t_dir = params.scale.astype(dtype).reshape(1, 1, 3) * _safe_pow(cos_back, power)[..., None]
+    scale = checked(params.scale.astype(dtype), "STA scale")
+    ambient = checked(params.ambient.astype(dtype), "STA ambient")
+    t_dir = scale.reshape(1, 1, 3) * _safe_pow(cos_back, power)[..., None]
     # thickness_mm = inf is paper-thin (t = 1 at any finite thickness): allowed, as STAParams allows it
     scale_mm = checked(params.thickness_mm.astype(dtype), "STA thickness_mm", positive=True, finite=False)
     # an infinitely thick pixel lets nothing through; its thickness is kept out of the division, whose gradient
@@ -48,7 +55,7 @@ def sta_term(normal: Array, view: Array, light: DirectionalLight, params: STAPar
     thick = jnp.isfinite(thickness_mm)[..., None]
     ratio = jnp.where(thick, thickness_mm[..., None], 0.0) / scale_mm.reshape(1, 1, 3)
     atten = jnp.where(thick, jnp.exp(-ratio), 0.0)
-    return light.colour.astype(dtype).reshape(1, 1, 3) * atten * (t_dir + params.ambient.astype(dtype).reshape(1, 1, 3))
+    return light.colour.astype(dtype).reshape(1, 1, 3) * atten * (t_dir + ambient.reshape(1, 1, 3))
 
 
 def _thickness_mm(buffers: Buffers, thickness: ParamLike | None, camera: Camera, shape: tuple[int, ...], dtype) -> Array:
@@ -56,8 +63,8 @@ def _thickness_mm(buffers: Buffers, thickness: ParamLike | None, camera: Camera,
     term's exp(-t / s) would grow without bound), else the constant ``thickness`` (scene units), else 0."""
     if buffers.thickness is not None:
         thick_units = jnp.maximum(buffers.thickness.astype(dtype), 0.0)
-    elif thickness is not None:
-        thick_units = jnp.broadcast_to(jnp.asarray(thickness, dtype), shape)
+    elif thickness is not None:  # checked on the host by the callers; here where it is traced (inf: thick)
+        thick_units = jnp.broadcast_to(checked(jnp.asarray(thickness, dtype), "thickness", finite=False), shape)
     else:
         thick_units = jnp.zeros(shape, dtype)
     # an infinite thickness stays infinite, kept out of the product (its gradient in mm_per_unit would be NaN)
@@ -73,8 +80,7 @@ def _translucency_impl(buffers: Buffers, params: STAParams, camera: Camera, ligh
         material_albedo = jnp.ones((1, 3), buffers.irradiance.dtype)
     prep = _prepare(buffers, material_albedo, "post", dtype)
     normal = buffers.normal.astype(dtype) if buffers.normal is not None else normals_from_depth(prep.depth, camera)
-    pos = camera_positions(prep.depth, camera)
-    view = -pos / jnp.linalg.norm(pos, axis=-1, keepdims=True)
+    view = view_directions(prep.depth, camera)
     thick_mm = _thickness_mm(buffers, thickness, camera, prep.depth.shape, dtype)
     added = sta_term(normal, view, light, params, thick_mm)
     out = prep.albedo_out * (prep.irradiance + added)
@@ -135,8 +141,7 @@ def _transmission_impl(buffers: Buffers, material: BurleyMaterial, camera: Camer
     if model == "slab":
         # the view-dependent exit of diffuse light through the front face, as the slab lets it out: limb-brightened
         # when thin, peaked towards the normal when thick and absorbing (Fresnel, refraction; Lambertian is 1)
-        pos = camera_positions(prep.depth, camera)
-        view = -pos / jnp.linalg.norm(pos, axis=-1, keepdims=True)
+        view = view_directions(prep.depth, camera)
         mu_view = jnp.clip(jnp.sum(normal * view, axis=-1), 0.0, 1.0)
         # from a table per material row and channel (alpha and eta are the row's), interpolated per pixel
         if medium is None:
@@ -198,8 +203,9 @@ def translucency(
     # the same ranges the batch and the CLI check: out of range, the added light explodes (7e16 from albedo 40)
     if albedo is not None:
         check_host_range(albedo, "albedo", high=1.0, finite=False)
-    if thickness is not None and _is_concrete(thickness) and not np.all(np.asarray(thickness, np.float64) >= 0):
-        raise ValueError(f"thickness must be >= 0 scene units (inf: infinitely thick), got {thickness}")
+    if thickness is not None and _is_concrete(thickness) and (
+            is_bool(thickness) or not np.all(np.asarray(thickness, np.float64) >= 0)):
+        raise ValueError(f"thickness must be >= 0 scene units (inf: infinitely thick), got {thickness!r}")
     if not isinstance(light, DirectionalLight):
         raise TypeError(f"translucency needs a DirectionalLight, got {type(light).__name__}")
     if model in _TRANSMITTANCE:
