@@ -176,8 +176,8 @@ def jimenez_port(e, z, valid, albedo, strength, falloff, sss_width, alpha, focal
                 out = out + wt * img[min(max(yy, 0), h - 1), min(max(xx, 0), w - 1)]
         return out
 
-    def blur(colour, direction):
-        out = colour.copy()
+    def blur(colour, direction, target):  # the pass writes ``target`` where the stencil passes (SSS pixels)
+        out = target.copy()
         for y in range(h):
             for x in range(w):
                 if not valid[y, x]:
@@ -196,7 +196,9 @@ def jimenez_port(e, z, valid, albedo, strength, falloff, sss_width, alpha, focal
                 out[y, x] = acc
         return out
 
-    result = blur(blur(e, (1, 0)), (0, 1))
+    # SeparableSSS::go: the horizontal pass reads the colour target and writes tmpRT, cleared to black first; the
+    # vertical pass reads tmpRT and writes the colour target
+    result = blur(blur(e, (1, 0), np.zeros_like(e)), (0, 1), e)
     return np.where(valid[..., None], result * albedo, e)
 
 
@@ -404,3 +406,42 @@ def test_jimenez_refuses_a_traced_burley_material(as_users_run_it):
     # the same parameters; XLA folds the closed-over kernel build into constants (its exponentials rounded apart)
     np.testing.assert_allclose(traced, eager, rtol=1e-3, atol=1e-6)
     assert np.abs(eager - np.asarray(b.irradiance) * np.asarray(SKIN.albedo)).max() > 1e-3  # it scattered
+
+
+def test_jimenez_vertical_pass_reads_black_where_the_stencil_held_no_sss():
+    # SeparableSSS::go clears the horizontal pass's target (tmpRT) and writes it only where the stencil passes: the
+    # vertical pass reads 0 below an SSS region, whatever light the pixels there hold (the port kept their light:
+    # the last skin row went from 0.47 to 3.75 in red as the pixels below went from 0 to 10)
+    h = w = 16
+    ids = np.zeros((h, w), np.int32)
+    ids[: h // 2] = 1  # whole rows of SSS over whole rows without: only the vertical pass reaches across
+    cam = sj.Camera(focal_px=600.0, mm_per_unit=1.0)
+    params = JimenezParams(strength=[0.5, 0.4, 0.3], falloff=[1.0, 0.37, 0.3], sss_width=2.0,
+                           albedo=[0.8, 0.5, 0.4], alpha=1.0)
+    outs = []
+    for below in (0.0, 10.0):
+        e = np.full((h, w, 3), 1.0)
+        e[h // 2:] = below
+        outs.append(np.asarray(JimenezPass(taps=17)(buffers_of(e, np.full((h, w), 500.0), ids), params, cam)))
+    sss = ids > 0
+    np.testing.assert_array_equal(outs[0][sss], outs[1][sss])
+    # and the pass does reach across: the last SSS row is darker than the first (its taps below read black)
+    assert outs[0][h // 2 - 1, w // 2, 0] < outs[0][0, w // 2, 0] - 1e-3
+
+
+def test_a_float32_tile_of_eevee_next_is_the_frame_bit_for_bit():
+    # the per-pixel angle (interleaved gradient noise) was computed from iotas in the pass: XLA folded or contracted
+    # it differently for a tile than for the frame, the angle moved by ~1e-4 and a few pixels fetched other texels
+    # (a tiled 200x120 frame: 16 pixels off by up to 2.5%)
+    scene = sj.demo_scene(120, 200)
+    with jax.enable_x64(False):
+        b = jax.tree.map(lambda a: a.astype(jnp.float32) if a.dtype == jnp.float64 else a, scene.buffers)
+        cam = sj.Camera(float(scene.camera.focal_px), float(scene.camera.mm_per_unit))
+        tech = EeveeNextPass(frames=3, seed=5)
+        whole = np.asarray(tech(b, SKIN, cam))
+        halo = tech.reach_px(b, SKIN, cam)
+        for r0, r1, c0, c1 in ((0, 60, 0, 100), (60, 120, 100, 200), (30, 90, 50, 150)):
+            rs, re, cs, ce = max(0, r0 - halo), min(120, r1 + halo), max(0, c0 - halo), min(200, c1 + halo)
+            sub = jax.tree.map(lambda a: a[rs:re, cs:ce], b)
+            tile = np.asarray(tech(sub, SKIN, cam, origin=(rs, cs), frame_shape=(120, 200)))
+            np.testing.assert_array_equal(tile[r0 - rs:r1 - rs, c0 - cs:c1 - cs], whole[r0:r1, c0:c1])

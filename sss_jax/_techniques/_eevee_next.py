@@ -78,11 +78,21 @@ def halton(index, base: int, dtype) -> Array:
     return result
 
 
-def interleaved_gradient_noise(x: Array, y: Array) -> Array:
-    """Jimenez's interleaved gradient noise ``fract(52.9829189 fract(0.06711056 x + 0.00583715 y))`` of a texel
-    (Blender's ``interleaved_gradient_noise(texel, 0, 0)``)."""
-    inner = 0.06711056 * x + 0.00583715 * y
-    return jnp.mod(52.9829189 * jnp.mod(inner, 1.0), 1.0)
+def interleaved_gradient_noise(x: np.ndarray, y: np.ndarray, dtype) -> Array:
+    """Jimenez's interleaved gradient noise ``fract(52.9829189 fract(0.06711056 x + 0.00583715 y))`` of the texels
+    ``(y, x)`` (Blender's ``interleaved_gradient_noise(texel, 0, 0)``), for a column of rows ``y (H, 1)`` and a row of
+    columns ``x (1, W)`` known on the host, in ``dtype``.
+
+    The products are taken on the host (NumPy, each rounded once), and the device sums them and scales through an
+    optimisation barrier: computed from iotas inside the pass, XLA folded or contracted the expression differently
+    for a tile than for its frame, and the 1-ulp difference in ``inner`` (~13 at x = 200), times 53, turned the angle
+    by ~1e-4 (a tile's pixels then fetched other texels than the whole frame's: 16 of 24,000 pixels of a 200x120 frame,
+    by up to 2.5%)."""
+    np_dtype = np.dtype(dtype)
+    a = np.asarray(x, np_dtype) * np_dtype.type(0.06711056)
+    b = np.asarray(y, np_dtype) * np_dtype.type(0.00583715)
+    frac = jnp.mod(jnp.asarray(a) + jnp.asarray(b), 1.0)
+    return jnp.mod(jax.lax.optimization_barrier(52.9829189 * frac), 1.0)
 
 
 def eevee_samples(frame, seed, dtype):
@@ -125,17 +135,22 @@ def _eevee_next_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera,
     z = prep.depth
     scale_px = jnp.where(prep.valid, focal * max_radius / (jnp.where(prep.valid, z, 1.0) * mm_per_unit), 0.0)
     active = prep.valid & (scale_px > 1.0)
-    theta = interleaved_gradient_noise(cols.astype(dtype), (fh - 1 - rows).astype(dtype)) * GOLDEN_ANGLE
+    oy0, ox0 = origin
+    theta = interleaved_gradient_noise(np.arange(ox0, ox0 + w)[None, :], (fh - 1 - np.arange(oy0, oy0 + h))[:, None],
+                                       dtype) * GOLDEN_ANGLE
     cos_t, sin_t = jnp.cos(theta), jnp.sin(theta)
     ids = (buffers.material_id.astype(jnp.int32) if buffers.material_id is not None
            else jnp.ones((h, w), jnp.int32))
     ids = jnp.where(prep.valid, ids, 0)
     flat = jnp.concatenate([prep.irradiance, z[..., None], ids[..., None].astype(dtype)], axis=-1).reshape(h * w, 5)
-    local_c = jnp.arange(w, dtype=dtype)[None, :]
-    local_r = jnp.arange(h, dtype=dtype)[:, None]
+    # positions in frame pixels, so a tile computes each sample's position as the whole frame does; fetched at the
+    # frame's pixel less the tile's origin
+    frame_c = cols[:1, :].astype(dtype)
+    frame_r = rows[:, :1].astype(dtype)
+    cx_f, cy_f = cx + ox0, cy + oy0
     # view-space x, y of the centre (scene units; y down as sss_jax's camera)
-    px_c = (local_c + 0.5 - cx) / focal * z
-    py_c = (local_r + 0.5 - cy) / focal * z
+    px_c = (frame_c + 0.5 - cx_f) / focal * z
+    py_c = (frame_r + 0.5 - cy_f) / focal * z
     inv_d = 1.0 / d
 
     def one_frame(k, acc):
@@ -146,13 +161,13 @@ def _eevee_next_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera,
             # from_rotation(theta) then from_scale: rotate the pattern, scale it to pixels; y up in the pattern
             ox = scale_px * (cos_t * sx[i] - sin_t * sy[i])
             oy = -scale_px * (sin_t * sx[i] + cos_t * sy[i])
-            col_f, row_f = local_c + ox, local_r + oy
-            fetched, inside = nearest_fetch(flat, h, w, jnp.floor(row_f + 0.5).astype(jnp.int32),
-                                            jnp.floor(col_f + 0.5).astype(jnp.int32))
+            col_f, row_f = frame_c + ox, frame_r + oy
+            fetched, inside = nearest_fetch(flat, h, w, jnp.floor(row_f + 0.5).astype(jnp.int32) - oy0,
+                                            jnp.floor(col_f + 0.5).astype(jnp.int32) - ox0)
             ok = active & inside & (fetched[..., 4] == ids.astype(dtype))
             zs = fetched[..., 3]
-            dx = (col_f + 0.5 - cx) / focal * zs - px_c
-            dy = (row_f + 0.5 - cy) / focal * zs - py_c
+            dx = (col_f + 0.5 - cx_f) / focal * zs - px_c
+            dy = (row_f + 0.5 - cy_f) / focal * zs - py_c
             dz = zs - z
             r = _safe_sqrt(dx * dx + dy * dy + dz * dz) * mm_per_unit
             e3 = jnp.exp(-r[..., None] * inv_d / 3)

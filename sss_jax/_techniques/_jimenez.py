@@ -13,7 +13,9 @@ centre tap first:
 - ``out = kernel[0] centre + sum kernel[i] tap_i``.
 
 ``fovy`` is the camera's: ``tan(fovy/2) = (frame height / 2) / focal_px``. Only pixels with SSS are written (the
-stencil); others pass through and are read by the next pass as they are. A pixel without a surface reads as depth
+stencil): the horizontal pass reads the colour target, whose pixels without SSS hold their light as given, and
+writes a temporary target cleared to black (``SeparableSSS::go``), which the vertical pass reads: there a tap on a
+pixel without SSS reads black (pulled towards the centre by the follow-surface rule where its depth differs). A pixel without a surface reads as depth
 ``_FAR`` (the follow-surface rule saturates there). Parameters: the engine's ``JimenezParams`` directly, or a
 ``BurleyMaterial`` converted on the host by ``engines.Jimenez.to_engine`` (the least-squares fit of its kernel to
 Burley's; not traced, so gradients flow through ``JimenezParams`` only).
@@ -190,7 +192,9 @@ def _jimenez_impl(buffers: Buffers, params: JimenezParams, camera: Camera, taps:
             out = out + weights[i][None, None, :] * tap
         return jnp.where(prep.valid[..., None], out, centre)
 
-    horizontal = one_pass(stacked, 1, steps[0])
+    # the horizontal pass writes a target cleared to black (``SeparableSSS::go``: ``tmpRT``), and only where the
+    # stencil passes: the vertical pass reads 0 on every pixel without SSS, not its light
+    horizontal = jnp.where(prep.valid[..., None], one_pass(stacked, 1, steps[0]), 0.0)
     vertical = one_pass(jnp.concatenate([horizontal, depth_c], axis=-1), 0, steps[1])
     return _finish(buffers, prep, vertical)
 
@@ -209,6 +213,10 @@ class JimenezPass(AbstractTechnique):
                                   choices=(True, False))
     albedo_mode: str = option("post", "albedo applied after the scatter, or split before and after",
                               choices=ALBEDO_MODES)
+
+    def traces_camera(self, material) -> bool:
+        # a BurleyMaterial's shader parameters are fitted on the host at the camera's scene unit
+        return not isinstance(material, BurleyMaterial)
 
     def params(self, material, camera: Camera) -> JimenezParams:
         """The shader parameters the pass runs with for ``material``."""
