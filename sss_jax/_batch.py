@@ -85,9 +85,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from ._checks import check_host_count
+from ._checks import check_host_count, is_bool
 from ._io import (EXR_MAGIC, Frame, SSSInputError, Window, _frame_from_decoded, _read_image, check_depth_kind,
-                  check_writable, exr_is_complete, load_channel_map, no_focal_length, read_header, write_exr,
+                  check_writable, exr_is_complete, load_channel_map, no_focal_length, png_attribute, read_header, write_exr,
                   write_json_atomic, write_png_preview)
 from ._materials import DirectionalLight, ProfileMaterial, STAParams
 from ._scene import Buffers, Camera, validate_buffers
@@ -170,15 +170,20 @@ class Interrupted(KeyboardInterrupt):
         self.signum = signum
 
 
-def expand_inputs(inputs: str | pathlib.Path | Iterable[str | pathlib.Path]) -> list[pathlib.Path]:
-    """Paths from a list of paths and/or glob patterns, in order; a pattern matching nothing is an error. A file that
-    exists is itself even where its name holds a pattern's characters (``shot[v2].exr``); ``**`` matches any depth
-    of folders, as in a shell with globstar."""
-    if isinstance(inputs, (str, pathlib.Path)):
+def expand_inputs(inputs: str | os.PathLike | Iterable[str | os.PathLike], what: str = "input frames"
+                  ) -> list[pathlib.Path]:
+    """Paths from a list of paths and/or glob patterns, in order; a pattern matching nothing is an error, and so is
+    no path at all (an empty list: ``what`` names them). A file that exists is itself even where its name holds a
+    pattern's characters (``shot[v2].exr``); ``**`` matches any depth of folders, as in a shell with globstar."""
+    if isinstance(inputs, (str, os.PathLike)):
         inputs = [inputs]
+    if isinstance(inputs, (bytes, dict)) or not isinstance(inputs, Iterable):
+        raise TypeError(f"{what}: give a path, a glob pattern or a list of them, got {type(inputs).__name__}")
     out: list[pathlib.Path] = []
     for item in inputs:
-        s = str(item)
+        if not isinstance(item, (str, os.PathLike)):
+            raise TypeError(f"{what}: each must be a path or a glob pattern, got {item!r}")
+        s = os.fspath(item)
         if any(ch in s for ch in "*?[") and not os.path.isfile(s):
             matches = sorted(glob.glob(s, recursive=True))
             if not matches:
@@ -186,6 +191,8 @@ def expand_inputs(inputs: str | pathlib.Path | Iterable[str | pathlib.Path]) -> 
             out.extend(pathlib.Path(m) for m in matches)
         else:
             out.append(pathlib.Path(s))
+    if not out:
+        raise SSSInputError(f"no {what}: the list is empty")
     return out
 
 
@@ -926,12 +933,21 @@ def _targets(paths, out_dir, outputs) -> list[pathlib.Path]:
     return targets
 
 
-def _existing_outputs(jobs: list[_Job], overwrite: bool) -> dict[pathlib.Path, dict]:
-    """The existing outputs of this share: made from the same input (resumable or recomputed) or refused."""
+def _existing_outputs(jobs: list[_Job], overwrite: bool, png: bool = False) -> dict[pathlib.Path, dict]:
+    """The existing outputs of this share: made from the same input (resumable or recomputed) or refused. With
+    ``png``, a PNG where a frame's preview goes is taken as that frame's only beside its own EXR (made from the same
+    input); any other is someone's image, refused as a foreign EXR is."""
     existing: dict[pathlib.Path, dict] = {}
     foreign = []
     for job in jobs:
         header = _existing_output(job.dst)
+        preview = job.dst.with_suffix(".png")
+        if png and not overwrite and preview.is_file():
+            # the preview records its input (written first: a run killed before its EXR leaves one alone)
+            made_from = [m for m in ((header or {}).get("sss_jax:input"), png_attribute(preview, "sss_jax:input"))
+                         if m is not None]
+            if not any(_identity(pathlib.Path(str(m))) == _identity(job.src) for m in made_from):
+                foreign.append(f"{preview} exists and is not the preview of an output made from {job.src}")
         if header is None:
             continue
         existing[job.dst] = header
@@ -1467,7 +1483,8 @@ class _Batch:
             if self.png:
                 # a preview that was not there is placed only if it still is not (another run may place its own
                 # meanwhile, as it may the EXR): one there already is this frame's to replace
-                write_png_preview(preview, image, overwrite=overwrite or not fresh_png)
+                write_png_preview(preview, image, overwrite=overwrite or not fresh_png,
+                                  attributes={"sss_jax:input": attrs.get("sss_jax:input", str(job.src))})
                 placed = preview.stat().st_ino
             current = job.dst
             write_exr(job.dst, image, channel_names=["R", "G", "B"], half=self.half, attributes=attrs,
@@ -1556,7 +1573,7 @@ class _Batch:
             tech = self.tech if not self.seeded else _with_seed(self.tech, self.seed_of(job))
             plan = _plan_frame(tech, buffers, self.material, camera, tile_pixels, self.cost, self.tiles_allowed)
             self.warned.frame(job.src, plan.notes)  # the clamp, what runs and its estimate: before it runs
-            if plan.calls == 1 and len(self.devices) > 1:
+            if plan.calls == 1 and len(self.devices) > 1 and plan.tech.traces_camera(self.material):
                 # several devices: frames grouped and vmapped; checks on the host before tracing
                 warned = [str(w) for w in plan.tech.check(buffers, self.material, camera)]
                 self.queue(job, buffers, camera, plan, warned, time.perf_counter() - t0)
@@ -1756,6 +1773,12 @@ def process_frames(
     where the whole batch is impossible, and ``Interrupted`` (a ``KeyboardInterrupt``) on SIGINT/SIGTERM after
     recording the finished frames in the manifest.
     """
+    for name, flag in (("png", png), ("half", half), ("resume", resume), ("overwrite", overwrite),
+                       ("progress", progress)):
+        if not isinstance(flag, (bool, np.bool_)):  # png="no" is truthy
+            raise TypeError(f"{name} must be True or False, got {flag!r}")
+    if is_bool(sta_thickness):  # True read as 1 scene unit (its range is the technique's check)
+        raise TypeError(f"sta_thickness must be a number (scene units), not a bool, got {sta_thickness!r}")
     named = {k: v for k, v in dict(samples=samples, taps=taps, radius_px=radius_px, albedo=sta_albedo,
                                     thickness=sta_thickness).items() if v is not None}
     tech, material = _technique_object(technique, dict(technique_options or {}), material, named)
@@ -1785,7 +1808,7 @@ def process_frames(
     all_jobs = [_Job(src, dst, frame_number(src, i)) for i, (src, dst) in enumerate(zip(paths, targets))]
     _check_plan([(j.src, j.dst) for j in all_jobs], png, manifest)
     jobs = frames_for_process(all_jobs, pi, pc)
-    existing = _existing_outputs(jobs, overwrite)
+    existing = _existing_outputs(jobs, overwrite, png)
     _check_folders([j.dst for j in jobs] + ([manifest] if manifest is not None else []), out_dir is not None)
     remove_stale_temporaries([p for j in jobs for p in j.files(png)] + ([manifest] if manifest is not None else []))
 

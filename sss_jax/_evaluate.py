@@ -296,14 +296,15 @@ def evaluate_frames(
     # what a technique built from its name takes from this call, where it has such a field
     context = {"light": light, "thickness": sta_thickness, "albedo": sta_albedo}
     burley_options = dict(burley_options or {})
+    if isinstance(techniques, (str, AbstractTechnique)):  # one technique, not the letters of its name
+        techniques = (techniques,)
     objects = tuple(_technique_object(t, context, burley_options) for t in techniques)
     if not objects:
         raise SSSInputError(f"unknown technique(s) (none given); valid: {', '.join(REPORT_TECHNIQUES)}")
     sweeps = {"taps": (taps, True), "samples": (samples, False)}
     counts = {opt: _counts(opt, values, odd=odd) for opt, (values, odd) in sweeps.items()
               if any(t.count_option == opt for t in objects)}
-    if not isinstance(repeats, (int, np.integer)) or repeats < 0:
-        raise ValueError(f"repeats must be a non-negative integer, got {repeats!r}")
+    check_host_count(repeats, "repeats", lo=0)  # (True is not 1)
     if radius_px is not None:
         check_host_count(radius_px, "radius_px")
     sep_material = material if separable_material is None else separable_material
@@ -316,9 +317,7 @@ def evaluate_frames(
                                 "(light=DirectionalLight(...); on the command line --light-dir X,Y,Z)")
         t.check_material(m)
     paths = expand_inputs(inputs)
-    if not paths:
-        raise SSSInputError("no input frames")
-    truths = [] if truth is None else list(expand_inputs([truth] if isinstance(truth, (str, os.PathLike)) else truth))
+    truths = [] if truth is None else expand_inputs(truth, "truth files")
     if truths and len(truths) != len(paths):
         raise SSSInputError(f"{len(truths)} truth file(s) for {len(paths)} input frame(s): give one per input")
     if len(set(map(str, paths))) != len(paths):

@@ -1327,10 +1327,24 @@ def display_transform(image: np.ndarray, *, exposure: float = 0.0, transform: st
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
 
 
+def png_attribute(path: str | os.PathLike, name: str) -> str | None:
+    """A text attribute of a PNG (``write_png_preview``'s ``attributes``), or None where the file has none or
+    cannot be read as an image."""
+    inp = _oiio().ImageInput.open(str(path))
+    if inp is None:
+        return None
+    try:
+        value = inp.spec().getattribute(name)
+    finally:
+        inp.close()
+    return value if isinstance(value, str) else None
+
+
 def write_png_preview(path: str | os.PathLike, image: np.ndarray, *, exposure: float = 0.0,
-                      transform: str = "srgb", overwrite: bool = True) -> pathlib.Path:
+                      transform: str = "srgb", overwrite: bool = True,
+                      attributes: Mapping[str, str] | None = None) -> pathlib.Path:
     """An 8-bit sRGB PNG preview of a linear image through ``display_transform`` (display-encoded with the sRGB
-    transfer function, and labelled sRGB in the file). Atomic."""
+    transfer function, and labelled sRGB in the file), with ``attributes`` as text chunks. Atomic."""
     oiio = _oiio()
     if pathlib.Path(path).suffix.lower() != ".png":
         raise SSSInputError(f"{path}: a PNG preview needs the .png extension")
@@ -1341,6 +1355,8 @@ def write_png_preview(path: str | os.PathLike, image: np.ndarray, *, exposure: f
     h, w, c = data.shape
     spec = oiio.ImageSpec(w, h, c, oiio.UINT8)
     spec.attribute("oiio:ColorSpace", "sRGB")  # the values went through the sRGB OETF above: the label is true
+    for name, value in (attributes or {}).items():
+        spec.attribute(name, str(value))
     with atomic_path(path, overwrite=overwrite, verify=exr_is_complete) as tmp:
         out = oiio.ImageOutput.create(str(tmp))
         if out is None or not out.open(str(tmp), spec):

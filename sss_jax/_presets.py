@@ -80,7 +80,8 @@ def _triple(data: dict, path: list[str], source: pathlib.Path):
         if not isinstance(node, dict) or key not in node:
             raise SSSInputError(f"{source}: preset is missing {'.'.join(path)}")
         node = node[key]
-    if not (isinstance(node, list) and len(node) == 3 and all(isinstance(v, (int, float)) for v in node)):
+    if not (isinstance(node, list) and len(node) == 3
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in node)):  # true is not 1.0
         raise SSSInputError(f"{source}: {'.'.join(path)} must be a list of 3 numbers (R, G, B), got {node!r}")
     return node
 
@@ -97,6 +98,8 @@ def load_preset(name_or_path: str | os.PathLike) -> Preset:
 
     The ``Preset`` holds the Burley material (albedo, d in mm), the fitted two-Gaussian kernel and STA parameters
     where the file has them, and the whole file as ``raw`` (fit records, errors, engine blocks)."""
+    if not isinstance(name_or_path, (str, os.PathLike)):
+        raise TypeError(f"load_preset: give a preset's name or a path to its JSON, got {name_or_path!r}")
     path = _resolve(name_or_path)
     try:
         data = json.loads(path.read_text())
@@ -126,10 +129,17 @@ def preset_from_data(data: Any, path: pathlib.Path) -> Preset:
             if not isinstance(s, dict):
                 raise SSSInputError(f"{path}: sta must be an object of STA parameters")
             allowed = ("distortion", "power", "scale", "ambient", "thickness_mm")
+            unknown = sorted(set(s) - set(allowed))
+            if unknown:  # a misspelt name ("distorsion") would leave its parameter at the default without a word
+                raise SSSInputError(f"{path}: sta has no parameter(s) {', '.join(unknown)}; its parameters: "
+                                    f"{', '.join(allowed)}")
             for k in allowed:
                 if k in s and not _numeric(s[k]):
                     raise SSSInputError(f"{path}: sta.{k} must be a number or a list of numbers, got {s[k]!r}")
-            sta = STAParams(**{k: v for k, v in s.items() if k in allowed})
+            try:
+                sta = STAParams(**{k: v for k, v in s.items() if k in allowed})
+            except (TypeError, ValueError) as exc:  # a shape STAParams refuses (a per-channel power)
+                raise SSSInputError(f"{path}: sta: {exc}") from None
         medium = None
         if "transmittance" in data:
             tr = data["transmittance"]

@@ -912,3 +912,86 @@ def test_a_jimenez_kernel_of_strength_0_converts_to_no_scattering():
     _, d = REGISTRY["jimenez"].from_engine({"sssWidth": 0.01, "strength": [0.0, 0.0, 0.001],
                                                  "falloff": [0.5, 0.5, 0.5]})
     assert d[0] == 0.0 and d[1] == 0.0 and 0 < d[2] < 0.1
+
+
+_LIGHT = sj.DirectionalLight([0.0, 0.0, 1.0])
+
+
+@pytest.mark.parametrize("call, error, message", [
+    # a per-channel distortion bent the normal's x, y, z; a per-channel power ran along the image's columns
+    (lambda: sj.STAParams(distortion=(0.1, 0.5, 0.9)), ValueError, r"distortion must be one number .* shape \(3,\)"),
+    (lambda: sj.STAParams(power=(1.0, 4.0, 16.0)), ValueError, r"power must be one number .* shape \(3,\)"),
+    (lambda: sj.STAParams(scale=(1.0, 2.0)), ValueError, r"scale must be one number or 3 \(R, G, B\), got shape \(2,\)"),
+    (lambda: sj.STAParams(power="4"), TypeError, r"STAParams: power must be a number, got '4'"),
+    (lambda: sj.STAParams(distortion=0.7, dtype=jnp.int32), TypeError, r"dtype must be a floating type"),
+    # True read as 1.0
+    (lambda: sj.STAParams(power=True), TypeError, r"power must be a number, not a bool"),
+    (lambda: sj.DirectionalLight((True, False, False)), TypeError, r"light direction must be numbers, not bools"),
+    (lambda: sj.DirectionalLight((0.0, 0.0, 1.0), colour=(1.0, 1.0)), ValueError, r"light colour must be one number or 3"),
+    (lambda: sj.Camera(True, True), TypeError, r"camera focal_px must be a number, not a bool"),
+    (lambda: sj.BurleyMaterial(albedo=(0.5, 0.5, True), d_mm=(1.0, 1.0, 1.0)), TypeError, r"albedo must be numbers, not bools"),
+    (lambda: sj.translucency(sj.demo_scene(4, 4).buffers, sj.STAParams(), sj.Camera(100.0), _LIGHT, thickness=True),
+     ValueError, r"thickness must be >= 0 scene units .* got True"),
+    # Python's "missing 1 required positional argument"; an unknown option's bare __init__ TypeError
+    (lambda: sj.technique("sta"), TypeError, r"technique 'sta' needs light=DirectionalLight"),
+    (lambda: sj.Burley().replace(bogus=1), TypeError, r"technique 'burley' has no option\(s\) bogus; its options: "),
+    (lambda: sj.load_preset(123), TypeError, r"load_preset: give a preset's name or a path"),
+    # an empty list did nothing and wrote a manifest; an int gave "'int' object is not iterable"
+    (lambda: sj.process_frames([], "burley", sj.BurleyMaterial(0.5, 1.0), out_dir="/nonexistent/never", progress=False),
+     sj.SSSInputError, r"no input frames: the list is empty"),
+    (lambda: sj.process_frames(5, "burley", sj.BurleyMaterial(0.5, 1.0), out_dir="/nonexistent/never", progress=False),
+     TypeError, r"input frames: give a path, a glob pattern or a list of them, got int"),
+    (lambda: sj.process_frames(["a.exr"], "burley", sj.BurleyMaterial(0.5, 1.0), out_dir="/nonexistent/never",
+                               png="yes", progress=False), TypeError, r"png must be True or False, got 'yes'"),
+    (lambda: sj.process_frames(["a.exr"], "sta", (sj.STAParams(), _LIGHT), out_dir="/nonexistent/never",
+                               sta_thickness=True, progress=False), TypeError, r"sta_thickness must be a number"),
+    (lambda: sj.evaluate_frames(["a.exr"], sj.BurleyMaterial(0.5, 1.0), techniques=["burley"], repeats=True), ValueError,
+     r"repeats must be an integer >= 0, got True"),
+])
+def test_sta_cameras_lights_and_the_python_api_name_what_is_wrong(call, error, message):
+    with pytest.raises(error, match=message):
+        call()
+
+
+@pytest.mark.parametrize("bad, message", [
+    (dict(scale=-1.0), "STA scale must be"), (dict(ambient=-1.0), "STA ambient must be"),
+    (dict(distortion=-3.0), "STA distortion must be"), (dict(ambient=float("nan")), "STA ambient must be"),
+])
+def test_sta_checks_its_parameters_under_jit_too(bad, message):
+    # under jit only power and thickness_mm were checked: scale -1 gave negative light, a NaN ambient a NaN image
+    scene = sj.demo_scene(6, 8)
+    good = dict(distortion=0.2, power=4.0, scale=1.0, ambient=0.1, thickness_mm=1.0)
+
+    @jax.jit
+    def run(values):
+        return sj.translucency(scene.buffers, sj.STAParams(**values), scene.camera, scene.back_light)
+
+    run({k: jnp.asarray(v) for k, v in good.items()})  # the good values pass
+    with pytest.raises(Exception, match=message):
+        jax.block_until_ready(run({k: jnp.asarray(v) for k, v in {**good, **bad}.items()}))
+    # the constant thickness, traced (a frame without a thickness buffer): -1 gave ~22,000 times the light
+    thin = sj.Buffers(irradiance=scene.buffers.irradiance, depth=scene.buffers.depth, normal=scene.buffers.normal)
+    with pytest.raises(Exception, match="thickness must be"):
+        jax.block_until_ready(jax.jit(lambda t: sj.translucency(thin, sj.STAParams(), scene.camera,
+                                                               scene.back_light, thickness=t))(jnp.asarray(-1.0)))
+
+
+def test_a_preset_sta_block_names_a_parameter_it_does_not_have(tmp_path):
+    # "distorsion" left the distortion at its default without a word; a per-channel power loaded
+    with pytest.raises(sj.SSSInputError, match=r"sta has no parameter\(s\) distorsion; its parameters: distortion"):
+        sj.load_preset(_preset_with(tmp_path, distorsion=0.9))
+    with pytest.raises(sj.SSSInputError, match=r"sta: STAParams: power must be one number"):
+        sj.load_preset(_preset_with(tmp_path, power=[1.0, 2.0, 3.0]))
+
+
+def test_a_numpy_count_is_kept_as_a_python_integer():
+    # Burley(samples=np.int64(8)) kept the NumPy integer: equinox warned "A JAX array is being set as static!" and
+    # options() (what a manifest records) was not JSON
+    t = sj.Burley(samples=np.int64(8))
+    assert type(t.samples) is int and json.loads(json.dumps(t.options()))["samples"] == 8
+
+
+def test_evaluate_frames_takes_one_technique_by_name_as_a_string():
+    # techniques="burley" ran through its letters: "unknown technique(s) ['b']"
+    with pytest.raises(sj.SSSInputError, match=r"no such file|not found|cannot read"):
+        sj.evaluate_frames(["/nonexistent/a.exr"], sj.BurleyMaterial(0.5, 1.0), techniques="burley", repeats=0)

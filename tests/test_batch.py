@@ -1350,3 +1350,43 @@ def test_options_outputs_and_devices_a_batch_cannot_use_are_refused_before_any_f
         process_frames(src, "burley", MAT, out_dir=tmp_path / "out", manifest=tmp_path / "book", samples=4,
                        progress=False)
     assert not (tmp_path / "out").exists()
+
+
+def test_apply_runs_a_technique_at_its_own_default_count(frames, tmp_path):
+    # apply filled a count left out with separable's 25 taps for any technique with taps: jimenez ran SSSS_QUALITY 2
+    # (25 taps) where the library's and the engine's default is 17. And on several devices (the tests run 4) the
+    # batch vmapped the frames, cameras traced: jimenez, which fits a BurleyMaterial's shader parameters on the host
+    # at the camera's scene unit, failed every frame; such a technique's frames now run one by one
+    from sss_jax.cli import main
+
+    outs = {}
+    for label, extra in (("default", []), ("17", ["--taps", "17"]), ("25", ["--taps", "25"])):
+        outs[label] = tmp_path / f"{label}.exr"
+        assert main(["apply", str(frames / "f0.exr"), "-o", str(outs[label]), "--technique", "jimenez",
+                     "--d-mm", "2,1,0.5"]  + extra) == 0
+    read = {k: _io.read_channels(v)[0]["R"] for k, v in outs.items()}
+    np.testing.assert_array_equal(read["default"], read["17"])
+    assert np.abs(read["default"] - read["25"]).max() > 1e-4
+
+
+def test_png_previews_do_not_replace_someone_elses_png(frames, tmp_path):
+    # a foreign EXR at the output was refused, a foreign PNG where its preview goes was replaced without a word
+    src = copy_frame(frames, "f0.exr", tmp_path / "in" / "shot.exr")
+    out = tmp_path / "out" / "shot.exr"
+    out.parent.mkdir()
+    theirs = out.with_suffix(".png")
+    _io.write_png_preview(theirs, np.full((4, 4, 3), 0.5))
+    before = theirs.read_bytes()
+    with pytest.raises(_io.SSSInputError, match=r"shot\.png exists and is not the preview of an output made from"):
+        process_frames([src], "burley", MAT, outputs=[out], samples=4, png=True, progress=False)
+    assert theirs.read_bytes() == before and not out.exists()
+    # this batch's own preview is its: beside its EXR, or alone (a run killed between the two writes)
+    theirs.unlink()
+    assert process_frames([src], "burley", MAT, outputs=[out], samples=4, png=True, progress=False).ok
+    assert _io.png_attribute(theirs, "sss_jax:input") == str(src)
+    out.unlink()
+    assert process_frames([src], "burley", MAT, outputs=[out], samples=4, png=True, progress=False).ok
+    # and overwrite=True replaces anyone's
+    _io.write_png_preview(theirs, np.full((4, 4, 3), 0.5))
+    assert process_frames([src], "burley", MAT, outputs=[out], samples=4, png=True, overwrite=True,
+                          progress=False).ok

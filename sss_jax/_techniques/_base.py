@@ -47,7 +47,16 @@ def option(default: Any, help: str, *, choices: tuple | None = None, static: boo
     metadata = {"help": help}
     if choices is not None:
         metadata["choices"] = tuple(choices)
-    return eqx.field(static=static, default=default, metadata=metadata)
+    if static:  # a NumPy scalar (np.int64(8)) kept as the Python value it stands for: hashable, JSON, no warning
+        return eqx.field(static=True, default=default, metadata=metadata, converter=_host_scalar)
+    return eqx.field(static=False, default=default, metadata=metadata)
+
+
+def _host_scalar(value: Any) -> Any:
+    """``value``, a NumPy scalar or 0-d NumPy array as its Python scalar (``.item()``); anything else unchanged."""
+    if isinstance(value, np.generic) or (type(value) is np.ndarray and value.ndim == 0):
+        return value.item()
+    return value
 
 
 def default_of(function: Callable, name: str) -> Any:
@@ -117,6 +126,7 @@ class AbstractTechnique(eqx.Module):
 
     def replace(self, **changes: Any) -> "AbstractTechnique":
         """This technique with some options changed (``t.replace(samples=64)``)."""
+        check_option_names(type(self), changes)
         return dataclasses.replace(self, **changes)
 
     @classmethod
@@ -129,6 +139,11 @@ class AbstractTechnique(eqx.Module):
         """Whether ``material`` is one this technique (with its options) takes (``accepts`` with its options: a
         technique whose material depends on an option overrides both)."""
         return isinstance(material, self.material_type)
+
+    def traces_camera(self, material: Any) -> bool:
+        """Whether a call with ``material`` can run with the camera traced (a batch on several devices vmaps its
+        frames, cameras and all); not where the technique reads the camera on the host."""
+        return True
 
     def check_material(self, material: Any) -> None:
         """A ``TypeError`` naming the technique and the material classes it takes, unless it takes ``material``."""
@@ -170,6 +185,17 @@ def check_option_names(cls: type, options: dict[str, Any]) -> None:
     if unknown:
         raise TypeError(f"technique {cls.name!r} has no option(s) {', '.join(unknown)}; its options: "
                         f"{', '.join(sorted(fields))}")
+
+
+def check_required_fields(cls: type, options: dict[str, Any]) -> None:
+    """A field without a default that ``options`` leaves out (STA's ``light``) is an error naming it and its type,
+    not Python's "missing 1 required positional argument"."""
+    missing = [f for f in dataclasses.fields(cls) if f.name not in options
+               and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
+    if missing:
+        needs = ", ".join(f"{f.name}=" + (f.type if isinstance(f.type, str) else getattr(f.type, "__name__", "..."))
+                          for f in missing)
+        raise TypeError(f"technique {cls.name!r} needs {needs}")
 
 
 def built(cls: type, options: dict[str, Any], fields: tuple = ()) -> AbstractTechnique:

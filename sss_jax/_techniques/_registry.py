@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from ._base import AbstractTechnique, check_option_names
+from ._base import AbstractTechnique, check_option_names, check_required_fields
 from ._burley_technique import Burley
 from ._eevee_next import EeveeNextPass
 from ._hdrp import HdrpPass
@@ -34,4 +34,5 @@ def technique(name: str, **options: Any) -> AbstractTechnique:
     an unknown name or option is an error that lists the valid ones."""
     cls = get_technique(name)
     check_option_names(cls, options)
+    check_required_fields(cls, options)
     return cls(**options)

@@ -63,7 +63,7 @@ def register(subparsers) -> None:
                    "or a preset JSON file")
     add_camera_flags(p)
     p.add_argument("--samples", type=int, default=None, help="Burley spiral samples (default 32)")
-    p.add_argument("--taps", type=int, default=None, help="separable taps per pass (default 25)")
+    p.add_argument("--taps", type=int, default=None, help="taps per pass (default: the technique's own, separable 25, jimenez 17)")
     p.add_argument("--radius-px", type=int, help="reference window radius in pixels (default: 99.9%% of the energy, at most 96 px)")
     sta = p.add_argument_group("STA")
     sta.add_argument("--light-dir", type=rgb_triple, help="direction towards the light, camera space (x right, y down, z forward)")
@@ -141,18 +141,22 @@ def _material(args):
 
 
 def run(args) -> int:
-    from .._techniques import TECHNIQUES
+    import dataclasses
+
+    from .._techniques import TECHNIQUES, get_technique
 
     try:
         if args.technique not in TECHNIQUES:
             raise ValueError(f"unknown technique {args.technique!r}; valid techniques: {', '.join(TECHNIQUES)}")
         # a count the technique does not have is refused, as every other technique flag is (before: --samples
         # with separable, --taps with burley ran without a word)
+        # a count left out is the technique's own default (jimenez's 17 taps, not separable's 25)
+        own = {f.name: f.default for f in dataclasses.fields(get_technique(args.technique))}
         for name, default in (("samples", 32), ("taps", 25), ("radius_px", None)):
             if getattr(args, name) is not None:
                 check_option_taken("--" + name.replace("_", "-"), name, (args.technique,))
             else:
-                setattr(args, name, default)
+                setattr(args, name, own.get(name, default))
         for name in ("samples", "taps"):
             if getattr(args, name) < 1:
                 raise ValueError(f"--{name} must be >= 1, got {getattr(args, name)}")
