@@ -995,3 +995,23 @@ def test_evaluate_frames_takes_one_technique_by_name_as_a_string():
     # techniques="burley" ran through its letters: "unknown technique(s) ['b']"
     with pytest.raises(sj.SSSInputError, match=r"no such file|not found|cannot read"):
         sj.evaluate_frames(["/nonexistent/a.exr"], sj.BurleyMaterial(0.5, 1.0), techniques="burley", repeats=0)
+
+
+def test_convert_refuses_an_engine_value_that_is_not_finite(tmp_path, capsys):
+    # d = 1e308 mm gave HDRP a "Max Radius (mm)" of inf, written as Infinity (not JSON) with exit 0; Blender's
+    # overflowing radius printed numpy's RuntimeWarning before the clean error
+    import warnings
+
+    from sss_jax.cli import main
+
+    out = tmp_path / "inf.json"
+    assert main(["convert", "--from", "sss_jax", "--to", "hdrp", "--albedo", "0.8,0.6,0.5", "--d-mm", "1e308,1.4,0.8",
+                 "--json", str(out)]) == 2
+    assert "hdrp: Max Radius (mm) would be inf" in capsys.readouterr().err and not out.exists()
+    with pytest.raises(ValueError, match=r"hdrp: Max Radius \(mm\) would be inf"):
+        sj.to_engine("hdrp", (0.8, 0.6, 0.5), (1e308, 1.4, 0.8))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ValueError, match="d_mm must be finite"):
+            sj.convert("blender", "sss_jax", {"Subsurface Color": (0.8, 0.6, 0.5),
+                                              "Subsurface Radius": (1e306, 1.0, 1.0), "Subsurface Scale": 100.0})

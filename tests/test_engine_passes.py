@@ -445,3 +445,24 @@ def test_a_float32_tile_of_eevee_next_is_the_frame_bit_for_bit():
             sub = jax.tree.map(lambda a: a[rs:re, cs:ce], b)
             tile = np.asarray(tech(sub, SKIN, cam, origin=(rs, cs), frame_shape=(120, 200)))
             np.testing.assert_array_equal(tile[r0 - rs:r1 - rs, c0 - cs:c1 - cs], whole[r0:r1, c0:c1])
+
+
+def test_hdrp_says_where_it_renders_lit_pixels_black():
+    # HDRP writes black where every sample of a pixel is skipped (as the engine does); a frame gone black without a
+    # word (d typed 1e4 mm instead of 1.4) read as a bug of the tool
+    import warnings
+
+    e, z, ids = stepped_frame(12, 16, seed=3)
+    cam = sj.Camera(focal_px=40.0, mm_per_unit=1.0)
+    b = buffers_of(e, z, ids)
+    for d, expect in ((1e4, True), (1.0, False)):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            out = np.asarray(HdrpPass(quality="low")(b, sj.BurleyMaterial([0.8, 0.6, 0.5], [d, d, d]), cam))
+        said = [str(w.message) for w in caught if issubclass(w.category, sj.SamplingWarning)]
+        black = int(((ids > 0) & (e > 0).any(-1) & (out == 0).any(-1)).sum())
+        assert (black > 0) == expect
+        assert said == ([f"hdrp: {black} of {int(((ids > 0) & (e > 0).any(-1)).sum())} lit SSS pixels came out "
+                         f"black in RGB: every sample of theirs landed off the frame or on pixels without SSS, or the "
+                         f"channel's weights underflowed in float32 (a d far below the widest channel's): what "
+                         f"HDRP's pass renders there (burley keeps the pixel's own light)"] if expect else [])

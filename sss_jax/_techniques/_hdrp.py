@@ -29,6 +29,7 @@ with its own rotation hash (what TAA converges to).
 from __future__ import annotations
 
 import math
+import warnings
 from typing import Any, ClassVar
 
 import equinox as eqx
@@ -45,7 +46,18 @@ from .._units import px_per_mm
 from ._base import AbstractTechnique, built, frame_pieces, option
 from ._burley import spiral_rotation
 from ._burley_spec import unit_radius
-from ._common import _as_seed, _finish, _prepare, _safe_sqrt, _work_dtype, ALBEDO_MODES, check_seed
+from ._common import (
+    ALBEDO_MODES,
+    SamplingWarning,
+    _as_seed,
+    _finish,
+    _is_concrete,
+    _prepare,
+    _safe_sqrt,
+    _sss_mask,
+    _work_dtype,
+    check_seed,
+)
 from ._engine_frame import frame_geometry, nearest_fetch, pass_arguments
 
 HDRP_QUALITY_BUDGETS = {"low": 20, "medium": 40, "high": 80}  # DefaultSssSampleBudgetForQualityLevel
@@ -171,8 +183,14 @@ class HdrpPass(AbstractTechnique):
                                              material.count)
         # the seed (checked when the object was made) as a uint32 array: traced, a sequence's seeds share one
         # program (a Python int would be static)
-        return _hdrp_impl(buffers, material, camera, self.samples, int(self.frames), self.albedo_mode,
-                          _as_seed(self.seed), origin, frame_shape)
+        out = _hdrp_impl(buffers, material, camera, self.samples, int(self.frames), self.albedo_mode,
+                         _as_seed(self.seed), origin, frame_shape)
+        whole = origin == (0, 0) and frame_shape in (None, tuple(buffers.depth.shape))  # a tile's halo may be black
+        if whole and _is_concrete(buffers, material, camera, out):
+            message = black_pixels_message(buffers, out)
+            if message is not None:
+                warnings.warn(message, SamplingWarning, stacklevel=2)
+        return out
 
     def pieces(self, count: int) -> tuple[tuple["HdrpPass", float], ...] | None:
         """The ``frames`` in about ``count`` calls of consecutive frames (each frame's rotation hashes the seed and
@@ -193,6 +211,23 @@ class HdrpPass(AbstractTechnique):
 
         albedo, d = get_engine("hdrp").from_engine(dict(params))
         return BurleyMaterial(albedo, d)
+
+
+def black_pixels_message(buffers: Buffers, out: Array) -> str | None:
+    """Host side: what to say where ``hdrp`` wrote 0 in a channel of an SSS pixel that the input lit: as HDRP does
+    (``totalIrradiance / max(totalWeight, FLT_MIN)``) where every sample of the pixel was skipped (off the frame, on
+    pixels without SSS) or the channel's weights underflowed in float32; a frame or channel gone black without a
+    word read as a bug (a d typed 1e4 instead of 1.4). None where no pixel did."""
+    lit = np.asarray(_sss_mask(buffers))[..., None] & (np.asarray(buffers.irradiance) > 0)
+    black = lit & (np.asarray(out) == 0)
+    pixels = int(np.count_nonzero(black.any(axis=-1)))
+    if pixels == 0:
+        return None
+    channels = "".join(c for c, hit in zip("RGB", black.reshape(-1, 3).any(axis=0)) if hit)
+    return (f"hdrp: {pixels} of {int(np.count_nonzero(lit.any(axis=-1)))} lit SSS pixels came out black in "
+            f"{channels}: every sample of theirs landed off the frame or on pixels without SSS, or the channel's "
+            f"weights underflowed in float32 (a d far below the widest channel's): what HDRP's pass renders there "
+            f"(burley keeps the pixel's own light)")
 
 
 def _max_ppm(buffers: Buffers, camera: Camera) -> float:

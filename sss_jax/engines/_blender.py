@@ -261,7 +261,8 @@ class Blender(AbstractEngine):
         method = _method_from_params(params, version)
         ior = params.get("IOR")
         ior = default_ior(version) if ior is None else scalar("ior", ior)
-        return albedo, radius * scale * unit * _d_per_radius(albedo, method, version, ior)
+        with np.errstate(over="ignore"):  # an overflow is inf, which the material's own check names
+            return albedo, radius * scale * unit * _d_per_radius(albedo, method, version, ior)
 
     def block(self, albedo, d_mm, **options) -> dict[str, Any]:
         """Random Walk (Cycles' default method) in the current release, with the radius every method needs."""

@@ -3,6 +3,8 @@ blocks, ``engine_profile_error``, the report): no caller tests an engine's name.
 
 from __future__ import annotations
 
+import math
+
 from collections.abc import Mapping
 from typing import Any
 
@@ -37,7 +39,19 @@ def get_engine(name: str) -> AbstractEngine:
 
 def to_engine(engine: str, albedo, d_mm, **options) -> dict[str, Any]:
     """The engine's parameters (UI names) for the sss_jax material ``(albedo (3,), d_mm (3,) in mm)``."""
-    return get_engine(engine).to_engine(albedo, d_mm, **options)
+    return finite_block(engine, get_engine(engine).to_engine(albedo, d_mm, **options))
+
+
+def finite_block(engine: str, block: dict[str, Any]) -> dict[str, Any]:
+    """``block`` (an engine's parameters), or an error naming the first value that is not a finite number (a d of
+    1e308 mm gave HDRP a "Max Radius (mm)" of inf, written to JSON as ``Infinity``, which JSON does not have)."""
+    for key, value in block.items():
+        values = np.asarray(value, dtype=object).ravel() if isinstance(value, (list, tuple, np.ndarray)) else [value]
+        for v in values:
+            if isinstance(v, (float, np.floating)) and not math.isfinite(v):
+                raise ValueError(f"{engine}: {key} would be {v}: the material is beyond what the engine's "
+                                 f"parameters hold")
+    return block
 
 
 def from_engine(engine: str, params: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
@@ -60,7 +74,7 @@ def convert(source: str, target: str, params: dict[str, Any], **target_options) 
     src, dst = get_engine(source), get_engine(target)
     albedo, d = src.from_engine(_params(source, params))
     out = {"from": source, "to": target, "albedo": albedo.tolist(), "burley": {"d_mm": d.tolist()},
-           target: dst.to_engine(albedo, d, **target_options)}
+           target: finite_block(target, dst.to_engine(albedo, d, **target_options))}
     sides = {source: (src, params), target: (dst, out[target])}  # one entry when source == target
     for note in ("note", "lossy", "unverified"):
         reasons = [f"{name}: {e.notes(p)[note]}" for name, (e, p) in sides.items() if e.notes(p).get(note)]
