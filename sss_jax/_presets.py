@@ -136,10 +136,7 @@ def preset_from_data(data: Any, path: pathlib.Path) -> Preset:
             for k in allowed:
                 if k in s and not _numeric(s[k]):
                     raise SSSInputError(f"{path}: sta.{k} must be a number or a list of numbers, got {s[k]!r}")
-            try:
-                sta = STAParams(**{k: v for k, v in s.items() if k in allowed})
-            except (TypeError, ValueError) as exc:  # a shape STAParams refuses (a per-channel power)
-                raise SSSInputError(f"{path}: sta: {exc}") from None
+            sta = STAParams(**{k: v for k, v in s.items() if k in allowed})
         medium = None
         if "transmittance" in data:
             tr = data["transmittance"]

@@ -980,7 +980,7 @@ def test_a_preset_sta_block_names_a_parameter_it_does_not_have(tmp_path):
     # "distorsion" left the distortion at its default without a word; a per-channel power loaded
     with pytest.raises(sj.SSSInputError, match=r"sta has no parameter\(s\) distorsion; its parameters: distortion"):
         sj.load_preset(_preset_with(tmp_path, distorsion=0.9))
-    with pytest.raises(sj.SSSInputError, match=r"sta: STAParams: power must be one number"):
+    with pytest.raises(sj.SSSInputError, match=r"invalid preset: STAParams: power must be one number"):
         sj.load_preset(_preset_with(tmp_path, power=[1.0, 2.0, 3.0]))
 
 
