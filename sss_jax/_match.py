@@ -51,7 +51,7 @@ from ._io import SSSInputError, check_writable, display_transform, no_focal_leng
 from ._kernels import _check_taps
 from ._evaluate import read_truth
 from ._materials import BurleyMaterial, DirectionalLight, STAParams, TwoGaussianMaterial
-from ._scene import Buffers, Camera
+from ._scene import Buffers, Camera, surface_mask, validate_buffers
 from ._techniques._base import AbstractTechnique
 
 __all__ = ["MATCH_TECHNIQUES", "MATCH_LOSSES", "MATCH_SCORES", "MatchFrame", "MatchResult", "match_frame",
@@ -109,11 +109,18 @@ def match_frame(buffers: Buffers, camera: Camera, truth, *, name: str = "frame")
         raise SSSInputError(f"{name}: truth is {truth.shape}, the buffers are {shape} (expected truth {shape + (3,)})")
     if not np.all(np.isfinite(truth)):
         raise SSSInputError(f"{name}: truth has {int(np.sum(~np.isfinite(truth)))} non-finite values")
+    # the buffers' own check (a NaN irradiance on an SSS pixel left the solver at "nonfinite_input" with a NaN error,
+    # one on the background a fit that "converged" without moving): named as every technique names it
+    try:
+        validate_buffers(buffers, physical=False, name=name)
+    except ValueError as exc:
+        raise SSSInputError(str(exc)) from None
     depth = np.asarray(buffers.depth)
     ids = (np.ones(shape, np.int32) if buffers.material_id is None else np.asarray(buffers.material_id, np.int32))
-    ids = np.where(np.isfinite(depth) & (depth > 0), ids, 0).astype(np.int32)
+    # a surface as every technique reads it (a background's huge finite depth, Blender's 1e10, is none)
+    ids = np.where(surface_mask(depth), ids, 0).astype(np.int32)
     if not np.any(ids > 0):
-        raise SSSInputError(f"{name}: no SSS pixels (finite depth and material id > 0)")
+        raise SSSInputError(f"{name}: no SSS pixels (a surface's depth and material id > 0)")
     if ids.max() > _MAX_ID:
         raise SSSInputError(f"{name}: material id {int(ids.max())} is above {_MAX_ID}")
     # the error is ||out - truth|| / ||truth|| over the SSS pixels: a truth black there (or negative overall) has
@@ -385,7 +392,7 @@ def held_mask(frame: MatchFrame, material, *, held_fraction: float = HELD_FRACTI
     h, w = ids.shape
     depth = np.asarray(frame.buffers.depth, np.float64)
     sss = ids > 0
-    safe = np.where(sss & np.isfinite(depth) & (depth > 0), depth, np.inf)
+    safe = np.where(sss & surface_mask(depth), depth, np.inf)
     px_per_mm = float(frame.camera.focal_px) / (safe * float(frame.camera.mm_per_unit))
     rows = np.maximum(ids - 1, 0)
     ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)

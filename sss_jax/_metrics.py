@@ -15,6 +15,8 @@ from typing import Any
 import numpy as np
 from jaxtyping import ArrayLike
 
+from ._scene import surface_mask
+
 __all__ = ["rel_l2", "rmse", "max_error", "delta_e_2000", "flip", "flip_exposures", "energy_ratio", "metrics_by_material", "sss_mask"]
 
 
@@ -156,7 +158,7 @@ def energy_ratio(output, input, *, mask=None) -> np.ndarray:
 
 def sss_mask(depth, material_id=None) -> np.ndarray:
     depth = np.asarray(depth)
-    mask = np.isfinite(depth) & (depth > 0)
+    mask = surface_mask(depth)  # a background's huge finite depth (Blender's 1e10) is no surface
     if material_id is not None:
         mask &= np.asarray(material_id) > 0
     return mask

@@ -105,8 +105,11 @@ def test_fit_burley_from_2x_off_beats_the_exact_conversion_and_apply_reproduces_
             "--d-mm", ",".join(repr(2 * float(v)) for v in d_exact), "--max-steps", str(STEPS),
             "--json", str(out_json), "--html", str(out_html), "--report", str(tmp_path / "report"), "--radius-px", "2"]
     assert main(argv) == 0
-    assert "rel_l2 on fitted frames" in capsys.readouterr().out
+    said = capsys.readouterr()
+    assert "rel_l2 on fitted frames" in said.out
     res = json.loads(out_json.read_text())
+    # a fit cut short by --max-steps is said (the result string alone said it, and the command exited 0)
+    assert ("stopped at --max-steps" in said.err) == ("max_steps" in res["solver"]["result"])
     assert res["technique"] == "burley" and res["material_ids"] == [1, 2]
     assert res["solver"]["iterations"] >= 1 and res["solver"]["result"] in (
         "successful", "nonlinear_max_steps_reached", "max_steps_reached")
@@ -324,3 +327,53 @@ def test_fit_report_folder_is_checked_before_the_fit(blender, tmp_path, capsys):
                        "--d-mm", "1,1,1", "--report", report])
             assert rc == 2
         assert message in capsys.readouterr().err
+
+
+def test_fit_report_runs_the_technique_with_the_fits_options(blender, tmp_path, monkeypatch):
+    # the report of `fit --render ... --report` ran the technique at its defaults (border, pattern, ...): its row
+    # and the fit's own section on the same page described two runs (0.1950 against the fit's 0.1853 on a marble frame)
+    import sss_jax._evaluate as evaluate
+
+    seen = []
+
+    def stop_here(*args, techniques, **kwargs):
+        seen.extend(techniques)
+        raise sj.SSSInputError("stopped after the fit")
+
+    monkeypatch.setattr(evaluate, "evaluate_frames", stop_here)
+    f = blender["frames"]["f00"]
+    with pytest.raises(sj.SSSInputError, match="stopped after the fit"):
+        main(["fit", "--render", str(f["render"]), "--truth", str(f["truth"]), "--technique", "burley",
+              "--d-mm", "1,1,1", "--samples", "4", "--max-steps", "1", "--border", "leaves", "--pattern", "fixed",
+              "--report", str(tmp_path / "report")])
+    assert len(seen) == 1
+    assert isinstance(seen[0], sj.Burley) and seen[0].border == "leaves" and seen[0].pattern == "fixed"
+
+
+def test_match_frame_reads_surfaces_and_checks_buffers_as_the_techniques_do():
+    # a background at Blender's 1e10 counted as SSS pixels (768 of 768 where 384 were surface), and a NaN irradiance
+    # went into the solver (a NaN error, or a fit that "converged" without moving)
+    sc = sj.demo_scene(12, 16)
+    b, cam = sc.buffers, sc.camera
+    mat = sj.BurleyMaterial(np.full((3, 3), 0.8), np.full((3, 3), 2.0))
+    truth = np.asarray(sj.burley(b, mat, cam, samples=4))
+    far = jnp.where(jnp.isfinite(b.depth), b.depth, 1e10)
+    as_inf = sj.match_frame(b, cam, truth)
+    as_1e10 = sj.match_frame(sj.Buffers(irradiance=b.irradiance, depth=far, albedo=b.albedo,
+                                        material_id=jnp.ones_like(b.material_id)), cam, truth)
+    surface = np.isfinite(np.asarray(b.depth))
+    assert (np.asarray(as_1e10.material_id) > 0).sum() == surface.sum() < surface.size
+    assert (np.asarray(as_inf.material_id) > 0).sum() <= surface.sum()
+    nan = np.asarray(b.irradiance).copy()
+    nan[5, 5] = np.nan
+    with pytest.raises(sj.SSSInputError, match=r"irradiance has 3 non-finite values .* row 5, column 5"):
+        sj.match_frame(sj.Buffers(irradiance=jnp.asarray(nan), depth=b.depth, albedo=b.albedo,
+                                  material_id=b.material_id), cam, truth)
+
+
+def test_a_fit_cut_short_by_max_steps_is_said(blender, tmp_path, capsys):
+    f = blender["frames"]["f00"]
+    assert main(["fit", "--render", str(f["render"]), "--truth", str(f["truth"]), "--technique", "burley",
+                 "--d-mm", "1,1,1", "--samples", "4", "--max-steps", "1", "--json", str(tmp_path / "fit.json")]) == 0
+    assert json.loads((tmp_path / "fit.json").read_text())["solver"]["result"] == "nonlinear_max_steps_reached"
+    assert "sss-jax fit: warning: the solver stopped at --max-steps 1 before it converged" in capsys.readouterr().err

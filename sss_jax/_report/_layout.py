@@ -203,7 +203,8 @@ def report(data: ReportData, out_dir: str | pathlib.Path, *,
                        "HDR-ꟻLIP (mean; NVIDIA's flip-evaluator, 0 = identical, 1 = most different; "
                        f"{html.escape(flip_note)}), against "
                        "the dense reference" + (" and against the offline render (truth)" if has_truth else "")
-                       + ". Times are medians per frame after compilation, on the machine below. The cost per pixel "
+                       + ". Times are medians per frame after compilation, on the machine below (the reference's "
+                       "is its one run per frame, compilation included, or the run a cache kept). The cost per pixel "
                        "is what the technique's shader (the engine's own, for the engines' passes) executes per SSS "
                        "pixel and frame: samples or taps, texels fetched, arithmetic, counted from the formulation "
                        "and the same on any machine (a TAA pass pays it once per frame it accumulates). Rows on the "
@@ -224,10 +225,11 @@ def report(data: ReportData, out_dir: str | pathlib.Path, *,
     row = {"technique": "local shading (no SSS)", "count": None, "options": None, "ms / frame": None,
            "samples / px": None, "fetches / px": None, "flops / px": None,
            "rel L2 vs ref": local["vs_reference"]["rel_l2"], "ΔE mean vs ref": local["vs_reference"]["delta_e_mean"],
-           "ΔE p95 vs ref": local["vs_reference"]["delta_e_p95"]}
-    if has_truth:
+           "ΔE p95 vs ref": local["vs_reference"]["delta_e_p95"], "ꟻLIP vs ref": local["vs_reference"].get("flip_mean")}
+    if has_truth:  # (its ꟻLIP was computed and left out of the table: "-" beside the techniques' values)
         row.update({"rel L2 vs truth": local["vs_truth"]["rel_l2"], "ΔE mean vs truth": local["vs_truth"]["delta_e_mean"],
-                    "ΔE p95 vs truth": local["vs_truth"]["delta_e_p95"]})
+                    "ΔE p95 vs truth": local["vs_truth"]["delta_e_p95"],
+                    "ꟻLIP vs truth": local["vs_truth"].get("flip_mean")})
     rows.append(row)
     page.table(sec, rows, "time and error per technique and count", key="techniques",
                highlight=[bool(e.get("pareto_vs_reference")) for e in entries] + [False])
@@ -314,8 +316,11 @@ def report(data: ReportData, out_dir: str | pathlib.Path, *,
                        "accurate).")
     panels = [("vs_reference", "against the reference")] + ([("vs_truth", "against the truth")] if has_truth else [])
     if any(e["ms_per_frame"] is not None for e in timed):
-        page.figure(sec, trade_figure(timed, panels), "time per frame against error; numbers are taps or samples")
-    trade_rows = [{"technique": e["technique"], "count": e["count"], "ms / frame": e["ms_per_frame"],
+        page.figure(sec, trade_figure(timed, panels), "time per frame against error; numbers are taps or samples, words the options telling "
+                   "two runs of one count apart")
+    # each run by its label (technique, count and, where two runs share those, the options that tell them apart:
+    # hdrp at quality low and high were two rows "hdrp | - | ..." that no one could tell apart)
+    trade_rows = [{"run": e["label"], "ms / frame": e["ms_per_frame"],
                    "rel L2 vs ref": e["vs_reference"]["rel_l2"], "Pareto (ref)": e.get("pareto_vs_reference"),
                    **({"rel L2 vs truth": e["vs_truth"]["rel_l2"], "Pareto (truth)": e.get("pareto_vs_truth")}
                       if has_truth else {})} for e in timed]

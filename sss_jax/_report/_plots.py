@@ -44,7 +44,8 @@ def heatmap(data: np.ndarray, title: str, vmax: float | None = None, cmap: str =
 def trade_figure(rows: Sequence[dict], panels: Sequence[tuple[str, str]]):
     """Time per frame (x, log) against error (y, log) for every run, one panel per ``(key, title)`` in ``panels``
     (``key`` names the metric block of a row: ``"vs_reference"`` or ``"vs_truth"``); each panel's Pareto front is
-    dashed. ``rows``: the report's technique entries with ``pareto_<key>`` flags."""
+    dashed; each point is annotated with its count, or with what its label adds to the technique's name (the
+    options telling two runs apart). ``rows``: the report's technique entries with ``pareto_<key>`` flags."""
     fig = new_figure(5.2 * len(panels), 3.9)
     for j, (key, title) in enumerate(panels):
         ax = fig.add_subplot(1, len(panels), j + 1)
@@ -56,8 +57,11 @@ def trade_figure(rows: Sequence[dict], panels: Sequence[tuple[str, str]]):
             ax.scatter([r["ms_per_frame"] for r in mine], [max(r[key]["rel_l2"], 1e-6) for r in mine], color=colour,
                        label=tech, s=22, zorder=3)
             for r in mine:
-                if r["count"] is not None:
-                    ax.annotate(str(r["count"]), (r["ms_per_frame"], max(r[key]["rel_l2"], 1e-6)), fontsize=7,
+                # the count, and the options where two runs of one technique and count differ by them
+                tag = r.get("label", "")[len(tech):].strip() if r.get("label", "").startswith(tech) else ""
+                text = tag or ("" if r["count"] is None else str(r["count"]))
+                if text:
+                    ax.annotate(text, (r["ms_per_frame"], max(r[key]["rel_l2"], 1e-6)), fontsize=7,
                                 xytext=(3, 3), textcoords="offset points")
         front = sorted((r for r in pts if r.get(f"pareto_{key}")), key=lambda r: r["ms_per_frame"])
         ax.plot([r["ms_per_frame"] for r in front], [max(r[key]["rel_l2"], 1e-6) for r in front], "k--", lw=1,

@@ -273,7 +273,7 @@ def _run_match(args) -> int:
         args.html.parent.mkdir(parents=True, exist_ok=True)
         write_match_html(args.html, result)
     if args.report is not None:
-        _match_report(args, result, material, use_albedo_pass)
+        _match_report(args, result, material, use_albedo_pass, options)
     e = result.errors
     s = result.solver
     print(f"{args.technique}: {s['result']} after {s['iterations']} iterations ({s['seconds']:.1f} s); "
@@ -292,19 +292,27 @@ def _run_match(args) -> int:
     if result.options.get("albedo_from", "material") != "material":
         print("  (albedo: the frames' albedo pass rendered them, and `apply` without --albedo uses it the same way; "
               "the albedo shown is its mean over each id's pixels)")
+    if "max_steps" in s["result"]:  # the result string alone said it: a fit cut short read as a converged one
+        print(f"sss-jax fit: warning: the solver stopped at --max-steps {args.max_steps} before it converged; the "
+              "parameters above are where it stopped (more steps may lower the error further)", file=sys.stderr)
     return 0
 
 
-def _match_report(args, result, start, use_albedo_pass: bool) -> None:
+def _match_report(args, result, start, use_albedo_pass: bool, options: dict) -> None:
     """The report of the fitted material on the fitted frames (``sj.evaluate_frames`` measures, ``sj.report`` lays
-    out), with the fit's own section: the report and the match share one page."""
+    out), with the fit's own section: the report and the match share one page. The report runs the technique with
+    the options the fit ran it with (``--border``, ``--pattern``, ...; it ran the defaults' before: its row and the
+    fit's section disagreed)."""
     from .._evaluate import evaluate_frames
     from .._match import match_report_html
     from .._report import report
+    from .._techniques import get_technique
 
+    cls = get_technique(args.technique)
+    fitted = cls(**{k: v for k, v in options.items() if k != cls.count_option})
     burley_fit = args.technique == "burley"
     data = evaluate_frames(args.render, result.material if burley_fit else start, truth=args.truth,
-                           truth_channels=args.truth_channels, techniques=[args.technique], samples=[args.samples],
+                           truth_channels=args.truth_channels, techniques=[fitted], samples=[args.samples],
                            taps=[args.taps], separable_material=None if burley_fit else result.material,
                            focal_px=args.focal_px, mm_per_unit=args.mm_per_unit, channel_map=args.channel_map,
                            depth_kind=args.depth_kind, use_albedo_pass=use_albedo_pass, radius_px=args.radius_px,
