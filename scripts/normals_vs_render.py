@@ -17,12 +17,12 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
+import jax.numpy as jnp
+import numpy as np
 
-from sss_jax import normals_from_depth  # noqa: E402
-from sss_jax._io import read_frame  # noqa: E402
-from sss_jax._scene import _positions, surface_mask  # noqa: E402
+from sss_jax import normals_from_depth
+from sss_jax._io import read_frame
+from sss_jax._scene import _positions, surface_mask
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 DEFAULT = [ROOT.parent / "shared/reference/blender/irradiance_backlit.exr",

@@ -87,8 +87,8 @@ from jaxtyping import Array
 
 from ._checks import check_host_count, is_bool
 from ._io import (EXR_MAGIC, Frame, SSSInputError, Window, _frame_from_decoded, _read_image, check_depth_kind,
-                  check_writable, exr_is_complete, load_channel_map, no_focal_length, png_attribute, read_header, write_exr,
-                  write_json_atomic, write_png_preview)
+                  check_writable, exr_is_complete, load_channel_map, no_focal_length, png_attribute, read_header,
+                  write_exr, write_json_atomic, write_png_preview)
 from ._materials import DirectionalLight, ProfileMaterial, STAParams
 from ._scene import Buffers, Camera, validate_buffers
 from ._errors import ReferenceWindowWarning, SamplingWarning, TilePlacementError

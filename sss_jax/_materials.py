@@ -241,7 +241,8 @@ class STAParams(eqx.Module):
     thickness_mm: Float[Array, " 3"]
 
     def __init__(self, *, distortion=0.2, power=4.0, scale=1.0, ambient=0.0, thickness_mm=1.0, dtype=None):
-        given = dict(distortion=distortion, power=power, scale=scale, ambient=ambient, thickness_mm=thickness_mm)
+        given = {"distortion": distortion, "power": power, "scale": scale, "ambient": ambient,
+                 "thickness_mm": thickness_mm}
         arrays = {}
         for name, value in given.items():  # each named where it is not a number (a string, None, a bool)
             if is_bool(value):

@@ -954,13 +954,13 @@ def test_sta_cameras_lights_and_the_python_api_name_what_is_wrong(call, error, m
 
 
 @pytest.mark.parametrize("bad, message", [
-    (dict(scale=-1.0), "STA scale must be"), (dict(ambient=-1.0), "STA ambient must be"),
-    (dict(distortion=-3.0), "STA distortion must be"), (dict(ambient=float("nan")), "STA ambient must be"),
+    ({"scale": -1.0}, "STA scale must be"), ({"ambient": -1.0}, "STA ambient must be"),
+    ({"distortion": -3.0}, "STA distortion must be"), ({"ambient": float("nan")}, "STA ambient must be"),
 ])
 def test_sta_checks_its_parameters_under_jit_too(bad, message):
     # under jit only power and thickness_mm were checked: scale -1 gave negative light, a NaN ambient a NaN image
     scene = sj.demo_scene(6, 8)
-    good = dict(distortion=0.2, power=4.0, scale=1.0, ambient=0.1, thickness_mm=1.0)
+    good = {"distortion": 0.2, "power": 4.0, "scale": 1.0, "ambient": 0.1, "thickness_mm": 1.0}
 
     @jax.jit
     def run(values):

@@ -442,7 +442,7 @@ def test_a_float32_tile_of_eevee_next_is_the_frame_bit_for_bit():
         halo = tech.reach_px(b, SKIN, cam)
         for r0, r1, c0, c1 in ((0, 60, 0, 100), (60, 120, 100, 200), (30, 90, 50, 150)):
             rs, re, cs, ce = max(0, r0 - halo), min(120, r1 + halo), max(0, c0 - halo), min(200, c1 + halo)
-            sub = jax.tree.map(lambda a: a[rs:re, cs:ce], b)
+            sub = jax.tree.map(lambda a, rs=rs, re=re, cs=cs, ce=ce: a[rs:re, cs:ce], b)
             tile = np.asarray(tech(sub, SKIN, cam, origin=(rs, cs), frame_shape=(120, 200)))
             np.testing.assert_array_equal(tile[r0 - rs:r1 - rs, c0 - cs:c1 - cs], whole[r0:r1, c0:c1])
 
@@ -462,7 +462,8 @@ def test_hdrp_says_where_it_renders_lit_pixels_black():
         said = [str(w.message) for w in caught if issubclass(w.category, sj.SamplingWarning)]
         black = int(((ids > 0) & (e > 0).any(-1) & (out == 0).any(-1)).sum())
         assert (black > 0) == expect
-        assert said == ([f"hdrp: {black} of {int(((ids > 0) & (e > 0).any(-1)).sum())} lit SSS pixels came out "
-                         f"black in RGB: every sample of theirs landed off the frame or on pixels without SSS, or the "
-                         f"channel's weights underflowed in float32 (a d far below the widest channel's): what "
-                         f"HDRP's pass renders there (burley keeps the pixel's own light)"] if expect else [])
+        message = (f"hdrp: {black} of {int(((ids > 0) & (e > 0).any(-1)).sum())} lit SSS pixels came out black in "
+                   "RGB: every sample of theirs landed off the frame or on pixels without SSS, or the channel's "
+                   "weights underflowed in float32 (a d far below the widest channel's): what HDRP's pass renders "
+                   "there (burley keeps the pixel's own light)")
+        assert said == ([message] if expect else [])

@@ -234,7 +234,7 @@ def test_separable_says_where_its_cut_at_the_frame_loses_its_precision():
 
 def test_separable_objects_check_their_counts_when_made():
     # Separable(taps=8) was made without a word and failed only when it ran (a bench ran its reference first)
-    for bad in (dict(taps=8), dict(taps=0), dict(taps=True), dict(scale_levels=-1), dict(min_footprint_px=-1.0)):
+    for bad in ({"taps": 8}, {"taps": 0}, {"taps": True}, {"scale_levels": -1}, {"min_footprint_px": -1.0}):
         with pytest.raises(ValueError):
             sj.Separable(**bad)
 

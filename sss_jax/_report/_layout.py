@@ -225,7 +225,8 @@ def report(data: ReportData, out_dir: str | pathlib.Path, *,
     row = {"technique": "local shading (no SSS)", "count": None, "options": None, "ms / frame": None,
            "samples / px": None, "fetches / px": None, "flops / px": None,
            "rel L2 vs ref": local["vs_reference"]["rel_l2"], "ΔE mean vs ref": local["vs_reference"]["delta_e_mean"],
-           "ΔE p95 vs ref": local["vs_reference"]["delta_e_p95"], "ꟻLIP vs ref": local["vs_reference"].get("flip_mean")}
+           "ΔE p95 vs ref": local["vs_reference"]["delta_e_p95"],
+           "ꟻLIP vs ref": local["vs_reference"].get("flip_mean")}
     if has_truth:  # (its ꟻLIP was computed and left out of the table: "-" beside the techniques' values)
         row.update({"rel L2 vs truth": local["vs_truth"]["rel_l2"], "ΔE mean vs truth": local["vs_truth"]["delta_e_mean"],
                     "ΔE p95 vs truth": local["vs_truth"]["delta_e_p95"],
@@ -316,8 +317,8 @@ def report(data: ReportData, out_dir: str | pathlib.Path, *,
                        "accurate).")
     panels = [("vs_reference", "against the reference")] + ([("vs_truth", "against the truth")] if has_truth else [])
     if any(e["ms_per_frame"] is not None for e in timed):
-        page.figure(sec, trade_figure(timed, panels), "time per frame against error; numbers are taps or samples, words the options telling "
-                   "two runs of one count apart")
+        page.figure(sec, trade_figure(timed, panels), "time per frame against error; numbers are taps or "
+                    "samples, words the options telling two runs of one count apart")
     # each run by its label (technique, count and, where two runs share those, the options that tell them apart:
     # hdrp at quality low and high were two rows "hdrp | - | ..." that no one could tell apart)
     trade_rows = [{"run": e["label"], "ms / frame": e["ms_per_frame"],

@@ -13,12 +13,12 @@ centre tap first:
 - ``out = kernel[0] centre + sum kernel[i] tap_i``.
 
 ``fovy`` is the camera's: ``tan(fovy/2) = (frame height / 2) / focal_px``. Only pixels with SSS are written (the
-stencil): the horizontal pass reads the colour target, whose pixels without SSS hold their light as given, and
-writes a temporary target cleared to black (``SeparableSSS::go``), which the vertical pass reads: there a tap on a
-pixel without SSS reads black (pulled towards the centre by the follow-surface rule where its depth differs). A pixel without a surface reads as depth
-``_FAR`` (the follow-surface rule saturates there). Parameters: the engine's ``JimenezParams`` directly, or a
-``BurleyMaterial`` converted on the host by ``engines.Jimenez.to_engine`` (the least-squares fit of its kernel to
-Burley's; not traced, so gradients flow through ``JimenezParams`` only).
+stencil): the horizontal pass reads the colour target, whose pixels without SSS hold their light as given, and writes
+a temporary target cleared to black (``SeparableSSS::go``), which the vertical pass reads: there a tap on a pixel
+without SSS reads black (pulled towards the centre by the follow-surface rule where its depth differs). A pixel
+without a surface reads as depth ``_FAR`` (the follow-surface rule saturates there). Parameters: the engine's
+``JimenezParams`` directly, or a ``BurleyMaterial`` converted on the host by ``engines.Jimenez.to_engine`` (the
+least-squares fit of its kernel to Burley's; not traced, so gradients flow through ``JimenezParams`` only).
 """
 
 from __future__ import annotations

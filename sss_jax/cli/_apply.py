@@ -63,7 +63,8 @@ def register(subparsers) -> None:
                    "or a preset JSON file")
     add_camera_flags(p)
     p.add_argument("--samples", type=int, default=None, help="Burley spiral samples (default 32)")
-    p.add_argument("--taps", type=int, default=None, help="taps per pass (default: the technique's own, separable 25, jimenez 17)")
+    p.add_argument("--taps", type=int, default=None,
+                   help="taps per pass (default: the technique's own, separable 25, jimenez 17)")
     p.add_argument("--radius-px", type=int, help="reference window radius in pixels (default: 99.9%% of the energy, at most 96 px)")
     sta = p.add_argument_group("STA")
     sta.add_argument("--light-dir", type=rgb_triple, help="direction towards the light, camera space (x right, y down, z forward)")

@@ -4,7 +4,6 @@ blocks, ``engine_profile_error``, the report): no caller tests an engine's name.
 from __future__ import annotations
 
 import math
-
 from collections.abc import Mapping
 from typing import Any
 
