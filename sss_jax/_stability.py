@@ -27,7 +27,7 @@ from ._kernels import separable_kernel_from_profile, spiral_samples, two_gaussia
 from ._materials import BurleyMaterial, DirectionalLight, STAParams, TwoGaussianMaterial
 from ._profiles import BurleyProfile, burley_cdf, burley_inverse_cdf, burley_R
 from ._scene import Buffers, Camera, validate_buffers
-from ._techniques import AbstractTechnique, Burley, Reference, Separable, Translucency
+from ._techniques import AbstractTechnique, Burley, EeveeNextPass, HdrpPass, Reference, Separable, Translucency
 
 __all__ = ["run_sweep", "sweep_cases", "Case"]
 
@@ -43,7 +43,10 @@ SIZES = ((1, 1), (1, 5), (4, 4))
 
 CAMERA = Camera(focal_px=50.0, mm_per_unit=10.0)
 _QUICK_DTYPE = {"burley": "float16", "separable_burley": "float32", "reference": "float32",
-                "separable_two_gaussian": "float16", "sta": "float32"}
+                "separable_two_gaussian": "float16", "sta": "float32", "hdrp": "float32", "eevee_next": "float16"}
+# the passes a Burley material drives, swept over the same extremes (jimenez fits its shader parameters to a
+# BurleyMaterial on the host, which a sweep's traced material cannot give: tests/test_engine_passes.py has its)
+_BURLEY_DRIVEN = ("burley", "separable_burley", "reference", "hdrp", "eevee_next")
 
 
 @dataclasses.dataclass
@@ -79,9 +82,10 @@ def _irradiance(kind: str, shape, dtype) -> np.ndarray:
 
 
 def sweep_cases(quick: bool = False) -> Iterator[Case]:
-    """All cases (``quick``: a ninth of the technique cases in float16/float32 at 4x4, one tap count)."""
+    """All cases (``quick``: the technique cases in one dtype per technique (float16 or float32) at 4x4, then every
+    7th: ~1/20 of them; one tap count)."""
     big: list[Case] = []
-    for tech in ("burley", "separable_burley", "reference"):
+    for tech in _BURLEY_DRIVEN:
         for d, a, dk, ek, dt in itertools.product(D_MM, ALBEDO, DEPTH_SPECIALS, IRRADIANCE, DTYPES):
             big.append(Case(tech, dict(d_mm=d, albedo=a, depth=dk, irradiance=ek, dtype=dt, size=(4, 4))))
         for d, dt, size in itertools.product(D_MM, DTYPES, SIZES[:2]):
@@ -171,6 +175,8 @@ _TECHNIQUE_COMPONENTS: dict[str, _Component] = {
     "separable_burley": _Component(lambda n, taps, radius: Separable(taps=taps), _burley_material, _burley_params),
     "reference": _Component(lambda n, taps, radius: Reference(radius_px=radius, near_subsamples=2), _burley_material,
                             _burley_params),
+    "hdrp": _Component(lambda n, taps, radius: HdrpPass(quality="low"), _burley_material, _burley_params),
+    "eevee_next": _Component(lambda n, taps, radius: EeveeNextPass(), _burley_material, _burley_params),
     "separable_two_gaussian": _Component(
         lambda n, taps, radius: Separable(taps=taps),
         lambda p: TwoGaussianMaterial(p["albedo"], p["w"], p["sigma_near_mm"], p["sigma_far_mm"]), _two_gaussian_params),

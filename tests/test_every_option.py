@@ -345,15 +345,25 @@ def test_a_technique_flags_help_names_each_technique_once(command, capsys):
 
 def test_separable_counts_its_taps_once_per_pass_as_jimenez_does():
     # a separable pass of 9 taps runs them twice (horizontal, then vertical): 18 taps a pixel beside its 2 x (1 + 2 x
-    # 9) = 38 texels (linear fetches of 2 texels, the centre once per pass), as jimenez's 2 x 17 are 34; before, 9
+    # 8) = 34 texels (the 8 taps off the centre as linear fetches of 2 texels, the centre once per pass: it was
+    # counted a second time as a tap, 38), as jimenez's 2 x 17 are 34; before, 9
     from sss_jax._cost import frame_cost
 
     sc = sj.demo_scene(24, 32)
     mat = sj.BurleyMaterial((0.8, 0.6, 0.5), (3.0, 1.5, 0.75))
     sep = frame_cost(sj.technique("separable", taps=9), sc.buffers, mat, sc.camera)
     jim = frame_cost(sj.technique("jimenez", taps=17), sc.buffers, mat, sc.camera)
-    assert (sep["samples"], sep["fetches"]) == (18, 38) and sep["rule"].startswith("2 passes x 9 taps")
+    assert (sep["samples"], sep["fetches"]) == (18, 34) and sep["rule"].startswith("2 passes x 9 taps")
     assert jim["samples"] == 34
+    # and the pixels whose kernel reaches under min_footprint_px keep their local shading: no taps (every SSS pixel
+    # was counted as computed; a material 64x narrower cost 38 fetches a pixel where the pass computed none)
+    narrow = sj.BurleyMaterial((0.8, 0.6, 0.5), (3.0 / 64, 1.5 / 64, 0.75 / 64))
+    skipped = frame_cost(sj.technique("separable", taps=9), sc.buffers, narrow, sc.camera)
+    out = np.asarray(sj.separable(sc.buffers, narrow, sc.camera, taps=9))
+    local = np.asarray(sc.buffers.irradiance) * np.asarray(sc.buffers.albedo)  # the demo's albedo pass
+    sss = (np.asarray(sc.buffers.material_id) > 0) & np.isfinite(np.asarray(sc.buffers.depth))
+    changed = float((np.abs(out - local).max(-1) > 1e-6)[sss].mean())
+    assert skipped["active_fraction"] == pytest.approx(changed, abs=0.02) and skipped["active_fraction"] < 0.5
 
 
 def test_the_commands_that_read_a_frame_describe_its_camera_and_channels_alike():
