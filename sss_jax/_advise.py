@@ -14,6 +14,7 @@ matters as much as the material: ``scene_scale`` multiplies the size of a scene 
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
@@ -21,6 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._checks import check_host_count
 from ._timing import run_times
 from ._materials import BurleyMaterial
 from ._scene import Buffers, Camera, demo_scene
@@ -322,6 +324,14 @@ def advise(material: str | BurleyMaterial, *, max_delta_e: float = 1.0, buffers:
     """
     if not (max_delta_e >= 0):
         raise ValueError(f"max_delta_e must be >= 0, got {max_delta_e!r}")
+    # what the command line checks, checked here for the library's callers too (min() of an empty sequence, an
+    # IndexError, or a camera's message about its own mm_per_unit)
+    check_host_count(repeats, "repeats")
+    if not (float(scene_scale) > 0 and math.isfinite(float(scene_scale))):
+        raise ValueError(f"scene_scale must be a finite positive number, got {scene_scale!r}")
+    candidates = None if candidates is None else list(candidates)
+    if candidates is not None and not candidates:
+        raise ValueError("candidates: give at least one (name or technique, count) pair, or None for the defaults")
     name, mat = resolve_material(material)
     if truth is not None and buffers is None:
         raise ValueError("truth needs the buffers (and camera) of the view it renders")

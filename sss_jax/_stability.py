@@ -27,7 +27,15 @@ from ._kernels import separable_kernel_from_profile, spiral_samples, two_gaussia
 from ._materials import BurleyMaterial, DirectionalLight, STAParams, TwoGaussianMaterial
 from ._profiles import BurleyProfile, burley_cdf, burley_inverse_cdf, burley_R
 from ._scene import Buffers, Camera, validate_buffers
-from ._techniques import AbstractTechnique, Burley, EeveeNextPass, HdrpPass, Reference, Separable, Translucency
+from ._techniques import (
+    AbstractTechnique,
+    Burley,
+    EeveeNextPass,
+    HdrpPass,
+    Reference,
+    Separable,
+    Translucency,
+)
 
 __all__ = ["run_sweep", "sweep_cases", "Case"]
 

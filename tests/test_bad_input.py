@@ -945,6 +945,10 @@ _LIGHT = sj.DirectionalLight([0.0, 0.0, 1.0])
                                png="yes", progress=False), TypeError, r"png must be True or False, got 'yes'"),
     (lambda: sj.process_frames(["a.exr"], "sta", (sj.STAParams(), _LIGHT), out_dir="/nonexistent/never",
                                sta_thickness=True, progress=False), TypeError, r"sta_thickness must be a number"),
+    # advise from Python: "min() arg is an empty sequence", an IndexError, the camera's mm_per_unit
+    (lambda: sj.advise("skin", candidates=[]), ValueError, r"candidates: give at least one"),
+    (lambda: sj.advise("skin", repeats=0), ValueError, r"repeats must be a positive integer, got 0"),
+    (lambda: sj.advise("skin", scene_scale=-1), ValueError, r"scene_scale must be a finite positive number"),
     (lambda: sj.evaluate_frames(["a.exr"], sj.BurleyMaterial(0.5, 1.0), techniques=["burley"], repeats=True), ValueError,
      r"repeats must be an integer >= 0, got True"),
 ])

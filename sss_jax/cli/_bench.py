@@ -119,6 +119,10 @@ def run(args) -> int:
         print(f"{name:{width}s} {r['count'] or '':>4} {r['width']}x{r['height']:<5} {r['ms_per_frame']:10.2f} "
               f"{c['fetches']:8g} {c['flops']:7g} {r['compile_seconds']:9.2f} {e['demo']:11.4f} "
               f"{e['shadow_edge']:7.4f} {e['thin_line']:7.4f} {e['point_light']:7.4f}  {'*' if r['pareto'] else ''}")
+    taa = sorted({int(r["cost_per_pixel"].get("frames", 1)) for r in result["rows"]} - {1})
+    if taa:  # one call renders every TAA frame; the shader's counts are per frame
+        print(f"(rows with frames {', '.join(map(str, taa))}: ms/frame is one call rendering all of them, fetches "
+              "and flops are per frame)")
     w, h = result["ratio_resolution"]
     peers = ", ".join(f"{k} {v:.2f}" for k, v in result["peers_ms"].items()) or "none (OpenCV/SciPy absent)"
     print(f"\npeers at {w}x{h} (ms): {peers}")
