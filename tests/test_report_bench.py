@@ -91,9 +91,9 @@ def test_bench_reports_every_ratio_with_its_goal(bench_timed_together):
         assert set(r["errors"]) == {"demo", "shadow_edge", "thin_line", "point_light"}
         assert r["ms_per_frame"] > 0
         assert set(r["cost_per_pixel"]) == {"fetches", "flops"} and r["cost_per_pixel"]["flops"] > 0
-    # separable DEMO_TAPS taps, bilinear (its default): 2 passes x (2 pixels per tap + the centre)
+    # separable DEMO_TAPS taps, bilinear (its default): 2 passes x (2 pixels per tap off the centre + the centre)
     assert next(r for r in res["rows"] if r["technique"] == "separable")["cost_per_pixel"]["fetches"] == \
-        2 * (2 * DEMO_TAPS + 1)
+        2 * (2 * (DEMO_TAPS - 1) + 1)
     m = res["machine"]
     assert m["backend"] == jax.default_backend() and m["device"]
     assert m["impl"] in ("burley compacted, separable banded", "burley gather, separable banded")
@@ -126,10 +126,11 @@ def test_xla_plain_separable_is_the_filter_sepfilter2d_runs():
 
 
 def test_cost_per_pixel_counts_the_shaders_fetches():
-    # texel fetches as Jimenez's and HDRP's shaders make them: separable 2 passes x taps x (2 for a linear fetch
-    # along the pass, 1 nearest) + the centre per pass; Burley samples x (4 bilinear, 1 nearest) + the centre
-    assert cost_per_pixel("separable", 25, "linear")["fetches"] == 2 * (25 * 2 + 1)
-    assert cost_per_pixel("separable", 25, "nearest")["fetches"] == 2 * (25 + 1)
+    # texel fetches as Jimenez's and HDRP's shaders make them: separable 2 passes x the taps off the centre x (2 for
+    # a linear fetch along the pass, 1 nearest) + the centre per pass (it was counted twice: as a tap too); Burley
+    # samples x (4 bilinear, 1 nearest) + the centre
+    assert cost_per_pixel("separable", 25, "linear")["fetches"] == 2 * (24 * 2 + 1)
+    assert cost_per_pixel("separable", 25, "nearest")["fetches"] == 2 * (24 + 1)
     assert cost_per_pixel("burley", 32, "bilinear")["fetches"] == 32 * 4 + 1
     assert cost_per_pixel("burley", 32, "nearest")["fetches"] == 33
     # the arithmetic grows with the taps/samples and shrinks with point fetches
