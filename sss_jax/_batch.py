@@ -941,18 +941,16 @@ def _existing_outputs(jobs: list[_Job], overwrite: bool, png: bool = False) -> d
     foreign = []
     for job in jobs:
         header = _existing_output(job.dst)
+        made_from = (header or {}).get("sss_jax:input")
+        same_input = _same_input(made_from, job.src)
         preview = job.dst.with_suffix(".png")
-        if png and not overwrite and preview.is_file():
-            # the preview records its input (written first: a run killed before its EXR leaves one alone)
-            made_from = [m for m in ((header or {}).get("sss_jax:input"), png_attribute(preview, "sss_jax:input"))
-                         if m is not None]
-            if not any(_identity(pathlib.Path(str(m))) == _identity(job.src) for m in made_from):
-                foreign.append(f"{preview} exists and is not the preview of an output made from {job.src}")
+        # the preview records its input too (written first: a run killed before its EXR leaves one alone)
+        if png and not overwrite and preview.is_file() and not (
+                same_input or _same_input(png_attribute(preview, "sss_jax:input"), job.src)):
+            foreign.append(f"{preview} exists and is not the preview of an output made from {job.src}")
         if header is None:
             continue
         existing[job.dst] = header
-        made_from = header.get("sss_jax:input")
-        same_input = made_from is not None and _identity(pathlib.Path(str(made_from))) == _identity(job.src)
         if overwrite:
             continue
         if not header and job.dst.is_file() and not _exr_magic(job.dst):  # notes, a PNG named .exr: not ours (a
@@ -966,6 +964,11 @@ def _existing_outputs(jobs: list[_Job], overwrite: bool, png: bool = False) -> d
                             "or choose another output folder): " + "; ".join(foreign[:10])
                             + (f"; and {len(foreign) - 10} more" if len(foreign) > 10 else ""))
     return existing
+
+
+def _same_input(made_from: str | None, src: pathlib.Path) -> bool:
+    """Whether an output's recorded input (``sss_jax:input``, None where it records none) is the file ``src``."""
+    return made_from is not None and _identity(pathlib.Path(str(made_from))) == _identity(src)
 
 
 def _check_folders(paths: list[pathlib.Path], create_dirs: bool) -> None:

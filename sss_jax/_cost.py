@@ -138,13 +138,10 @@ def _separable_cost(t, buffers, material, camera) -> dict[str, Any]:
     """separable: the count model on the pixels whose kernel reaches ``min_footprint_px`` (``Separable.reach_px``'s
     rule: the outermost tap's offset in px at the pixel's depth); the others keep their local shading (they were all
     counted as computed: a material 64x narrower cost 38 fetches a pixel where the pass computed none)."""
-    import jax
-    import jax.numpy as jnp
+    from ._techniques._separable_technique import kernel_reach_mm
 
     _, depth, rows = _sss_pixels(buffers)
-    # every pattern of n > 1 taps ends at the kernel's reach: the 3-tap kernel's outermost tap is it (reach_px's way)
-    kernels = material.separable_kernels(min(int(t.taps), 3), jax.dtypes.canonicalize_dtype(jnp.float64))
-    reach_mm = np.max(np.abs(np.asarray(kernels.offsets_mm, np.float64)), axis=-1)  # (M,)
+    reach_mm = kernel_reach_mm(material, int(t.taps))
     reach_px = reach_mm[np.minimum(rows, reach_mm.shape[0] - 1)] * _per_mm(camera, depth)
     return _count_cost(t, buffers, material, camera,
                        active=(reach_px >= float(t.min_footprint_px)) & (reach_px > 0))

@@ -30,7 +30,7 @@ from ._io import (Frame, SSSInputError, Window, _blender_layers, _read_image, no
 from ._machine import machine_info
 from ._materials import BurleyMaterial, DirectionalLight, ProfileMaterial, STAParams, TwoGaussianMaterial
 from ._report import FrameImages, ReportData, TechniqueRun
-from ._techniques._base import AbstractTechnique
+from ._techniques._base import AbstractTechnique, missing_fields
 from ._cost import frame_cost
 from ._sweep import changed_options
 from ._timing import time_call
@@ -212,8 +212,7 @@ def _technique_object(t: str | AbstractTechnique, context: Mapping[str, Any],
         valid = ", ".join(sorted(set(cls.option_fields_names()) - {cls.count_option}))
         raise ValueError(f"burley_options {extra} not accepted here; sss_jax.burley takes {valid} (samples come "
                          "from `samples`)")
-    missing = [n for n, f in fields.items() if f.default is dataclasses.MISSING
-               and f.default_factory is dataclasses.MISSING and n not in options]
+    missing = [f.name for f in missing_fields(cls, options)]
     if missing:
         raise SSSInputError(f"the {t} technique needs its {' and '.join(missing)}: light=DirectionalLight(...) and "
                             "sta=STAParams(...) (on the command line --light-dir X,Y,Z)")

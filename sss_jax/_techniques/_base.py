@@ -35,6 +35,7 @@ import jax
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._checks import is_bool
 from .._errors import TilePlacementError
 from .._scene import Buffers, Camera
 from ._dispatch import check_tile
@@ -162,8 +163,8 @@ def _option_names(cls: type) -> tuple[str, ...]:
 def _is_choice(value, choices: tuple) -> bool:
     """Whether ``value`` is one of ``choices``, a bool only as a bool (``1 == True`` in Python: a switch given 1
     would pass for True and a count given True for 1)."""
-    is_bool = isinstance(value, (bool, np.bool_)) or (getattr(value, "dtype", None) == np.bool_ and np.ndim(value) == 0)
-    return any(isinstance(c, (bool, np.bool_)) == is_bool and value == c for c in choices)
+    flag = is_bool(value)
+    return any(isinstance(c, (bool, np.bool_)) == flag and value == c for c in choices)
 
 
 @functools.lru_cache(maxsize=None)
@@ -187,11 +188,16 @@ def check_option_names(cls: type, options: dict[str, Any]) -> None:
                         f"{', '.join(sorted(fields))}")
 
 
+def missing_fields(cls: type, given) -> list[dataclasses.Field]:
+    """The fields of technique class ``cls`` without a default that ``given`` (names) leaves out (STA's ``light``)."""
+    return [f for f in dataclasses.fields(cls) if f.name not in given
+            and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
+
+
 def check_required_fields(cls: type, options: dict[str, Any]) -> None:
-    """A field without a default that ``options`` leaves out (STA's ``light``) is an error naming it and its type,
-    not Python's "missing 1 required positional argument"."""
-    missing = [f for f in dataclasses.fields(cls) if f.name not in options
-               and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
+    """A field without a default that ``options`` leaves out (``missing_fields``) is an error naming it and its
+    type, not Python's "missing 1 required positional argument"."""
+    missing = missing_fields(cls, options)
     if missing:
         needs = ", ".join(f"{f.name}=" + (f.type if isinstance(f.type, str) else getattr(f.type, "__name__", "..."))
                           for f in missing)

@@ -488,9 +488,14 @@ def _may_cut(material, taps: int, frame_shape: tuple[int, int], px_per_mm: float
     """Host side: whether a kernel may reach past the frame in an eager call: the widest kernel at the nearest
     active depth (``px_per_mm``, ``_nearest_px_per_mm``) against the frame's shorter extent, with a margin for the
     pass's rounding."""
+    return float(np.max(_cut_reach_px(material, taps, px_per_mm))) > min(frame_shape) * (1 - 1e-4)
+
+
+def _cut_reach_px(material, taps: int, px_per_mm: float) -> np.ndarray:
+    """Host side: each material's kernel reach as the cut at the frame sees it (its outer cells' edge), in px at
+    ``px_per_mm``, ``(M,)``: what ``_may_cut`` and ``far_cut_message`` compare with the frame."""
     offsets, _ = _host_kernels(material, taps)
-    widest = float(np.max(np.abs(offsets))) * px_per_mm * spec.cell_edge(taps)
-    return widest > min(frame_shape) * (1 - 1e-4)
+    return np.max(np.abs(offsets), axis=-1) * px_per_mm * spec.cell_edge(taps)
 
 
 # ``far_cut_message``: past this ratio of the widest kernel's reach to the frame's shorter extent, the kernel cut at
@@ -507,9 +512,7 @@ def far_cut_message(material, taps: int, frame_shape: tuple[int, int], px_per_mm
     that wandered): there its cut at the frame loses its precision. ``None`` where it does not."""
     if not px_per_mm > 0:
         return None
-    offsets, _ = _host_kernels(material, taps)
-    reach_mm = np.max(np.abs(offsets), axis=-1)  # (M,)
-    widest = reach_mm * px_per_mm * spec.cell_edge(taps)
+    widest = _cut_reach_px(material, taps, px_per_mm)
     ratio = float(np.max(widest)) / min(frame_shape)
     if not ratio > FAR_CUT_RATIO:
         return None
@@ -517,6 +520,25 @@ def far_cut_message(material, taps: int, frame_shape: tuple[int, int], px_per_mm
     return (f"separable: material {m + 1}'s kernel reaches {float(widest[m]):.3g} px, {ratio:.2g} times the frame's "
             f"shorter extent: past {FAR_CUT_RATIO:.0e} its cut at the frame loses its precision, and the result "
             f"is not the profile's (is d in mm?)")
+
+
+def sampling_messages(buffers: Buffers, material, camera: Camera, taps: int, min_footprint_px: float,
+                      frame_shape: tuple[int, int], px_per_mm: float | None = None) -> list[str]:
+    """Host side: what ``separable`` warns of for these buffers (``SamplingWarning``s; the technique's ``check``
+    lists the same): tap cells too coarse for a hard edge at the widest reach (``separable_edge_error``, beyond
+    ``SAMPLING_ERROR_LIMIT``), and a reach so far past the frame that its cut loses its precision
+    (``far_cut_message``). ``px_per_mm``: the nearest active depth's, where the caller has read it already."""
+    ppm = _nearest_px_per_mm(buffers, camera) if px_per_mm is None else px_per_mm
+    said = []
+    implied = separable_edge_error(buffers, material, camera, int(taps), float(min_footprint_px), px_per_mm=ppm)
+    if implied[0] > SAMPLING_ERROR_LIMIT:
+        said.append(f"separable: {taps} taps at a reach of {implied[1]:.0f} px leave tap cells up to "
+                    f"{implied[2]:.1f} px wide: a hard edge may be off by up to {implied[0]:.3f} of its contrast "
+                    f"(more taps lower it)")
+    far = far_cut_message(material, int(taps), frame_shape, ppm)
+    if far is not None:
+        said.append(far)
+    return said
 
 
 def _nearest_px_per_mm(buffers: Buffers, camera: Camera) -> float:
@@ -620,14 +642,9 @@ def separable(
     concrete = _is_concrete(buffers, material, camera)
     ppm = _nearest_px_per_mm(buffers, camera) if concrete else None  # the host reads the depth once
     if concrete:  # a host-side check: the CPU formulation only, which counts anyway
-        implied = separable_edge_error(buffers, material, camera, int(taps), float(min_footprint_px), px_per_mm=ppm)
-        if implied[0] > SAMPLING_ERROR_LIMIT:
-            warnings.warn(f"separable: {taps} taps at a reach of {implied[1]:.0f} px leave tap cells up to "
-                          f"{implied[2]:.1f} px wide: a hard edge may be off by up to {implied[0]:.3f} of its "
-                          f"contrast (more taps lower it)", SamplingWarning, stacklevel=2)
-        far = far_cut_message(material, int(taps), frame_shape, ppm)
-        if far is not None:
-            warnings.warn(far, SamplingWarning, stacklevel=2)
+        for message in sampling_messages(buffers, material, camera, int(taps), float(min_footprint_px), frame_shape,
+                                         px_per_mm=ppm):
+            warnings.warn(message, SamplingWarning, stacklevel=2)
     groups = kernel_groups(material)
     cut = ppm is None or _may_cut(material, int(taps), frame_shape, ppm)  # no table where no kernel is cut
     return _separable_impl(buffers, material, camera, int(taps), albedo_mode, bool(follow_surface), mode,

@@ -16,7 +16,7 @@ from .._materials import BurleyMaterial, ProfileMaterial, TwoGaussianMaterial
 from .._scene import Buffers, Camera
 from . import _separable
 from ._base import AbstractTechnique, built, call_options, default_of, option, tile_options
-from ._common import ALBEDO_MODES, BORDERS, SAMPLING_ERROR_LIMIT, _material_rows, _sss_mask
+from ._common import ALBEDO_MODES, BORDERS, _material_rows, _sss_mask
 from ._dispatch import IMPLS
 
 _f = _separable.separable
@@ -24,20 +24,20 @@ _f = _separable.separable
 
 def separable_sampling_warnings(buffers: Buffers, material, camera: Camera, *, taps: int,
                                 min_footprint_px: float) -> list[Warning]:
-    """Host side: the ``SamplingWarning`` the taps' resolution at the widest reach implies for a hard edge
-    (``separable_edge_error``), where it exceeds ``SAMPLING_ERROR_LIMIT``; and where that reach is so far past the
-    frame that the pixels keep their local shading (``far_cut_message``)."""
-    found = []
-    far = _separable.far_cut_message(material, int(taps), tuple(buffers.depth.shape[-2:]),
-                                     _separable._nearest_px_per_mm(buffers, camera))
-    if far is not None:
-        found.append(SamplingWarning(far))
-    implied = _separable.separable_edge_error(buffers, material, camera, int(taps), float(min_footprint_px))
-    if implied[0] <= SAMPLING_ERROR_LIMIT:
-        return found
-    return found + [SamplingWarning(f"separable: {taps} taps at a reach of {implied[1]:.0f} px leave tap cells up "
-                                    f"to {implied[2]:.1f} px wide: a hard edge may be off by up to {implied[0]:.3f} "
-                                    f"of its contrast (more taps lower it)")]
+    """Host side: the ``SamplingWarning``s a call on the whole of ``buffers`` raises
+    (``_separable.sampling_messages``)."""
+    return [SamplingWarning(m) for m in _separable.sampling_messages(
+        buffers, material, camera, int(taps), float(min_footprint_px), tuple(buffers.depth.shape[-2:]))]
+
+
+def kernel_reach_mm(material, taps: int) -> np.ndarray:
+    """Host side: each material's kernel reach, its outermost tap's offset in mm, ``(M,)`` (float64): what decides
+    the pass's footprint (a pixel whose reach in px is under ``min_footprint_px`` keeps its local shading) and its
+    halo. Every pattern of n > 1 taps ends at +-1 of the reach (``unit_tap_offsets``): the 3-tap kernel has the
+    outermost tap of any count (a count typed far too large, 200001: building its kernel took 50 s and 5.9 GB on a
+    256x192 frame, before the batch's clamp cut it to 65 taps)."""
+    kernels = material.separable_kernels(min(int(taps), 3), jax.dtypes.canonicalize_dtype(jnp.float64))
+    return np.max(np.abs(np.asarray(kernels.offsets_mm, np.float64)), axis=-1)
 
 
 class Separable(AbstractTechnique):
@@ -84,11 +84,7 @@ class Separable(AbstractTechnique):
         valid = np.asarray(_sss_mask(buffers))
         if not valid.any():
             return 0
-        # every pattern of n > 1 taps ends at +-1 of the kernel's reach (``unit_tap_offsets``): the 3-tap kernel has
-        # the outermost tap of any count (a count typed far too large, 200001: building its kernel took 50 s and
-        # 5.9 GB on a 256x192 frame, before the batch's clamp cut it to 65 taps)
-        kernels = material.separable_kernels(min(int(self.taps), 3), jax.dtypes.canonicalize_dtype(jnp.float64))
-        reach_mm = np.max(np.abs(np.asarray(kernels.offsets_mm, np.float64)), axis=-1)  # (M,)
+        reach_mm = kernel_reach_mm(material, int(self.taps))
         rows = np.asarray(_material_rows(buffers, reach_mm.shape[0]))
         depth = np.asarray(buffers.depth, np.float64)
         safe = np.where(valid, depth, np.inf)  # (valid: a surface, _sss_mask)
