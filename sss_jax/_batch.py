@@ -582,17 +582,29 @@ def _clamp(tech, buffers: Buffers, material, camera: Camera):
     return tech, ""
 
 
+# Seconds per pixel per unit of a technique's count (samples x frames, taps, window pixels, TAA frames) on this
+# project's 2-core CPU: the work estimate before the batch has measured a frame of its own. Measured on the demo frame
+# at its defaults, 640x360 and 1920x1080, second call (2026-12-07, load 1.5-1.8): hdrp 3.7-4.3e-8 a sample, eevee-next
+# 2.0-2.8e-7 a TAA frame, jimenez 4.9-5.1e-8 a tap, reference 6.2-7.4e-8 a window pixel (the former shared figures
+# were 2.5-7x short of these: the first frame's plan then let calls run several times the work bound). burley
+# (3.5-5.2e-9 a sample) and separable (2.8-4.0e-9 a tap) compute only SSS pixels, a third of the demo frame: their
+# figures hold a frame that is all skin.
+_SECONDS_PER_UNIT = {"burley": 1.4e-8, "hdrp": 4.5e-8, "separable": 9e-9, "jimenez": 5.5e-8, "reference": 7.5e-8,
+                     "eevee-next": 2.8e-7}
+
+
 def _seconds_per_px(tech) -> float:
-    """Rough cost per pixel on this project's 2-core CPU (the README's timings), from the technique's counts: the
+    """Rough cost per pixel on this project's 2-core CPU (``_SECONDS_PER_UNIT``), from the technique's counts: the
     work estimate before the batch has measured a frame of its own."""
     frames = int(getattr(tech, "frames", 1) or 1)
+    unit = _SECONDS_PER_UNIT.get(getattr(tech, "name", None))
     if isinstance(getattr(tech, "samples", None), (int, np.integer)):
-        return 1.4e-8 * int(tech.samples) * frames
+        return (unit or 1.4e-8) * int(tech.samples) * frames
     if isinstance(getattr(tech, "taps", None), (int, np.integer)):
-        return 9e-9 * int(tech.taps)
+        return (unit or 9e-9) * int(tech.taps)
     if isinstance(getattr(tech, "radius_px", None), (int, np.integer)):
-        return 3e-8 * (2 * int(tech.radius_px) + 1) ** 2
-    return 4e-8 * frames  # (EEVEE Next's 16 samples a TAA frame: its frames are its count)
+        return (unit or 7.5e-8) * (2 * int(tech.radius_px) + 1) ** 2
+    return (unit or 4e-8) * frames  # (EEVEE Next's 16 samples a TAA frame: its frames are its count)
 
 
 def call_seconds() -> float:
@@ -1042,9 +1054,10 @@ def _plan_frame(tech, buffers: Buffers, material, camera: Camera, tile_pixels: i
         tiles = len(_starts(h, ty)) * len(_starts(w, tx))
         tile_px = min(ty + 2 * overlap, h) * min(tx + 2 * overlap, w)
         # tiles only for the work bound (the frame fits the memory bound) that would compute their halos over and
-        # over: the frame whole, in the technique's pieces, where it has them
+        # over: the frame whole, in the technique's pieces where it has them, else in one call longer than the bound
+        # (an HDRP pass over a 1920x1080 frame ran in 6 tiles of 1080x1212 px, 3.6x the work: 17.8 s against 5.0 s)
         wasteful = h * w <= tile_pixels and tiles * tile_px > 1.5 * h * w
-        if (ty, tx) != (h, w) and not (wasteful and _pieces_for(tech, seconds_per_px * h * w, bound) is not None):
+        if (ty, tx) != (h, w) and not wasteful:
             plan.layout, plan.overlap, plan.tiles, call_px = (ty, tx), overlap, tiles, tile_px
     call_s = seconds_per_px * call_px
     if call_s > bound:
@@ -1069,10 +1082,6 @@ def _spread_pieces(tech, call_s: float, bound: float):
     if call_s > SPREAD_CALLS * bound:
         tech = tech.spread(want)
     return tech, tech.pieces(want)
-
-
-def _pieces_for(tech, call_s: float, bound: float):
-    return _spread_pieces(tech, call_s, bound)[1] if call_s > bound else None
 
 
 def _count_text(tech) -> str:

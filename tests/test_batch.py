@@ -1296,13 +1296,38 @@ def test_a_long_engine_average_is_planned_in_pieces(make):
     assert sum(w for _, w in plan.pieces) == pytest.approx(1.0)
 
 
+def test_the_work_bound_tiles_a_frame_only_where_the_halos_cost_little(monkeypatch):
+    # a frame that fits the memory bound but passes the work bound ran in tiles whatever their halos cost where the
+    # technique has no pieces: HDRP over a 1920x1080 frame in 6 tiles of 1080x1212 px, 3.6x the frame's work
+    from sss_jax._batch import TILE_PIXELS, _Cost, _plan_frame
+
+    sc = sj.demo_scene(96, 128)
+    tech = sj.HdrpPass(quality="low")  # one frame: no pieces
+    assert tech.pieces(8) is None
+    wide, narrow = sj.BurleyMaterial((0.8, 0.5, 0.4), (3.0, 1.4, 0.8)), sj.BurleyMaterial((0.8, 0.5, 0.4), (0.05,) * 3)
+    from sss_jax._batch import _seconds_per_px
+
+    # the frame passes the work bound: tiles of ~48x48 px
+    monkeypatch.setenv("SSS_JAX_CALL_SECONDS", repr(_seconds_per_px(tech) * 48 * 48))
+    for material, tiled in ((wide, False), (narrow, True)):
+        plan = _plan_frame(tech, sc.buffers, material, sc.camera, TILE_PIXELS, _Cost())
+        halo = tech.reach_px(sc.buffers, material, sc.camera)
+        assert (plan.layout is not None) == tiled, (halo, plan.layout)
+        if tiled:  # the tiles' pixels with their halos at most 1.5x the frame's
+            ty, tx = plan.layout
+            assert plan.tiles * min(ty + 2 * halo, 96) * min(tx + 2 * halo, 128) <= 1.5 * 96 * 128
+    # past the memory bound the frame is tiled whatever the halos cost
+    plan = _plan_frame(tech, sc.buffers, wide, sc.camera, 32 * 32, _Cost())
+    assert plan.layout is not None
+
+
 @pytest.mark.parametrize("callback", ["on_frame_done", "on_progress"])
-def test_a_callback_that_raises_stops_the_batch_with_its_own_error(frames, tmp_path, monkeypatch, callback):
+def test_a_callback_that_raises_stops_the_batch_with_its_own_error(frames, tmp_path, callback):
     # on_progress raising a ValueError failed the frame under the input's name and the batch went on; on_frame_done
     # raising one inside the next frame's settle failed that frame instead. One rule now: the caller's error stops
     # the batch and reaches the caller as raised; what was recorded stays on disk and in the manifest.
-    if callback == "on_progress":
-        monkeypatch.setenv("SSS_JAX_CALL_SECONDS", "1e-4")  # every frame in several calls: on_progress is called
+    # every frame in several calls (tiles for the memory bound): on_progress is called
+    more = {"tile_pixels": 24 * 24} if callback == "on_progress" else {}
 
     class Mine(ValueError):
         pass
@@ -1316,7 +1341,7 @@ def test_a_callback_that_raises_stops_the_batch_with_its_own_error(frames, tmp_p
 
     with pytest.raises(Mine, match="the caller's own bug") as caught:
         process_frames(str(frames / "*.exr"), "burley", MAT, out_dir=tmp_path / "run", samples=4,
-                       progress=False, devices=jax.devices()[:1], **{callback: boom})
+                       progress=False, devices=jax.devices()[:1], **{callback: boom}, **more)
     if sys.version_info >= (3, 11):  # add_note: the callback named, and how far the batch went
         assert any(f"process_frames' {callback} callback: the batch stopped after" in n
                    for n in caught.value.__notes__), caught.value.__notes__

@@ -47,6 +47,7 @@ from ._common import (
     _work_dtype,
     check_seed,
 )
+from ._dispatch import check_tile
 from ._engine_frame import frame_geometry, nearest_fetch, pass_arguments
 
 EEVEE_SAMPLE_LEN = 16  # SubsurfaceModule::end_sync, data_.sample_len (EEVEE Next, 4.2 and later)
@@ -78,20 +79,26 @@ def halton(index, base: int, dtype) -> Array:
     return result
 
 
-def interleaved_gradient_noise(x: np.ndarray, y: np.ndarray, dtype) -> Array:
+def noise_terms(x: np.ndarray, y: np.ndarray, dtype) -> tuple[np.ndarray, np.ndarray]:
+    """The two products of ``interleaved_gradient_noise``'s inner fraction, ``0.06711056 x`` for a row of texel columns
+    ``x (1, W)`` and ``0.00583715 y`` for a column of texel rows ``y (H, 1)``, taken on the host in ``dtype`` (each
+    rounded once) and passed to the pass as data (``interleaved_gradient_noise``)."""
+    np_dtype = np.dtype(dtype)
+    return (np.asarray(x, np_dtype) * np_dtype.type(0.06711056), np.asarray(y, np_dtype) * np_dtype.type(0.00583715))
+
+
+def interleaved_gradient_noise(terms: tuple, dtype) -> Array:
     """Jimenez's interleaved gradient noise ``fract(52.9829189 fract(0.06711056 x + 0.00583715 y))`` of the texels
-    ``(y, x)`` (Blender's ``interleaved_gradient_noise(texel, 0, 0)``), for a column of rows ``y (H, 1)`` and a row of
-    columns ``x (1, W)`` known on the host, in ``dtype``.
+    ``(y, x)`` (Blender's ``interleaved_gradient_noise(texel, 0, 0)``), from ``noise_terms`` of a row of columns and a
+    column of rows, in ``dtype``.
 
     The products are taken on the host (NumPy, each rounded once), and the device sums them and scales through an
     optimisation barrier: computed from iotas inside the pass, XLA folded or contracted the expression differently
     for a tile than for its frame, and the 1-ulp difference in ``inner`` (~13 at x = 200), times 53, turned the angle
     by ~1e-4 (a tile's pixels then fetched other texels than the whole frame's: 16 of 24,000 pixels of a 200x120 frame,
-    by up to 2.5%)."""
-    np_dtype = np.dtype(dtype)
-    a = np.asarray(x, np_dtype) * np_dtype.type(0.06711056)
-    b = np.asarray(y, np_dtype) * np_dtype.type(0.00583715)
-    frac = jnp.mod(jnp.asarray(a) + jnp.asarray(b), 1.0)
+    by up to 2.5%). They reach the pass as arguments, so a tile's program is its shape's, whatever its origin."""
+    a, b = terms
+    frac = jnp.mod(jnp.asarray(a, dtype) + jnp.asarray(b, dtype), 1.0)
     return jnp.mod(jax.lax.optimization_barrier(52.9829189 * frac), 1.0)
 
 
@@ -116,12 +123,12 @@ def _s_normalised(albedo: Array) -> Array:
 
 @eqx.filter_jit
 def _eevee_next_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, frames: int, albedo_mode: str,
-                     seed, origin: tuple[int, int], frame_shape) -> Array:
+                     seed, noise: tuple, origin, frame_shape) -> Array:
     dtype = _work_dtype(buffers.irradiance.dtype)
     d_table = checked(material.d_mm.astype(dtype), "d_mm")
     prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
     h, w = buffers.depth.shape
-    rows, cols, fh, _, cx, cy = frame_geometry(buffers, camera, origin, frame_shape)
+    rows, cols, _, _, cx_f, cy_f = frame_geometry(buffers, camera, origin, frame_shape)
     focal = camera.focal_px.astype(dtype)
     mm_per_unit = camera.mm_per_unit.astype(dtype)
     albedo_mat = jnp.clip(material.albedo.astype(dtype), 0.0, 1.0)[prep.rows]
@@ -135,9 +142,8 @@ def _eevee_next_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera,
     z = prep.depth
     scale_px = jnp.where(prep.valid, focal * max_radius / (jnp.where(prep.valid, z, 1.0) * mm_per_unit), 0.0)
     active = prep.valid & (scale_px > 1.0)
-    oy0, ox0 = origin
-    theta = interleaved_gradient_noise(np.arange(ox0, ox0 + w)[None, :], (fh - 1 - np.arange(oy0, oy0 + h))[:, None],
-                                       dtype) * GOLDEN_ANGLE
+    oy0, ox0 = (0, 0) if origin is None else (origin[0], origin[1])
+    theta = interleaved_gradient_noise(noise, dtype) * GOLDEN_ANGLE
     cos_t, sin_t = jnp.cos(theta), jnp.sin(theta)
     ids = (buffers.material_id.astype(jnp.int32) if buffers.material_id is not None
            else jnp.ones((h, w), jnp.int32))
@@ -147,7 +153,6 @@ def _eevee_next_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera,
     # frame's pixel less the tile's origin
     frame_c = cols[:1, :].astype(dtype)
     frame_r = rows[:, :1].astype(dtype)
-    cx_f, cy_f = cx + ox0, cy + oy0
     # view-space x, y of the centre (scene units; y down as sss_jax's camera)
     px_c = (frame_c + 0.5 - cx_f) / focal * z
     py_c = (frame_r + 0.5 - cy_f) / focal * z
@@ -220,10 +225,14 @@ class EeveeNextPass(AbstractTechnique):
                  origin: tuple[int, int] = (0, 0), frame_shape: tuple[int, int] | None = None
                  ) -> Float[Array, "H W 3"]:
         self.check_material(material)
-        origin, frame_shape = pass_arguments(self.name, self.albedo_mode, buffers, origin, frame_shape,
-                                             material.count)
+        placed = pass_arguments(self.name, self.albedo_mode, buffers, origin, frame_shape, material.count)
+        h, w = buffers.depth.shape
+        (oy, ox), (fh, _) = check_tile((h, w), origin, frame_shape)
+        # texel rows count from the frame's bottom (OpenGL)
+        noise = noise_terms(np.arange(ox, ox + w)[None, :], (fh - 1 - np.arange(oy, oy + h))[:, None],
+                            _work_dtype(buffers.irradiance.dtype))
         return _eevee_next_impl(buffers, material, camera, int(self.frames), self.albedo_mode,
-                                _as_seed(self.seed), origin, frame_shape)
+                                _as_seed(self.seed), noise, *placed)
 
     def pieces(self, count: int) -> tuple[tuple["EeveeNextPass", float], ...] | None:
         """The ``frames`` in about ``count`` calls of consecutive TAA samples (sample k of seed s is ``k + 1 + s``

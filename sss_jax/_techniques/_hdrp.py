@@ -86,7 +86,7 @@ def _exp_sum(x: Array) -> Array:
 
 @eqx.filter_jit
 def _hdrp_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, budget: int, frames: int,
-               albedo_mode: str, seed, origin: tuple[int, int], frame_shape) -> Array:
+               albedo_mode: str, seed, origin, frame_shape) -> Array:
     dtype = _work_dtype(buffers.irradiance.dtype)
     d_table = checked(material.d_mm.astype(dtype), "d_mm")
     prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
@@ -179,14 +179,13 @@ class HdrpPass(AbstractTechnique):
                  origin: tuple[int, int] = (0, 0), frame_shape: tuple[int, int] | None = None
                  ) -> Float[Array, "H W 3"]:
         self.check_material(material)
-        origin, frame_shape = pass_arguments(self.name, self.albedo_mode, buffers, origin, frame_shape,
-                                             material.count)
+        placed = pass_arguments(self.name, self.albedo_mode, buffers, origin, frame_shape, material.count)
         # the seed (checked when the object was made) as a uint32 array: traced, a sequence's seeds share one
-        # program (a Python int would be static)
+        # program (a Python int would be static); so is a tile's origin
         out = _hdrp_impl(buffers, material, camera, self.samples, int(self.frames), self.albedo_mode,
-                         _as_seed(self.seed), origin, frame_shape)
-        whole = origin == (0, 0) and frame_shape in (None, tuple(buffers.depth.shape))  # a tile's halo may be black
-        if whole and _is_concrete(buffers, material, camera, out):
+                         _as_seed(self.seed), *placed)
+        # whole frames only: a tile's halo may be black
+        if placed[0] is None and _is_concrete(buffers, material, camera, out):
             message = black_pixels_message(buffers, out)
             if message is not None:
                 warnings.warn(message, SamplingWarning, stacklevel=2)

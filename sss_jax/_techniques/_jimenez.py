@@ -44,7 +44,7 @@ from ._common import (
     _work_dtype,
     check_one_image,
 )
-from ._engine_frame import frame_geometry
+from ._engine_frame import placement
 
 JIMENEZ_TAPS = (11, 17, 25)  # SeparableSSS.h: SSSS_N_SAMPLES for SSSS_QUALITY 0, 1, 2
 _FAR = 1e20
@@ -154,11 +154,11 @@ def _linear_clamp_1d(values: Array, pos: Array, axis: int) -> Array:
 
 @eqx.filter_jit
 def _jimenez_impl(buffers: Buffers, params: JimenezParams, camera: Camera, taps: int, follow_surface: bool,
-                  albedo_mode: str, origin: tuple[int, int], frame_shape) -> Array:
+                  albedo_mode: str, frame_shape) -> Array:
     dtype = _work_dtype(buffers.irradiance.dtype)
     prep = _prepare(buffers, params.albedo, albedo_mode, dtype)
     h, w = buffers.depth.shape
-    _, _, fh, fw, _, _ = frame_geometry(buffers, camera, origin, frame_shape)
+    fh, fw = (h, w) if frame_shape is None else frame_shape  # a texture coordinate spans the frame
     focal = camera.focal_px.astype(dtype)
     inv_tan = 2.0 * focal / fh  # 1 / tan(fovy / 2)
     surface = surface_mask(buffers.depth)
@@ -230,8 +230,10 @@ class JimenezPass(AbstractTechnique):
         _check_albedo_mode(self.albedo_mode)
         check_one_image("jimenez", buffers, getattr(material, "count", None), camera=camera)
         params = self.params(material, camera)
+        # the pass reads only the frame's size: every tile of one shape is one program, wherever it lies
+        _, frame_shape = placement(buffers.depth.shape, origin, frame_shape)
         return _jimenez_impl(buffers, params, camera, int(self.taps), bool(self.follow_surface), self.albedo_mode,
-                             tuple(int(o) for o in origin), None if frame_shape is None else tuple(frame_shape))
+                             frame_shape)
 
     def reach_px(self, buffers: Buffers, material, camera: Camera, *, frame_shape=None) -> int:
         """Both passes' farthest taps (the outermost kernel offset, the horizontal one W/H wider) at the nearest
