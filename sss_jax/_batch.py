@@ -585,11 +585,11 @@ def _clamp(tech, buffers: Buffers, material, camera: Camera):
 # Seconds per pixel per unit of a technique's count (samples x frames, taps, window pixels, TAA frames) on this
 # project's 2-core CPU: the work estimate before the batch has measured a frame of its own. Measured on the demo frame
 # at its defaults, 640x360 and 1920x1080, second call (2026-12-07, load 1.5-1.8): hdrp 3.7-4.3e-8 a sample, eevee-next
-# 2.0-2.8e-7 a TAA frame, jimenez 4.9-5.1e-8 a tap, reference 6.2-7.4e-8 a window pixel (the former shared figures
-# were 2.5-7x short of these: the first frame's plan then let calls run several times the work bound). burley
-# (3.5-5.2e-9 a sample) and separable (2.8-4.0e-9 a tap) compute only SSS pixels, a third of the demo frame: their
-# figures hold a frame that is all skin.
-_SECONDS_PER_UNIT = {"burley": 1.4e-8, "hdrp": 4.5e-8, "separable": 9e-9, "jimenez": 5.5e-8, "reference": 7.5e-8,
+# 2.0-2.8e-7 a TAA frame, jimenez 1.6-1.8e-8 a tap (its taps in a loop), reference 6.2-7.4e-8 a window pixel (the
+# former shared figures were 2.5-7x short of these: the first frame's plan let calls run several times the bound).
+# burley (3.5-5.2e-9 a sample) and separable (2.8-4.0e-9 a tap) compute only SSS pixels, a third of the demo frame:
+# their figures hold a frame that is all skin.
+_SECONDS_PER_UNIT = {"burley": 1.4e-8, "hdrp": 4.5e-8, "separable": 9e-9, "jimenez": 2e-8, "reference": 7.5e-8,
                      "eevee-next": 2.8e-7}
 
 
