@@ -1222,18 +1222,22 @@ def _run_pieces(plan: _FramePlan, buffers: Buffers, material, camera: Camera, on
 
 def _run_tiled(tech, frame: Frame, use_albedo: bool, material, camera: Camera, plan: _FramePlan, on_tile) -> np.ndarray:
     """The frame in tiles overlapping by the technique's reach; each tile says where it lies in the frame
-    (``origin``, ``frame_shape``), so the rotation hash and the frame border are the frame's. ``on_tile`` after
-    each call (a tile runs as the plan's pieces)."""
+    (``origin``, ``frame_shape``), so the rotation hash and the frame border are the frame's; a technique whose call
+    takes ``keep`` (Burley) is told the pixels the tile keeps and computes only those (its halo read, not computed:
+    a 3840x2160 close-up in 15 tiles, 28.0 -> 11.7 s, the frame whole 7.5 s). ``on_tile`` after each call (a tile
+    runs as the plan's pieces)."""
     ty, tx = plan.layout
     h, w = frame.shape
     r = plan.overlap
     out = np.empty((h, w, 3), np.float32)
     count = _material_count(material)
+    keeps = "keep" in inspect.signature(type(tech).__call__).parameters
     for y, x in [(y, x) for y in _starts(h, ty) for x in _starts(w, tx)]:
         b, (oy, ox) = _tile(frame, y, x, ty, tx, r, use_albedo)
         validate_buffers(b, materials=count)
+        keep = {"keep": (y - oy, x - ox, ty, tx)} if keeps else {}
         res = _run_pieces(dataclasses.replace(plan, tech=tech), b, material, camera, on_tile, origin=(oy, ox),
-                          frame_shape=(h, w))
+                          frame_shape=(h, w), **keep)
         out[y:y + ty, x:x + tx] = res[y - oy:y - oy + ty, x - ox:x - ox + tx]
     return out
 

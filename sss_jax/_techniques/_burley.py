@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 import math
 import warnings
+from numbers import Real
 
 import jax
 import jax.numpy as jnp
@@ -44,7 +45,7 @@ from ._pallas import burley_pallas_impl
 BURLEY_PATTERNS = ("rotated", "fixed")
 
 
-def compaction_capacity(active_count: int, pixels: int, *, minimum: int = 256) -> int | None:
+def compaction_capacity(active_count: int, pixels: Real, *, minimum: int = 256) -> int | None:
     """Slots of the compacted buffer for ``active_count`` active pixels out of ``pixels``: the next quarter-octave
     bucket (5, 6, 7 or 8 times 2^k: a sequence of frames compiles once per bucket, not once per count, and at most a
     fifth of the slots are padding, which the sample loop computes like the rest; power-of-two buckets padded up to
@@ -68,19 +69,21 @@ def _burley_active(buffers: Buffers, material: BurleyMaterial, camera: Camera, m
 
 
 def _burley_active_mask(buffers: Buffers, material: BurleyMaterial, camera: Camera, min_footprint_px: float,
-                        albedo_mode: str | None = None):
+                        albedo_mode: str | None = None, keep: tuple[int, int, int, int] | None = None):
     """``_burley_active`` and the active mask itself (a device array, (H, W)), and with ``albedo_mode`` the padded
     fetch planes (``_burley_spec.padded_planes``, device arrays) too: what the compacted pass takes from the host's
-    count instead of computing them a second time."""
+    count instead of computing them a second time. ``keep``: ``burley``'s (only its window's pixels are active)."""
+    window = None if keep is None else np.asarray(keep, np.int32)  # traced: every tile's window one program
     count, widest, active, planes = _active_stats(buffers, material, camera, np.asarray(float(min_footprint_px)),
-                                                  albedo_mode)
+                                                  albedo_mode, window)
     count, widest = jax.device_get((count, widest))
     return int(count), float(widest), active, planes
 
 
 @functools.partial(jax.jit, static_argnames=("albedo_mode",))
 def _active_stats(buffers: Buffers, material: BurleyMaterial, camera: Camera, min_footprint_px,
-                  albedo_mode: str | None = None) -> tuple[Array, Array, Array, list[Array] | None]:
+                  albedo_mode: str | None = None, window: Array | None = None
+                  ) -> tuple[Array, Array, Array, list[Array] | None]:
     """``_burley_active_mask`` as one jitted call: the pass's own active mask (``active_footprint``, the work dtype),
     so a compacted buffer holds every pixel the pass computes; ~4x faster than the float64 NumPy count it replaced.
     The padded planes are computed here, in a computation of their own, because they pad fastest so (``padded_planes``)."""
@@ -90,6 +93,11 @@ def _active_stats(buffers: Buffers, material: BurleyMaterial, camera: Camera, mi
     d_max, ppm, active = active_footprint(material.d_mm.astype(dtype), camera, depth=depth, valid=valid,
                                           rows=_material_rows(buffers, material.d_mm.shape[0]),
                                           min_footprint_px=jnp.asarray(min_footprint_px, dtype), dtype=dtype)
+    if window is not None:  # (row0, col0, rows, cols): the pixels the caller keeps
+        h, w = buffers.depth.shape
+        r = jnp.arange(h)[:, None] - window[0]
+        c = jnp.arange(w)[None, :] - window[1]
+        active = active & (r >= 0) & (r < window[2]) & (c >= 0) & (c < window[3])
     planes = None
     if albedo_mode is not None:
         prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
@@ -125,6 +133,7 @@ def burley(
     border: str = "renormalise",
     origin: tuple[int, int] = (0, 0),
     frame_shape: tuple[int, int] | None = None,
+    keep: tuple[int, int, int, int] | None = None,
 ) -> Float[Array, "H W 3"]:
     """Screen-space Christensen–Burley normalised diffusion (one pass, ``samples`` spiral samples per pixel).
 
@@ -177,7 +186,11 @@ def burley(
     Tiles: ``origin=(row0, col0)`` is this buffer's top-left pixel in the whole frame and ``frame_shape=(H, W)`` the
     frame's size (``None``: the buffer is the frame). The rotation hash, the border rule and the diagonal's
     truncation follow the frame, so a tile with a halo of ``burley_halo_px`` pixels gives the untiled frame's pixels
-    (a fetch inside the frame but outside the buffer is dropped from the normalisation).
+    (a fetch inside the frame but outside the buffer is dropped from the normalisation). ``keep=(row0, col0, rows,
+    cols)``: the only pixels of the buffer the caller keeps (a tile's, without its halo): the compacted formulation
+    computes none other (they come back as their local shading, as a pixel under the footprint floor does), so a
+    tile whose halo is wide reads its halo without computing it; the other formulations compute every pixel (the
+    same values inside the window).
 
     ``impl`` (``_dispatch``): every formulation implements every option above; "auto" picks "compacted" on a CPU
     backend (the host counts and compacts the active pixels, decides the truncation and the shared channels; the
@@ -206,6 +219,7 @@ def burley(
     seed = _as_seed(seed)
     h, w = buffers.depth.shape[-2:]
     origin, frame_shape = check_tile((h, w), origin, frame_shape)
+    keep = _check_keep(keep, (h, w))
     options = dict(pattern=pattern, border=border, frames=int(frames), interpolation=interpolation)
     which = resolve_impl(impl, "burley", options)
     common = dict(pattern=pattern, frames=int(frames), seed=seed, border=border, origin=origin,
@@ -221,7 +235,7 @@ def burley(
                                                                 concrete=_is_concrete(material.d_mm))
     if which == "compacted" and _is_concrete(buffers, material, camera):
         count, widest_d_px, active, planes = _burley_active_mask(buffers, material, camera,
-                                                                 float(min_footprint_px), albedo_mode)
+                                                                 float(min_footprint_px), albedo_mode, keep)
         truncate = needs_truncation(widest_d_px, frame_shape)
         if compact is not False:
             capacity = compaction_capacity(count, h * w)
@@ -243,6 +257,25 @@ def burley(
     return _burley_impl(buffers, material, camera, int(samples), albedo_mode, interpolation, capacity,
                         float(min_footprint_px), weight_channels, truncate, active=active, planes=planes,
                         shift_weights=shift_weights, **common)
+
+
+def _check_keep(keep, shape: tuple[int, int]) -> tuple[int, int, int, int] | None:
+    """``burley``'s ``keep``: None, or four integers ``(row0, col0, rows, cols)`` of a non-empty window inside the
+    buffer."""
+    if keep is None:
+        return None
+    try:
+        values = tuple(int(v) for v in keep)
+        ok = len(values) == 4 and not any(isinstance(v, (bool, np.bool_)) for v in keep) and all(
+            float(v) == int(v) for v in keep)
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise ValueError(f"burley: keep must be four integers (row0, col0, rows, cols), got {keep!r}")
+    r0, c0, rows, cols = values
+    if r0 < 0 or c0 < 0 or rows < 1 or cols < 1 or r0 + rows > shape[0] or c0 + cols > shape[1]:
+        raise ValueError(f"burley: keep={values} is not a non-empty window inside the {shape[0]}x{shape[1]} buffer")
+    return values
 
 
 def burley_halo_px(buffers: Buffers, material: BurleyMaterial, camera: Camera, *, samples: int = 32,

@@ -28,6 +28,7 @@ from .._scene import Buffers, Camera
 from ._burley_spec import (
     FETCH_PAD,
     TRUNCATION_ENERGY,
+    Origin,
     fetch_planes,
     frame_rotation,
     leaving_energy,
@@ -44,7 +45,7 @@ from ._common import _as_seed, _finish, _material_rows, _prepare, _work_dtype
 
 
 def frame_result(pix: dict, fetch, cos_phi: Array, sin_phi: Array, *, samples: int, truncate: bool, border: str,
-                 weight_channels: int, buffer_shape: tuple[int, int], origin: tuple[int, int],
+                 weight_channels: int, buffer_shape: tuple[int, int], origin: Origin,
                  frame_shape: tuple[int, int], mm_per_unit: Array, interpolation: str, chunks: int = 1,
                  shift_weights: bool = True) -> list[Array]:
     """One frame's scattered channels (3 planes over the layout's pixels), the spiral turned by ``cos_phi``,
@@ -200,13 +201,19 @@ def _burley_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, sam
     idx = np.full(capacity, h * w, np.int32)
     idx[:where.size] = where
     idx = jnp.asarray(idx)
+    if common["origin"] != (0, 0) or frame_shape != (h, w):
+        # a tile's origin traced: the tiles of one shape and bucket share one program (static, each tile of a
+        # 3840x2160 frame compiled its own: 15 compilations, ~11 s of a 19-s frame); the whole frame's program as before
+        common["origin"] = jnp.asarray(common["origin"], jnp.int32)
+    else:
+        common["origin"] = None
     return _compacted_result(buffers, material, camera, idx, planes, samples, albedo_mode, interpolation,
                              min_footprint_px, weight_channels, truncate, **common)
 
 
 def _compacted_planes(buffers: Buffers, material: BurleyMaterial, camera: Camera, idx: Array, planes: list[Array],
                       min_footprint_px: float, weight_channels: int, truncate: bool | None, *, pattern: str,
-                      frames: int, seed: ArrayLike, border: str, origin: tuple[int, int], frame_shape: tuple[int, int]):
+                      frames: int, seed: ArrayLike, border: str, origin: Origin, frame_shape: tuple[int, int]):
     """The compacted slots' per-pixel planes (``pixel_planes_at`` on the compacted pixels alone, not on the whole
     frame) and, for one frame, their rotation. ``idx``: each slot's pixel in the buffer (``H W`` in the unused slots,
     which hold pixels of no surface: they take part in nothing and are dropped when scattered back); a pixel's
@@ -239,15 +246,16 @@ def _compacted_planes(buffers: Buffers, material: BurleyMaterial, camera: Camera
 
 
 @functools.partial(jax.jit, static_argnames=("samples", "albedo_mode", "interpolation", "min_footprint_px",
-                                             "weight_channels", "truncate", "pattern", "frames", "border", "origin",
+                                             "weight_channels", "truncate", "pattern", "frames", "border",
                                              "frame_shape", "shift_weights"))
 def _compacted_result(buffers: Buffers, material: BurleyMaterial, camera: Camera, idx: Array, planes: list[Array],
                       samples: int, albedo_mode: str, interpolation: str, min_footprint_px: float,
                       weight_channels: int, truncate: bool | None, *, pattern: str, frames: int, seed: ArrayLike,
-                      border: str, origin: tuple[int, int], frame_shape: tuple[int, int],
+                      border: str, origin: Array | None, frame_shape: tuple[int, int],
                       shift_weights: bool) -> Array:
     """The compacted layout's computation: the slots' planes (``_compacted_planes``), the sample loop over them,
-    scattered back into the frame."""
+    scattered back into the frame. ``origin``: a tile's (int32, traced), None for the whole frame."""
+    origin = (0, 0) if origin is None else (origin[0], origin[1])
     h, w = buffers.depth.shape
     dtype = _work_dtype(buffers.irradiance.dtype)
     pix, rotation = _compacted_planes(buffers, material, camera, idx, planes, min_footprint_px, weight_channels,

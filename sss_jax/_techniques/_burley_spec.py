@@ -28,6 +28,9 @@ from .._profiles import unit_radius_for_cdf as profile_unit_radius_for_cdf
 from .._units import px_per_mm
 from ._common import weighted_mean
 
+# a tile's top-left pixel in the frame: Python ints, or int32 scalars traced (a compacted tile's: one program for
+# the tiles of one shape)
+Origin = tuple[int | Array, int | Array]
 
 @functools.lru_cache(maxsize=256)
 def unit_radius(ccdf: float) -> float:
@@ -340,7 +343,7 @@ def padded_planes(pix: dict, buffer_shape: tuple[int, int]) -> list[Array]:
 
 
 def sample_place(i: Array | int, samples: int, cos_phi: Array, sin_phi: Array, pix: dict, *,
-                 buffer_shape: tuple[int, int], origin: tuple[int, int], frame_shape: tuple[int, int],
+                 buffer_shape: tuple[int, int], origin: Origin, frame_shape: tuple[int, int],
                  interpolation: str, truncate: bool, border: str, inverse_ccdf=unit_inverse_ccdf) -> dict:
     """Where sample ``i`` of ``samples`` lands for each pixel: the first half of ``sample_term``.
 
@@ -452,7 +455,7 @@ def sample_weights(place: dict, pix: dict, *, mm_per_unit: Array, interpolation:
 
 
 def sample_term(i: Array | int, samples: int, cos_phi: Array, sin_phi: Array, pix: dict, fetch, *,
-                buffer_shape: tuple[int, int], origin: tuple[int, int], frame_shape: tuple[int, int],
+                buffer_shape: tuple[int, int], origin: Origin, frame_shape: tuple[int, int],
                 mm_per_unit: Array, interpolation: str, weight_channels: int, truncate: bool, border: str,
                 inverse_ccdf=unit_inverse_ccdf) -> tuple[Array, Array]:
     """What sample ``i`` of ``samples`` adds to each pixel's numerator (``(3, N)``) and denominator

@@ -89,10 +89,11 @@ class Burley(AbstractTechnique):
         _burley.check_burley_counts(self.samples, self.frames, self.min_footprint_px, self.seed)
 
     def __call__(self, buffers: Buffers, material: BurleyMaterial, camera: Camera, *,
-                 origin: tuple[int, int] = (0, 0),
-                 frame_shape: tuple[int, int] | None = None) -> Float[Array, "H W 3"]:
+                 origin: tuple[int, int] = (0, 0), frame_shape: tuple[int, int] | None = None,
+                 keep: tuple[int, int, int, int] | None = None) -> Float[Array, "H W 3"]:
+        """``keep``: ``burley``'s (the pixels a tile keeps: only they are computed)."""
         options = call_options(self, material)
-        return _f(buffers, material, camera, **options, **tile_options(_f, buffers, origin, frame_shape))
+        return _f(buffers, material, camera, **options, **tile_options(_f, buffers, origin, frame_shape), keep=keep)
 
     def reach_px(self, buffers: Buffers, material: BurleyMaterial, camera: Camera) -> int:
         """The farthest sample: the largest stratified CDF value ``(n - 1/2) / n`` of the widest channel's profile
@@ -133,9 +134,11 @@ class Burley(AbstractTechnique):
 
 
 def burley(buffers: Buffers, material: BurleyMaterial, camera: Camera, *,
-              origin: tuple[int, int] = (0, 0), frame_shape: tuple[int, int] | None = None, **options) -> Float[Array, "H W 3"]:
-    # origin/frame_shape place the buffer in the whole frame (tiles): arguments of the call, not options
-    return built(Burley, options)(buffers, material, camera, origin=origin, frame_shape=frame_shape)
+           origin: tuple[int, int] = (0, 0), frame_shape: tuple[int, int] | None = None,
+           keep: tuple[int, int, int, int] | None = None, **options) -> Float[Array, "H W 3"]:
+    # origin/frame_shape place the buffer in the whole frame (tiles), keep names the pixels a tile keeps: arguments
+    # of the call, not options
+    return built(Burley, options)(buffers, material, camera, origin=origin, frame_shape=frame_shape, keep=keep)
 
 
 # the function's own docstring and signature (its options, their defaults): help() and inspect read them
