@@ -187,10 +187,11 @@ def burley(
     frame's size (``None``: the buffer is the frame). The rotation hash, the border rule and the diagonal's
     truncation follow the frame, so a tile with a halo of ``burley_halo_px`` pixels gives the untiled frame's pixels
     (a fetch inside the frame but outside the buffer is dropped from the normalisation). ``keep=(row0, col0, rows,
-    cols)``: the only pixels of the buffer the caller keeps (a tile's, without its halo): the compacted formulation
-    computes none other (they come back as their local shading, as a pixel under the footprint floor does), so a
-    tile whose halo is wide reads its halo without computing it; the other formulations compute every pixel (the
-    same values inside the window).
+    cols)``: the only pixels of the buffer the caller keeps (a tile's, without its halo); only they are the frame's
+    pixels. Where the compacted formulation compacts (a CPU's default, the window under half the buffer) it computes
+    no other pixel (they come back as their local shading, as a pixel under the footprint floor does), so a tile
+    whose halo is wide reads its halo without computing it; the dense layout and the other formulations compute
+    every pixel (the same values inside the window).
 
     ``impl`` (``_dispatch``): every formulation implements every option above; "auto" picks "compacted" on a CPU
     backend (the host counts and compacts the active pixels, decides the truncation and the shared channels; the

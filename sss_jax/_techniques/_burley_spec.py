@@ -32,6 +32,7 @@ from ._common import weighted_mean
 # the tiles of one shape)
 Origin = tuple[int | Array, int | Array]
 
+
 @functools.lru_cache(maxsize=256)
 def unit_radius(ccdf: float) -> float:
     """Host side: the radius, in units of d, beyond which the fraction ``ccdf`` of a Burley profile's energy lies
