@@ -326,6 +326,13 @@ def _exit_unnormalised(mu_out: Array, eta: Array) -> Array:
     return (1.0 - _fresnel(mu_in, eta)) * (1.0 + 1.5 * mu_in / a_b)
 
 
+def _extrapolation_mfp(eta: Array) -> Array:
+    """The diffusion solution's extrapolation distance at a face of relative index ``eta``, in mean free paths:
+    ``2 A_b D``, ``D = 1/3`` mean free path, ``A_b = (1 + F_dr) / (1 - F_dr)``."""
+    fdr = _internal_diffuse_reflectance(eta)
+    return 2.0 * (1.0 + fdr) / (1.0 - fdr) / 3.0
+
+
 def _internal_diffuse_reflectance(eta: Array) -> Array:
     """``F_dr = int_0^1 F(mu) 2 mu dmu`` for diffuse light inside the face (quadrature on both sides of the critical
     cosine, where F has a kink)."""
@@ -445,8 +452,7 @@ def slab_exit(mu_view: ArrayLike, tau: ArrayLike, alpha: ArrayLike, mu_light: Ar
     al = jnp.clip(al, 0.0, 1.0)
     to_inside = lambda c: _safe_sqrt(jnp.clip(1.0 - (1.0 - c * c) / (e * e), 0.0, 1.0))
     beta = 1.0 / jnp.maximum(to_inside(jnp.clip(ml, 0.0, 1.0)), 0.05)
-    fdr = _internal_diffuse_reflectance(e)
-    z_b = 2.0 * (1.0 + fdr) / (1.0 - fdr) / 3.0  # extrapolation distance 2 A_b D, D = 1/3 mean free path
+    z_b = _extrapolation_mfp(e)
 
     def out(mu_out, *args):  # the radiance outside, unnormalised: refracted, through the Fresnel transmittance
         m_in = _safe_sqrt(jnp.clip(1.0 - (1.0 - mu_out * mu_out) / (args[-1] ** 2), 0.0, 1.0))
@@ -671,8 +677,7 @@ class MediumMaterial(eqx.Module):
         # Monte Carlo through the same media)
         mfp = self.mfp_mm.astype(t.dtype)  # (M, 3)
         k = jnp.sqrt(3.0 * jnp.clip(1.0 - self.albedo_ss.astype(t.dtype), 0.0, 1.0)) / mfp
-        fdr = _internal_diffuse_reflectance(self.eta.astype(t.dtype))[:, None]
-        z_e = 2.0 * (1.0 + fdr) / (1.0 - fdr) * mfp / 3.0
+        z_e = _extrapolation_mfp(self.eta.astype(t.dtype))[:, None] * mfp
 
         def one(xm, ym, km, zm):  # (N,), (N,), (), () -> log T at every t
             inside = jnp.interp(t_s, xm, ym)

@@ -47,7 +47,6 @@ from ._common import (
     _work_dtype,
     check_seed,
 )
-from ._dispatch import check_tile
 from ._engine_frame import frame_geometry, nearest_fetch, pass_arguments
 
 EEVEE_SAMPLE_LEN = 16  # SubsurfaceModule::end_sync, data_.sample_len (EEVEE Next, 4.2 and later)
@@ -227,7 +226,8 @@ class EeveeNextPass(AbstractTechnique):
         self.check_material(material)
         placed = pass_arguments(self.name, self.albedo_mode, buffers, origin, frame_shape, material.count)
         h, w = buffers.depth.shape
-        (oy, ox), (fh, _) = check_tile((h, w), origin, frame_shape)
+        oy, ox = (int(v) for v in origin)  # checked by pass_arguments
+        fh = h if placed[1] is None else placed[1][0]
         # texel rows count from the frame's bottom (OpenGL)
         noise = noise_terms(np.arange(ox, ox + w)[None, :], (fh - 1 - np.arange(oy, oy + h))[:, None],
                             _work_dtype(buffers.irradiance.dtype))
