@@ -1,6 +1,7 @@
 """Time a technique in this checkout against another commit's, both imported in one process and called alternately.
 
-    python scripts/ab_trees.py --base a4efe04 [--technique burley] [--size 640x360] [--rounds 16] [--calls 5]
+    python scripts/ab_trees.py --base a4efe04 [--technique burley|separable|hdrp|eevee-next|reference]
+                               [--size 640x360] [--rounds 16] [--calls 5]
 
 The base commit's ``sss_jax`` (``git archive``) is imported as a package of another name beside this checkout's, so
 both run in the same process on the same buffers: rounds of ``--calls`` calls of each, the order swapped every
@@ -37,10 +38,16 @@ def import_base(rev: str, where: str):
     return sss_jax_base
 
 
+# each technique's call (its defaults, and the counts the bench times; eevee-next 4 TAA frames of its 16, the
+# reference an 8-px window: calls of ~0.1-0.5 s at 640x360)
+COUNTS = {"burley": {"samples": 32}, "separable": {"taps": 25}, "hdrp": {}, "eevee-next": {"frames": 4},
+          "reference": {"radius_px": 8}}
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--base", required=True, help="the commit to compare with (any git revision)")
-    ap.add_argument("--technique", default="burley", choices=("burley", "separable"))
+    ap.add_argument("--technique", default="burley", choices=tuple(COUNTS))
     ap.add_argument("--size", default="640x360", help="WxH of the demo frame (default 640x360)")
     ap.add_argument("--rounds", type=int, default=16)
     ap.add_argument("--calls", type=int, default=5, help="calls of each tree per round")
@@ -57,12 +64,13 @@ def main() -> int:
         scene = this.demo_scene(h, w)
         b, cam = scene.buffers, scene.camera
         mat = demo_burley_material()
-        count = {"samples": 32} if args.technique == "burley" else {"taps": 25}
+        count = COUNTS[args.technique]
         b_base = base.Buffers(irradiance=b.irradiance, depth=b.depth, albedo=b.albedo, material_id=b.material_id)
         mat_base = base.BurleyMaterial(np.asarray(mat.albedo), np.asarray(mat.d_mm))
         cam_base = base.Camera(cam.focal_px, cam.mm_per_unit)
-        runs = {"this": lambda: getattr(this, args.technique)(b, mat, cam, **count),
-                "base": lambda: getattr(base, args.technique)(b_base, mat_base, cam_base, **count)}
+        name = args.technique.replace("-", "_")  # the package's function of the technique (sss_jax.eevee_next, ...)
+        f_this, f_base = getattr(this, name), getattr(base, name)
+        runs = {"this": lambda: f_this(b, mat, cam, **count), "base": lambda: f_base(b_base, mat_base, cam_base, **count)}
         out = {name: np.asarray(fn(), np.float64) for name, fn in runs.items()}
         for _ in range(5):
             for fn in runs.values():

@@ -110,6 +110,9 @@ TILE_PIXELS = 1 << 21
 # between calls, so no call should run much longer than this. SSS_JAX_CALL_SECONDS overrides it (a test forces
 # pieces on a small frame with it).
 CALL_SECONDS = 1.0
+# A tile that computes only the pixels it keeps (``keep``) keeps at least this many rows and columns (where the frame
+# has them): below ~128x128 px a call's arrays are too small to keep XLA's threads busy.
+MIN_KEPT_SIDE = 128
 # Pieces are cut to a quarter of the work bound by the estimate: the estimate is this project's 2-core CPU, and a
 # loaded or slower machine takes several times as long per call (a call costs little more than its work).
 PIECES_PER_BOUND = 4
@@ -1044,21 +1047,32 @@ def _plan_frame(tech, buffers: Buffers, material, camera: Camera, tile_pixels: i
     call_px = h * w
     if h * w > budget and tiles_allowed:
         overlap = int(tech.reach_px(buffers, material, camera))
-        # the inner part at least as wide as the overlap: a tile never computes more than ~9x its own pixels (a wide
+        # the inner part at least as wide as the overlap: a tile never holds more than ~9x its own pixels (a wide
         # window on a small frame then runs whole, or in pieces, rather than in tiles made of overlap)
-        side = max(math.isqrt(max(budget, 1)), 3 * overlap + 8)
-        inner = side - 2 * overlap
+        least = overlap + 8
+        if _takes_keep(tech):
+            # a tile computes only the pixels it keeps (its halo read, not computed): the work bound sizes the kept
+            # part, the memory bound the tile with its halo (HDRP on a 3840x2160 close-up: 112 tiles of 745x745 px
+            # keeping 345x345 each, 135.9 s, against 17.3 s for the frame whole)
+            # (kept parts of at least MIN_KEPT_SIDE^2 px where the memory bound allows: smaller calls run slower per
+            # pixel, the reference with a 16-px window over a 640x360 frame in 24 tiles keeping 90x107 px 7.5 s of
+            # compute, whole 5.6 s)
+            work_side = math.isqrt(max(int(bound / seconds_per_px), 1)) if seconds_per_px else h + w
+            inner = max(min(max(work_side, MIN_KEPT_SIDE), math.isqrt(tile_pixels) - 2 * overlap), least)
+        else:
+            inner = max(math.isqrt(max(budget, 1)), 3 * overlap + 8) - 2 * overlap
         # as few tiles as fit, of equal size (1600 px in tiles of at most 1352: two of 800, not 1352 and a shifted
         # 1352)
         ty, tx = -(-h // -(-h // inner)), -(-w // -(-w // inner))
         tiles = len(_starts(h, ty)) * len(_starts(w, tx))
         tile_px = min(ty + 2 * overlap, h) * min(tx + 2 * overlap, w)
+        computed_px = min(ty, h) * min(tx, w) if _takes_keep(tech) else tile_px
         # tiles only for the work bound (the frame fits the memory bound) that would compute their halos over and
         # over: the frame whole, in the technique's pieces where it has them, else in one call longer than the bound
         # (an HDRP pass over a 1920x1080 frame ran in 6 tiles of 1080x1212 px, 3.6x the work: 17.8 s against 5.0 s)
-        wasteful = h * w <= tile_pixels and tiles * tile_px > 1.5 * h * w
+        wasteful = h * w <= tile_pixels and tiles * computed_px > 1.5 * h * w
         if (ty, tx) != (h, w) and not wasteful:
-            plan.layout, plan.overlap, plan.tiles, call_px = (ty, tx), overlap, tiles, tile_px
+            plan.layout, plan.overlap, plan.tiles, call_px = (ty, tx), overlap, tiles, computed_px
     call_s = seconds_per_px * call_px
     if call_s > bound:
         plan.tech, plan.pieces = _spread_pieces(tech, call_s, bound)
@@ -1220,18 +1234,23 @@ def _run_pieces(plan: _FramePlan, buffers: Buffers, material, camera: Camera, on
     return np.asarray(total, dtype=res.dtype)
 
 
+def _takes_keep(tech) -> bool:
+    """Whether the technique's call takes ``keep`` (the pixels a tile keeps: only they are computed)."""
+    return "keep" in inspect.signature(type(tech).__call__).parameters
+
+
 def _run_tiled(tech, frame: Frame, use_albedo: bool, material, camera: Camera, plan: _FramePlan, on_tile) -> np.ndarray:
     """The frame in tiles overlapping by the technique's reach; each tile says where it lies in the frame
     (``origin``, ``frame_shape``), so the rotation hash and the frame border are the frame's; a technique whose call
-    takes ``keep`` (Burley) is told the pixels the tile keeps and computes only those (its halo read, not computed:
-    a 3840x2160 close-up in 15 tiles, 28.0 -> 11.7 s, the frame whole 7.5 s). ``on_tile`` after each call (a tile
+    takes ``keep`` (Burley, HDRP, EEVEE Next) is told the pixels the tile keeps and computes only those (its halo
+    read, not computed: a 3840x2160 close-up through Burley in 15 tiles, 28.0 -> 11.7 s, the frame whole 7.5 s). ``on_tile`` after each call (a tile
     runs as the plan's pieces)."""
     ty, tx = plan.layout
     h, w = frame.shape
     r = plan.overlap
     out = np.empty((h, w, 3), np.float32)
     count = _material_count(material)
-    keeps = "keep" in inspect.signature(type(tech).__call__).parameters
+    keeps = _takes_keep(tech)
     for y, x in [(y, x) for y in _starts(h, ty) for x in _starts(w, tx)]:
         b, (oy, ox) = _tile(frame, y, x, ty, tx, r, use_albedo)
         validate_buffers(b, materials=count)

@@ -1299,14 +1299,12 @@ def test_a_long_engine_average_is_planned_in_pieces(make):
 def test_the_work_bound_tiles_a_frame_only_where_the_halos_cost_little(monkeypatch):
     # a frame that fits the memory bound but passes the work bound ran in tiles whatever their halos cost where the
     # technique has no pieces: HDRP over a 1920x1080 frame in 6 tiles of 1080x1212 px, 3.6x the frame's work
-    from sss_jax._batch import TILE_PIXELS, _Cost, _plan_frame
+    from sss_jax._batch import TILE_PIXELS, _Cost, _plan_frame, _seconds_per_px
 
     sc = sj.demo_scene(96, 128)
-    tech = sj.HdrpPass(quality="low")  # one frame: no pieces
+    tech = sj.JimenezPass(taps=11)  # it computes its halo (no keep) and has no pieces
     assert tech.pieces(8) is None
-    wide, narrow = sj.BurleyMaterial((0.8, 0.5, 0.4), (3.0, 1.4, 0.8)), sj.BurleyMaterial((0.8, 0.5, 0.4), (0.05,) * 3)
-    from sss_jax._batch import _seconds_per_px
-
+    wide, narrow = sj.BurleyMaterial((0.8, 0.5, 0.4), (3.0,) * 3), sj.BurleyMaterial((0.8, 0.5, 0.4), (0.05,) * 3)
     # the frame passes the work bound: tiles of ~48x48 px
     monkeypatch.setenv("SSS_JAX_CALL_SECONDS", repr(_seconds_per_px(tech) * 48 * 48))
     for material, tiled in ((wide, False), (narrow, True)):
@@ -1319,6 +1317,46 @@ def test_the_work_bound_tiles_a_frame_only_where_the_halos_cost_little(monkeypat
     # past the memory bound the frame is tiled whatever the halos cost
     plan = _plan_frame(tech, sc.buffers, wide, sc.camera, 32 * 32, _Cost())
     assert plan.layout is not None
+
+
+def test_a_technique_that_computes_only_what_a_tile_keeps_is_tiled_by_its_kept_pixels(monkeypatch):
+    # HDRP's and EEVEE Next's tiles computed their halos too, and were sized as if they did: a 3840x2160 close-up
+    # through HDRP ran in 112 tiles of 745x745 px keeping 345x345 each (135.9 s; the frame whole 17.3 s). They
+    # compute only the pixels they keep now (keep=), so the work bound sizes the kept part and the memory bound the
+    # tile with its halo
+    import sss_jax._batch as B
+    from sss_jax._batch import _Cost, _plan_frame, _seconds_per_px, _takes_keep
+
+    sc = sj.demo_scene(96, 128)
+    material = sj.BurleyMaterial((0.8, 0.5, 0.4), (3.0, 1.4, 0.8))
+    # kept parts of at least 128x128 px where the frame has them (smaller calls run slower per pixel)
+    monkeypatch.setenv("SSS_JAX_CALL_SECONDS", repr(_seconds_per_px(sj.HdrpPass(quality="low")) * 32 * 32))
+    big = sj.demo_scene(400, 600)
+    ty, tx = _plan_frame(sj.HdrpPass(quality="low"), big.buffers, material, big.camera, 1 << 21, _Cost()).layout
+    assert 64 <= min(ty, tx) and max(ty, tx) <= 128, (ty, tx)  # (equal tiles: 400 px as 4 of 100)
+    monkeypatch.setattr(B, "MIN_KEPT_SIDE", 8)  # the rule below it, on a small frame
+    for tech in (sj.HdrpPass(quality="low"), sj.EeveeNextPass(frames=1), sj.Burley(samples=8), sj.Reference()):
+        assert _takes_keep(tech)
+        halo = tech.reach_px(sc.buffers, material, sc.camera)
+        assert (32 + 2 * halo) ** 2 > 2 * 32 * 32, (tech.name, halo)  # tiles with halos would cost 2x and more
+        monkeypatch.setenv("SSS_JAX_CALL_SECONDS", repr(_seconds_per_px(tech) * 32 * 32))
+        # the frame fits the memory bound, and passes the work bound: kept parts of ~32x32 px, whatever the halo
+        plan = _plan_frame(tech, sc.buffers, material, sc.camera, 1 << 21, _Cost())
+        assert plan.layout is not None, tech.name
+        ty, tx = plan.layout
+        inner = max(32, halo + 8)  # at least the halo wide (a tile holds at most ~9x what it keeps)
+        assert 0.5 * inner * inner <= ty * tx <= inner * inner, (tech.name, halo, plan.layout)
+        assert plan.tiles * ty * tx <= 1.5 * 96 * 128 and plan.pieces is None
+        # the memory bound sizes the tile with its halo: kept parts as large as fit in it with their halo
+        monkeypatch.setenv("SSS_JAX_CALL_SECONDS", "1000")
+        narrow = sj.BurleyMaterial((0.8, 0.5, 0.4), (1.0, 0.5, 0.3))
+        halo = tech.reach_px(sc.buffers, narrow, sc.camera)
+        inner = halo + 20
+        side = 2 * halo + inner
+        plan = _plan_frame(tech, sc.buffers, narrow, sc.camera, side * side, _Cost())
+        ty, tx = plan.layout
+        assert max(ty, tx) <= inner and (ty + 2 * halo) * (tx + 2 * halo) <= side * side, (tech.name, plan.layout)
+        assert ty * tx >= 0.5 * inner * inner, (tech.name, plan.layout)  # (equal tiles: 96 px as 3 of 32)
 
 
 @pytest.mark.parametrize("callback", ["on_frame_done", "on_progress"])

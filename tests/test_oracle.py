@@ -8,6 +8,7 @@ in float64; it calls nothing of sss_jax's internals.
 
 import numpy as np
 import pytest
+import jax
 import jax.numpy as jnp
 
 import sss_jax as sj
@@ -637,7 +638,7 @@ def test_reference_matches_the_numpy_loop(kind, opts):
 @pytest.mark.parametrize("border", ["renormalise", "leaves"])
 def test_a_reference_tile_with_its_halo_gives_the_untiled_frames_pixels(border):
     # a tile cut with a halo of the technique's reach (the window of the frame), told its place: the frame's pixels
-    b, mat, *_ = _reference_case("two", h=20, w=24, seed=8, d_scale=0.1)
+    b, mat, e, _, valid, _, albedo, _ = _reference_case("two", h=20, w=24, seed=8, d_scale=0.1)
     tech = sj.Reference(border=border, near_subsamples=2)
     halo = tech.reach_px(b, mat, CAM)  # the default window on the whole frame
     assert 2 <= halo < 8
@@ -650,10 +651,35 @@ def test_a_reference_tile_with_its_halo_gives_the_untiled_frames_pixels(border):
         tile = np.asarray(tech(crop, mat, CAM, origin=(a0, b0), frame_shape=(20, 24)))
         # the same arithmetic as the frame's (the goal is 1e-4): exact to rounding
         assert np.abs(tile[r0 - a0:r1 - a0, c0 - b0:c1 - b0] - frame[r0:r1, c0:c1]).max() <= 1e-10
+        # told the pixels it keeps (keep=, as a batch's tiles are), it computes only those: the same values there,
+        # and the local shading (albedo times irradiance on SSS pixels, the irradiance elsewhere) in its halo
+        keep = (r0 - a0, c0 - b0, r1 - r0, c1 - c0)
+        kept = np.asarray(tech(crop, mat, CAM, origin=(a0, b0), frame_shape=(20, 24), keep=keep))
+        inside = np.zeros(kept.shape[:2], bool)
+        inside[keep[0]:keep[0] + keep[2], keep[1]:keep[1] + keep[3]] = True
+        assert np.abs(kept[inside] - tile[inside]).max() <= 1e-12
+        local = np.where(valid[..., None], albedo * e, e)[a0:a1, b0:b1]
+        np.testing.assert_allclose(kept[~inside], local[~inside], rtol=1e-12)
     # told another place, the leaving border moves (the renormalised one depends on nothing of the frame)
     moved = np.asarray(tech(crop, mat, CAM, origin=(a0 + 1, b0), frame_shape=(20, 24)))
     shift = np.abs(moved[r0 - a0:r1 - a0, c0 - b0:c1 - b0] - frame[r0:r1, c0:c1]).max()
     assert shift > 1e-6 if border == "leaves" else shift <= 1e-10
+
+
+def test_a_reference_tile_told_the_pixels_it_keeps_computes_only_those(as_users_run_it):
+    # a batch's reference tile computed its halo too (the window's radius on every side): told the pixels it keeps,
+    # XLA's cost model of the compiled pass falls with them (a quarter of the pixels kept: under half the flops)
+    b, mat, *_ = _reference_case("one", h=24, w=32)
+    tech = sj.Reference(radius_px=4)
+    cost = {}
+    for keep in (None, (6, 8, 12, 16)):
+        analysis = jax.jit(lambda b, keep=keep: tech(b, mat, CAM, keep=keep)).lower(b).compile().cost_analysis()
+        cost[keep] = (analysis[0] if isinstance(analysis, list) else analysis)["flops"]
+    assert cost[(6, 8, 12, 16)] < 0.5 * cost[None], cost
+    for bad, message in (((0, 0, 0, 5), "not a non-empty window"), ((0, 0, 1), "four integers"),
+                         ((20, 0, 5, 5), "not a non-empty window inside the 24x32 buffer")):
+        with pytest.raises(ValueError, match=f"reference: keep.*{message}"):
+            sj.reference(b, mat, CAM, radius_px=4, keep=bad)
 
 
 def test_a_reference_tile_needs_the_frames_window(as_users_run_it):

@@ -39,7 +39,7 @@ from ._common import (
     check_one_image,
     check_seed,
 )
-from ._dispatch import check_tile, resolve_impl
+from ._dispatch import check_keep, check_tile, resolve_impl
 from ._pallas import burley_pallas_impl
 
 BURLEY_PATTERNS = ("rotated", "fixed")
@@ -220,7 +220,7 @@ def burley(
     seed = _as_seed(seed)
     h, w = buffers.depth.shape[-2:]
     origin, frame_shape = check_tile((h, w), origin, frame_shape)
-    keep = _check_keep(keep, (h, w))
+    keep = check_keep("burley", keep, (h, w))
     options = dict(pattern=pattern, border=border, frames=int(frames), interpolation=interpolation)
     which = resolve_impl(impl, "burley", options)
     common = dict(pattern=pattern, frames=int(frames), seed=seed, border=border, origin=origin,
@@ -258,25 +258,6 @@ def burley(
     return _burley_impl(buffers, material, camera, int(samples), albedo_mode, interpolation, capacity,
                         float(min_footprint_px), weight_channels, truncate, active=active, planes=planes,
                         shift_weights=shift_weights, **common)
-
-
-def _check_keep(keep, shape: tuple[int, int]) -> tuple[int, int, int, int] | None:
-    """``burley``'s ``keep``: None, or four integers ``(row0, col0, rows, cols)`` of a non-empty window inside the
-    buffer."""
-    if keep is None:
-        return None
-    try:
-        values = tuple(int(v) for v in keep)
-        ok = len(values) == 4 and not any(isinstance(v, (bool, np.bool_)) for v in keep) and all(
-            float(v) == int(v) for v in keep)
-    except (TypeError, ValueError):
-        ok = False
-    if not ok:
-        raise ValueError(f"burley: keep must be four integers (row0, col0, rows, cols), got {keep!r}")
-    r0, c0, rows, cols = values
-    if r0 < 0 or c0 < 0 or rows < 1 or cols < 1 or r0 + rows > shape[0] or c0 + cols > shape[1]:
-        raise ValueError(f"burley: keep={values} is not a non-empty window inside the {shape[0]}x{shape[1]} buffer")
-    return values
 
 
 def burley_halo_px(buffers: Buffers, material: BurleyMaterial, camera: Camera, *, samples: int = 32,

@@ -20,6 +20,9 @@ gradient is the gather's (a custom VJP).
 from __future__ import annotations
 
 import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array
 
 FORMULATIONS = {"burley": ("compacted", "gather", "pallas"), "separable": ("banded", "gather", "pallas")}
 ALIASES = {"xla-cpu": {"burley": "compacted", "separable": "banded"},
@@ -74,3 +77,49 @@ def check_tile(buffer_shape: tuple[int, int], origin, frame_shape) -> tuple[tupl
     if min(origin) < 0 or origin[0] + h > frame_shape[0] or origin[1] + w > frame_shape[1]:
         raise ValueError(f"a buffer of {h}x{w} px at origin={origin} does not lie inside frame_shape={frame_shape}")
     return origin, frame_shape
+
+
+def check_keep(name: str, keep, shape: tuple[int, int]) -> tuple[int, int, int, int] | None:
+    """A pass's ``keep`` (the pixels of the buffer a caller keeps, a tile's without its halo: only they are computed):
+    None, or four integers ``(row0, col0, rows, cols)`` of a non-empty window inside the ``shape`` buffer."""
+    if keep is None:
+        return None
+    try:
+        values = tuple(int(v) for v in keep)
+        ok = len(values) == 4 and not any(isinstance(v, (bool, np.bool_)) for v in keep) and all(
+            float(v) == int(v) for v in keep)
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise ValueError(f"{name}: keep must be four integers (row0, col0, rows, cols), got {keep!r}")
+    r0, c0, rows, cols = values
+    if r0 < 0 or c0 < 0 or rows < 1 or cols < 1 or r0 + rows > shape[0] or c0 + cols > shape[1]:
+        raise ValueError(f"{name}: keep={values} is not a non-empty window inside the {shape[0]}x{shape[1]} buffer")
+    return values
+
+
+def kept_window(name: str, keep, buffer_shape: tuple[int, int]) -> tuple[Array | None, tuple[int, int] | None]:
+    """``keep`` (checked: ``check_keep``) as a pass takes it: ``(None, None)`` where the caller keeps the whole
+    buffer (the program as before), else the window's top-left pixel as an int32 array (traced: every tile of a frame
+    shares one program) and its ``(rows, cols)`` (static: the computed arrays' shape)."""
+    keep = check_keep(name, keep, tuple(buffer_shape))
+    if keep is None or keep == (0, 0, *(int(s) for s in buffer_shape)):
+        return None, None
+    return jnp.asarray(keep[:2], jnp.int32), keep[2:]
+
+
+def crop(a: Array, start: Array | None, size: tuple[int, int] | None) -> Array:
+    """The kept window of an ``(H, W, ...)`` array (``kept_window``'s ``start``, ``size``; the array where None)."""
+    if start is None:
+        return a
+    zero = jnp.zeros((), start.dtype)
+    return jax.lax.dynamic_slice(a, (start[0], start[1]) + (zero,) * (a.ndim - 2), tuple(size) + a.shape[2:])
+
+
+def uncrop(whole: Array, part: Array, start: Array | None) -> Array:
+    """``whole`` with the kept window replaced by ``part`` (``part`` itself where ``start`` is None)."""
+    if start is None:
+        return part
+    zero = jnp.zeros((), start.dtype)
+    return jax.lax.dynamic_update_slice(whole, part.astype(whole.dtype),
+                                        (start[0], start[1]) + (zero,) * (whole.ndim - 2))

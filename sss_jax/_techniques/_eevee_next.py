@@ -47,6 +47,7 @@ from ._common import (
     _work_dtype,
     check_seed,
 )
+from ._dispatch import crop, kept_window, uncrop
 from ._engine_frame import frame_geometry, nearest_fetch, pass_arguments
 
 EEVEE_SAMPLE_LEN = 16  # SubsurfaceModule::end_sync, data_.sample_len (EEVEE Next, 4.2 and later)
@@ -122,7 +123,7 @@ def _s_normalised(albedo: Array) -> Array:
 
 @eqx.filter_jit
 def _eevee_next_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, frames: int, albedo_mode: str,
-                     seed, noise: tuple, origin, frame_shape) -> Array:
+                     seed, noise: tuple, origin, frame_shape, start=None, size=None) -> Array:
     dtype = _work_dtype(buffers.irradiance.dtype)
     d_table = checked(material.d_mm.astype(dtype), "d_mm")
     prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
@@ -130,24 +131,28 @@ def _eevee_next_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera,
     rows, cols, _, _, cx_f, cy_f = frame_geometry(buffers, camera, origin, frame_shape)
     focal = camera.focal_px.astype(dtype)
     mm_per_unit = camera.mm_per_unit.astype(dtype)
-    albedo_mat = jnp.clip(material.albedo.astype(dtype), 0.0, 1.0)[prep.rows]
+    ids = (buffers.material_id.astype(jnp.int32) if buffers.material_id is not None
+           else jnp.ones((h, w), jnp.int32))
+    ids = jnp.where(prep.valid, ids, 0)
+    flat = jnp.concatenate([prep.irradiance, prep.depth[..., None], ids[..., None].astype(dtype)],
+                           axis=-1).reshape(h * w, 5)
+    # the pixels computed: the buffer's, or the window the caller keeps (``keep``; the fetches read the whole buffer)
+    rows, cols, ids = crop(rows, start, size), crop(cols, start, size), crop(ids, start, size)
+    irradiance, z, valid = (crop(a, start, size) for a in (prep.irradiance, prep.depth, prep.valid))
+    mat_rows = crop(prep.rows, start, size)
+    albedo_mat = jnp.clip(material.albedo.astype(dtype), 0.0, 1.0)[mat_rows]
     # the radius EEVEE Next is given for the material (engines.EeveeNext), in mm, and the d its shader derives
     s_norm = _s_normalised(albedo_mat)
-    radius = jnp.where(prep.valid[..., None], d_table[prep.rows] * 4 * jnp.pi * s_norm, 0.0)
+    radius = jnp.where(valid[..., None], d_table[mat_rows] * 4 * jnp.pi * s_norm, 0.0)
     max_radius = jnp.max(radius, axis=-1)
     safe_max = jnp.where(max_radius > 0, max_radius, 1.0)
     clamped = jnp.maximum(EEVEE_MIN_RADIUS, radius / safe_max[..., None]) * safe_max[..., None]
     d = 0.25 / jnp.pi * clamped / s_norm  # burley_setup, mm
-    z = prep.depth
-    scale_px = jnp.where(prep.valid, focal * max_radius / (jnp.where(prep.valid, z, 1.0) * mm_per_unit), 0.0)
-    active = prep.valid & (scale_px > 1.0)
+    scale_px = jnp.where(valid, focal * max_radius / (jnp.where(valid, z, 1.0) * mm_per_unit), 0.0)
+    active = valid & (scale_px > 1.0)
     oy0, ox0 = (0, 0) if origin is None else (origin[0], origin[1])
-    theta = interleaved_gradient_noise(noise, dtype) * GOLDEN_ANGLE
+    theta = interleaved_gradient_noise(noise, dtype) * GOLDEN_ANGLE  # the kept window's texels (noise_terms)
     cos_t, sin_t = jnp.cos(theta), jnp.sin(theta)
-    ids = (buffers.material_id.astype(jnp.int32) if buffers.material_id is not None
-           else jnp.ones((h, w), jnp.int32))
-    ids = jnp.where(prep.valid, ids, 0)
-    flat = jnp.concatenate([prep.irradiance, z[..., None], ids[..., None].astype(dtype)], axis=-1).reshape(h * w, 5)
     # positions in frame pixels, so a tile computes each sample's position as the whole frame does; fetched at the
     # frame's pixel less the tile's origin
     frame_c = cols[:1, :].astype(dtype)
@@ -179,13 +184,13 @@ def _eevee_next_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera,
             weight = jnp.where(ok[..., None], weight, 0.0)
             return acc_e + weight * fetched[..., :3], acc_w + weight
 
-        zero = jnp.zeros((h, w, 3), dtype)
+        zero = jnp.zeros(irradiance.shape, dtype)
         acc_e, acc_w = jax.lax.fori_loop(0, EEVEE_SAMPLE_LEN, sample, (zero, zero))
         scattered = jnp.where(acc_w > 0, acc_e / jnp.where(acc_w > 0, acc_w, 1.0), 0.0)  # safe_rcp
-        return acc + jnp.where(active[..., None], scattered, prep.irradiance)
+        return acc + jnp.where(active[..., None], scattered, irradiance)
 
-    total = jax.lax.fori_loop(0, frames, one_frame, jnp.zeros((h, w, 3), dtype))
-    return _finish(buffers, prep, total / frames)
+    total = jax.lax.fori_loop(0, frames, one_frame, jnp.zeros(irradiance.shape, dtype))
+    return _finish(buffers, prep, uncrop(prep.irradiance, total / frames, start))
 
 
 class EeveeNextPass(AbstractTechnique):
@@ -221,18 +226,23 @@ class EeveeNextPass(AbstractTechnique):
                              "versions have EEVEE legacy, whose pass is separable (not this one)")
 
     def __call__(self, buffers: Buffers, material: BurleyMaterial, camera: Camera, *,
-                 origin: tuple[int, int] = (0, 0), frame_shape: tuple[int, int] | None = None
-                 ) -> Float[Array, "H W 3"]:
+                 origin: tuple[int, int] = (0, 0), frame_shape: tuple[int, int] | None = None,
+                 keep: tuple[int, int, int, int] | None = None) -> Float[Array, "H W 3"]:
+        """``origin``, ``frame_shape``: the buffer's place in the whole frame (a tile's); ``keep=(row0, col0, rows,
+        cols)``: the only pixels of the buffer the caller keeps (a tile's, without its halo): only they are computed
+        (the samples still read the whole buffer), the others come back as their local shading."""
         self.check_material(material)
         placed = pass_arguments(self.name, self.albedo_mode, buffers, origin, frame_shape, material.count)
+        window = kept_window(self.name, keep, buffers.depth.shape)
         h, w = buffers.depth.shape
+        r0, c0, kh, kw = (0, 0, h, w) if window[0] is None else (*(int(v) for v in keep[:2]), *window[1])
         oy, ox = (int(v) for v in origin)  # checked by pass_arguments
         fh = h if placed[1] is None else placed[1][0]
-        # texel rows count from the frame's bottom (OpenGL)
-        noise = noise_terms(np.arange(ox, ox + w)[None, :], (fh - 1 - np.arange(oy, oy + h))[:, None],
-                            _work_dtype(buffers.irradiance.dtype))
+        # the computed pixels' texels; rows count from the frame's bottom (OpenGL)
+        noise = noise_terms(np.arange(ox + c0, ox + c0 + kw)[None, :],
+                            (fh - 1 - np.arange(oy + r0, oy + r0 + kh))[:, None], _work_dtype(buffers.irradiance.dtype))
         return _eevee_next_impl(buffers, material, camera, int(self.frames), self.albedo_mode,
-                                _as_seed(self.seed), noise, *placed)
+                                _as_seed(self.seed), noise, *placed, *window)
 
     def pieces(self, count: int) -> tuple[tuple["EeveeNextPass", float], ...] | None:
         """The ``frames`` in about ``count`` calls of consecutive TAA samples (sample k of seed s is ``k + 1 + s``

@@ -4,7 +4,9 @@
 A tile passes its top-left pixel in the frame (``origin``) and the frame's ``(H, W)`` (``frame_shape``): the
 per-pixel hashes, the texel coordinates an engine's noise reads and the field of view follow the frame. Samples
 that land outside the buffer are treated as off-frame; a tile's halo (``reach_px``) keeps them from the pixels it
-keeps.
+keeps. A pass that gathers per pixel (``hdrp``, ``eevee-next``) takes ``keep=(row0, col0, rows, cols)`` too, the
+pixels the caller keeps (``_dispatch.kept_window``): it computes only those, fetching from the whole buffer, and
+returns the others as their local shading.
 """
 
 from __future__ import annotations

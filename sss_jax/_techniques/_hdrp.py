@@ -58,6 +58,7 @@ from ._common import (
     _work_dtype,
     check_seed,
 )
+from ._dispatch import crop, kept_window, uncrop
 from ._engine_frame import frame_geometry, nearest_fetch, pass_arguments
 
 HDRP_QUALITY_BUDGETS = {"low": 20, "medium": 40, "high": 80}  # DefaultSssSampleBudgetForQualityLevel
@@ -86,28 +87,31 @@ def _exp_sum(x: Array) -> Array:
 
 @eqx.filter_jit
 def _hdrp_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, budget: int, frames: int,
-               albedo_mode: str, seed, origin, frame_shape) -> Array:
+               albedo_mode: str, seed, origin, frame_shape, start=None, size=None) -> Array:
     dtype = _work_dtype(buffers.irradiance.dtype)
     d_table = checked(material.d_mm.astype(dtype), "d_mm")
     prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
     h, w = buffers.depth.shape
     rows, cols, _, _, _, _ = frame_geometry(buffers, camera, origin, frame_shape)
     mm_per_unit = camera.mm_per_unit.astype(dtype)
-    d_pix = jnp.where(prep.valid[..., None], d_table[prep.rows], 0.0)  # (H, W, 3), mm
+    flat = jnp.concatenate([prep.irradiance, prep.depth[..., None], prep.valid[..., None].astype(dtype)],
+                           axis=-1).reshape(h * w, 5)
+    # the pixels computed: the buffer's, or the window the caller keeps (``keep``; the fetches read the whole buffer)
+    rows, cols = crop(rows, start, size), crop(cols, start, size)
+    irradiance, depth, valid = (crop(a, start, size) for a in (prep.irradiance, prep.depth, prep.valid))
+    kh, kw = depth.shape
+    d_pix = jnp.where(valid[..., None], d_table[crop(prep.rows, start, size)], 0.0)  # (kh, kw, 3), mm
     d_max = jnp.max(d_pix, axis=-1)
-    ppm = jnp.where(prep.valid, px_per_mm(prep.depth, focal_px=camera.focal_px.astype(dtype),
-                                          mm_per_unit=mm_per_unit), 0.0)
+    ppm = jnp.where(valid, px_per_mm(depth, focal_px=camera.focal_px.astype(dtype), mm_per_unit=mm_per_unit), 0.0)
     filter_px = FILTER_RADIUS_UNITS * d_max * ppm
     count = jnp.floor(jnp.pi * filter_px * filter_px / HDRP_PIXELS_PER_SAMPLE)
     n = jnp.minimum(count, budget)  # float: exact for counts far below 2^24
-    active = prep.valid & (n >= 1)
+    active = valid & (n >= 1)
     n_safe = jnp.where(active, n, 1.0)
     has_d = d_pix > 0
     shape = jnp.where(has_d, 1.0 / jnp.where(has_d, d_pix, 1.0), 0.0)  # S = 1/d per channel (mm^-1)
-    flat = jnp.concatenate([prep.irradiance, prep.depth[..., None], prep.valid[..., None].astype(dtype)],
-                           axis=-1).reshape(h * w, 5)
-    local_r = jnp.arange(h, dtype=jnp.int32)[:, None]
-    local_c = jnp.arange(w, dtype=jnp.int32)[None, :]
+    local_r = jnp.arange(kh, dtype=jnp.int32)[:, None] + (0 if start is None else start[0])
+    local_c = jnp.arange(kw, dtype=jnp.int32)[None, :] + (0 if start is None else start[1])
 
     def one_frame(k, acc):
         phase = spiral_rotation(rows, cols, k, seed, dtype=dtype)
@@ -127,7 +131,7 @@ def _hdrp_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, budge
             sc = local_c + jnp.round(step * jnp.cos(psi)).astype(jnp.int32)
             fetched, inside = nearest_fetch(flat, h, w, sr, sc)
             ok = active & (fi < n) & inside & (fetched[..., 4] > 0)
-            rel_z_mm = (fetched[..., 3] - prep.depth) * mm_per_unit
+            rel_z_mm = (fetched[..., 3] - depth) * mm_per_unit
             r3 = _safe_sqrt(r * r + rel_z_mm * rel_z_mm)
             rcp_pdf = jnp.where(active, d_max, 0.0) / _exp_sum(jnp.where(active, r / jnp.where(active, d_max, 1.0),
                                                                          0.0))
@@ -135,14 +139,14 @@ def _hdrp_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, budge
             weight = jnp.where(ok[..., None], weight, 0.0)
             return total_e + weight * fetched[..., :3], total_w + weight
 
-        zero = jnp.zeros((h, w, 3), dtype)
+        zero = jnp.zeros((kh, kw, 3), dtype)
         total_e, total_w = jax.lax.fori_loop(0, budget, sample, (zero, zero))
         scattered = jnp.where(total_w > 0, total_e / jnp.where(total_w > 0, total_w, 1.0), 0.0)
-        keep = ~active[..., None] | ~has_d
-        return acc + jnp.where(keep, prep.irradiance, scattered)
+        local = ~active[..., None] | ~has_d
+        return acc + jnp.where(local, irradiance, scattered)
 
-    total = jax.lax.fori_loop(0, frames, one_frame, jnp.zeros((h, w, 3), dtype))
-    return _finish(buffers, prep, total / frames)
+    total = jax.lax.fori_loop(0, frames, one_frame, jnp.zeros((kh, kw, 3), dtype))
+    return _finish(buffers, prep, uncrop(prep.irradiance, total / frames, start))
 
 
 class HdrpPass(AbstractTechnique):
@@ -176,16 +180,20 @@ class HdrpPass(AbstractTechnique):
         return hdrp_budget(self.quality, self.budget)
 
     def __call__(self, buffers: Buffers, material: BurleyMaterial, camera: Camera, *,
-                 origin: tuple[int, int] = (0, 0), frame_shape: tuple[int, int] | None = None
-                 ) -> Float[Array, "H W 3"]:
+                 origin: tuple[int, int] = (0, 0), frame_shape: tuple[int, int] | None = None,
+                 keep: tuple[int, int, int, int] | None = None) -> Float[Array, "H W 3"]:
+        """``origin``, ``frame_shape``: the buffer's place in the whole frame (a tile's); ``keep=(row0, col0, rows,
+        cols)``: the only pixels of the buffer the caller keeps (a tile's, without its halo): only they are computed
+        (the samples still read the whole buffer), the others come back as their local shading."""
         self.check_material(material)
         placed = pass_arguments(self.name, self.albedo_mode, buffers, origin, frame_shape, material.count)
+        window = kept_window(self.name, keep, buffers.depth.shape)
         # the seed (checked when the object was made) as a uint32 array: traced, a sequence's seeds share one
-        # program (a Python int would be static); so is a tile's origin
+        # program (a Python int would be static); so are a tile's origin and its kept window's corner
         out = _hdrp_impl(buffers, material, camera, self.samples, int(self.frames), self.albedo_mode,
-                         _as_seed(self.seed), *placed)
+                         _as_seed(self.seed), *placed, *window)
         # whole frames only: a tile's halo may be black
-        if placed[0] is None and _is_concrete(buffers, material, camera, out):
+        if placed[0] is None and window[0] is None and _is_concrete(buffers, material, camera, out):
             message = black_pixels_message(buffers, out)
             if message is not None:
                 warnings.warn(message, SamplingWarning, stacklevel=2)

@@ -27,7 +27,7 @@ from ._common import (
     frame_energy_fraction,
     weighted_mean,
 )
-from ._dispatch import check_tile
+from ._dispatch import check_tile, crop, kept_window, uncrop
 
 _THETA_NODES, _THETA_WEIGHTS = np.polynomial.legendre.leggauss(16)
 
@@ -76,15 +76,21 @@ from .._errors import ReferenceWindowWarning as ReferenceWindowWarning  # noqa: 
 @eqx.filter_jit
 def _reference_impl(buffers: Buffers, material, camera: Camera, radius_px: int, albedo_mode: str,
                     near_subsamples: int, border: str = "leaves", origin: Array | tuple[int, int] = (0, 0),
-                    frame_shape: tuple[int, int] | None = None) -> Array:
+                    frame_shape: tuple[int, int] | None = None, start: Array | None = None,
+                    size: tuple[int, int] | None = None) -> Array:
     dtype = _work_dtype(buffers.irradiance.dtype)
     prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
     h, w = buffers.depth.shape
+    # the pixels computed: the buffer's, or the window the caller keeps (``keep``: ``start``, ``size``); the window
+    # around each reads the whole buffer
+    valid, depth, e = (crop(a, start, size) for a in (prep.valid, prep.depth, prep.irradiance))
+    kh, kw = depth.shape
+    r0, c0 = (0, 0) if start is None else (start[0], start[1])
     mm_per_unit = camera.mm_per_unit.astype(dtype)
-    ppm = px_per_mm(prep.depth, focal_px=camera.focal_px.astype(dtype), mm_per_unit=mm_per_unit)
-    ppm = jnp.where(prep.valid, ppm, 0.0)
+    ppm = px_per_mm(depth, focal_px=camera.focal_px.astype(dtype), mm_per_unit=mm_per_unit)
+    ppm = jnp.where(valid, ppm, 0.0)
     pixel_mm = jnp.where(ppm > 0, 1.0 / jnp.where(ppm > 0, ppm, 1.0), 0.0)  # side of a pixel on the surface, mm
-    radial, cdf = material.pixel_profile(prep.rows, prep.valid, dtype)
+    radial, cdf = material.pixel_profile(crop(prep.rows, start, size), valid, dtype)
 
     # centre pixel: exact mass of the profile over the square of half-side a, with the 1/r peak integrated
     # analytically through the CDF: (4/pi) int_0^{pi/4} CDF(a / cos t) dt
@@ -93,29 +99,29 @@ def _reference_impl(buffers: Buffers, material, camera: Camera, radius_px: int, 
     t = (nodes + 1) * (math.pi / 8)
     tw = jnp.asarray(_THETA_WEIGHTS, dtype) * (math.pi / 8)
     centre_mass = sum(tw[k] * cdf(a / jnp.cos(t[k])) for k in range(t.shape[0])) * (4 / math.pi)
-    e = prep.irradiance
-    centre_w = jnp.where(prep.valid[..., None], centre_mass, 0.0)
+    centre_w = jnp.where(valid[..., None], centre_mass, 0.0)
     num, den = centre_w * e, centre_w
     if border == "leaves":  # the profile's energy beyond the frame leaves: it counts as dark surface (_common)
         # frame coordinates: a tile's border is the frame's, not its own (pixels of the frame beyond the tile are
         # read from its halo like any other)
         frame_h, frame_w = (h, w) if frame_shape is None else frame_shape
-        rows, cols = jnp.meshgrid(jnp.arange(h) + origin[0], jnp.arange(w) + origin[1], indexing="ij")
+        rows, cols = jnp.meshgrid(jnp.arange(kh) + origin[0] + r0, jnp.arange(kw) + origin[1] + c0, indexing="ij")
         leaves = 1 - frame_energy_fraction(cdf, rows, cols, frame_h, frame_w, pixel_mm)
-        den = den + jnp.where(prep.valid[..., None], jnp.maximum(leaves, 0.0), 0.0)
+        den = den + jnp.where(valid[..., None], jnp.maximum(leaves, 0.0), 0.0)
 
     k = radius_px
     pad = lambda x: jnp.pad(x, [(k, k), (k, k)] + [(0, 0)] * (x.ndim - 2))
-    e_pad = pad(e * prep.valid[..., None])
+    e_pad = pad(prep.irradiance * prep.valid[..., None])
     z_pad = pad(jnp.where(prep.valid, prep.depth, 0.0))
     v_pad = pad(prep.valid.astype(dtype))
 
     def neighbour_weight(dy, dx, sub: int):
         """Mass of the profile over neighbour pixel (dy, dx): sub x sub midpoint rule on the surface, 3D distance."""
-        z_q = jax.lax.dynamic_slice(z_pad, (k + dy, k + dx), (h, w))
-        v_q = jax.lax.dynamic_slice(v_pad, (k + dy, k + dx), (h, w))
-        e_q = jax.lax.dynamic_slice(e_pad, (k + dy, k + dx, 0), (h, w, 3))
-        dz_mm = jnp.where(v_q > 0, (z_q - prep.depth) * mm_per_unit, 0.0)
+        y, x = (k + dy, k + dx) if start is None else (k + dy + r0, k + dx + c0)
+        z_q = jax.lax.dynamic_slice(z_pad, (y, x), (kh, kw))
+        v_q = jax.lax.dynamic_slice(v_pad, (y, x), (kh, kw))
+        e_q = jax.lax.dynamic_slice(e_pad, (y, x, 0 if start is None else jnp.zeros_like(y)), (kh, kw, 3))
+        dz_mm = jnp.where(v_q > 0, (z_q - depth) * mm_per_unit, 0.0)
         mass = 0.0
         for sy in range(sub):
             for sx in range(sub):
@@ -154,7 +160,7 @@ def _reference_impl(buffers: Buffers, material, camera: Camera, radius_px: int, 
     num, den = acc
     ok = den > 0
     scattered = jnp.where(ok, weighted_mean(num, jnp.where(ok, den, 1.0)), e)
-    return _finish(buffers, prep, scattered)
+    return _finish(buffers, prep, uncrop(prep.irradiance, scattered, start))
 
 
 def check_reference_counts(radius_px, near_subsamples) -> None:
@@ -179,6 +185,7 @@ def reference(
     border: str = "renormalise",
     origin: tuple[int, int] = (0, 0),
     frame_shape: tuple[int, int] | None = None,
+    keep: tuple[int, int, int, int] | None = None,
 ) -> Float[Array, "H W 3"]:
     """Ground truth: every pixel within ``radius_px`` contributes the exact mass of the profile over its footprint.
 
@@ -199,6 +206,8 @@ def reference(
     of ``radius_px`` pixels on every side (fewer where the frame ends) gives the untiled frame's pixels inside the
     halo. A tile needs the frame's window (``radius_px``: ``Reference().reach_px`` of the whole frame): the default
     would be the tile's own, other pixels, so a placed tile without ``radius_px`` is an error.
+    ``keep=(row0, col0, rows, cols)``: the only pixels of the buffer the caller keeps (a tile's, without its halo):
+    only they are computed (their windows read the whole buffer), the others come back as their local shading.
     """
     _check_border(border)
     _check_albedo_mode(albedo_mode)
@@ -207,6 +216,7 @@ def reference(
         raise TypeError(f"reference needs a BurleyMaterial or ProfileMaterial, got {type(material).__name__}")
     h, w = buffers.depth.shape[-2:]
     origin, frame_shape = check_tile((h, w), origin, frame_shape)
+    window = kept_window("reference", keep, (h, w))
     placed = origin != (0, 0) or frame_shape != (h, w)
     if radius_px is None and placed:
         raise ValueError("reference: a tile of a larger frame needs the frame's window, radius_px (e.g. "
@@ -232,5 +242,5 @@ def reference(
     # a tile's origin is traced (the tiles of one shape share one program); the whole frame's program is unchanged
     tile = {} if not placed else {"origin": jnp.asarray(origin, jnp.int32), "frame_shape": frame_shape}
     return _reference_impl(buffers, material, camera, int(radius_px), albedo_mode, int(near_subsamples), border,
-                           **tile)
+                           **tile, start=window[0], size=window[1])
 

@@ -52,10 +52,11 @@ class Reference(AbstractTechnique):
         _reference.check_reference_counts(self.radius_px, self.near_subsamples)
 
     def __call__(self, buffers: Buffers, material: BurleyMaterial | ProfileMaterial, camera: Camera, *,
-                 origin: tuple[int, int] = (0, 0),
-                 frame_shape: tuple[int, int] | None = None) -> Float[Array, "H W 3"]:
+                 origin: tuple[int, int] = (0, 0), frame_shape: tuple[int, int] | None = None,
+                 keep: tuple[int, int, int, int] | None = None) -> Float[Array, "H W 3"]:
+        """``keep``: ``reference``'s (the pixels a tile keeps: only they are computed)."""
         options = call_options(self, material)
-        return _f(buffers, material, camera, **options, **tile_options(_f, buffers, origin, frame_shape))
+        return _f(buffers, material, camera, **options, **tile_options(_f, buffers, origin, frame_shape), keep=keep)
 
     def window_px(self, buffers: Buffers, material: BurleyMaterial | ProfileMaterial, camera: Camera) -> int:
         """Host side: the window radius a call uses (``radius_px``, or the default for these buffers)."""
@@ -74,9 +75,11 @@ class Reference(AbstractTechnique):
 
 
 def reference(buffers: Buffers, material: BurleyMaterial | ProfileMaterial, camera: Camera, *,
-              origin: tuple[int, int] = (0, 0), frame_shape: tuple[int, int] | None = None, **options) -> Float[Array, "H W 3"]:
-    # origin/frame_shape place the buffer in the whole frame (tiles): arguments of the call, not options
-    return built(Reference, options)(buffers, material, camera, origin=origin, frame_shape=frame_shape)
+              origin: tuple[int, int] = (0, 0), frame_shape: tuple[int, int] | None = None,
+              keep: tuple[int, int, int, int] | None = None, **options) -> Float[Array, "H W 3"]:
+    # origin/frame_shape place the buffer in the whole frame (tiles), keep names the pixels a tile keeps: arguments
+    # of the call, not options
+    return built(Reference, options)(buffers, material, camera, origin=origin, frame_shape=frame_shape, keep=keep)
 
 
 # the function's own docstring and signature (its options, their defaults): help() and inspect read them
