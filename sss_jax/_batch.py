@@ -587,12 +587,13 @@ def _clamp(tech, buffers: Buffers, material, camera: Camera):
 
 # Seconds per pixel per unit of a technique's count (samples x frames, taps, window pixels, TAA frames) on this
 # project's 2-core CPU: the work estimate before the batch has measured a frame of its own. Measured on the demo frame
-# at its defaults, 640x360 and 1920x1080, second call (2026-12-07, load 1.5-1.8): hdrp 3.7-4.3e-8 a sample, eevee-next
-# 2.0-2.8e-7 a TAA frame, jimenez 1.6-1.8e-8 a tap (its taps in a loop), reference 6.2-7.4e-8 a window pixel (the
-# former shared figures were 2.5-7x short of these: the first frame's plan let calls run several times the bound).
-# burley (3.5-5.2e-9 a sample) and separable (2.8-4.0e-9 a tap) compute only SSS pixels, a third of the demo frame:
-# their figures hold a frame that is all skin.
-_SECONDS_PER_UNIT = {"burley": 1.4e-8, "hdrp": 4.5e-8, "separable": 9e-9, "jimenez": 2e-8, "reference": 7.5e-8,
+# at its defaults, 640x360 and 1920x1080, second call (2026-12-07, load 1.5-1.8): jimenez 1.6-1.8e-8 a tap (its taps
+# in a loop), reference 6.2-7.4e-8 a window pixel (the former shared figures were 2.5-7x short of these: the first
+# frame's plan let calls run several times the bound). The techniques that compute only SSS pixels
+# (``sss_pixels_only``) are costed per SSS pixel (``_work_share``; 24% of the demo frame, 2026-12-07 17:55, load
+# 0.8-1.5): burley 1.6-1.8e-8 a sample, hdrp 4.8-5.2e-8 a sample, eevee-next 1.9-4.1e-7 a TAA frame. separable
+# (2.8-4.0e-9 a tap on the demo frame) computes its blocks' pixels only: its figure holds a frame that is all skin.
+_SECONDS_PER_UNIT = {"burley": 1.7e-8, "hdrp": 5e-8, "separable": 9e-9, "jimenez": 2e-8, "reference": 7.5e-8,
                      "eevee-next": 2.8e-7}
 
 
@@ -1016,34 +1017,45 @@ class _FramePlan:
     pieces: tuple[tuple[Any, float], ...] | None = None
     tiles: int = 1
     estimate_s: float = 0.0
+    share: float = 1.0  # the share of the frame's pixels its work follows (``_work_share``)
 
     @property
     def calls(self) -> int:
         return self.tiles * (1 if self.pieces is None else len(self.pieces))
 
 
-def _work_estimate(tech, buffers: Buffers, seconds_per_px: float) -> float:
-    """Seconds this frame should take: the technique's cost per pixel (this machine's, measured on the batch's
-    frames so far, else the technique's figure for the project's 2-core CPU) times the frame's pixels."""
-    h, w = buffers.depth.shape[-2:]
-    return seconds_per_px * h * w
+# the least share of a frame's pixels a technique that computes only SSS pixels is costed at: its set-up, the
+# compaction and the scatter back run over every pixel
+MIN_WORK_SHARE = 1 / 16
+
+
+def _work_share(tech, buffers: Buffers) -> float:
+    """The share of the frame's pixels a call's work follows: all, or for a technique that computes only the SSS
+    pixels (``sss_pixels_only``: burley, hdrp, eevee-next) theirs, at least ``MIN_WORK_SHARE``. HDRP over the demo
+    scene at 1920x1080 (SSS on 24% of it): 0.9 s a call, where every pixel computed took 2.9 s."""
+    if not getattr(type(tech), "sss_pixels_only", False):
+        return 1.0
+    from ._techniques._engine_frame import _sss_pixels
+
+    return max(float(jnp.mean(_sss_pixels(buffers))), MIN_WORK_SHARE)
 
 
 def _plan_frame(tech, buffers: Buffers, material, camera: Camera, tile_pixels: int, cost: "_Cost",
                 tiles_allowed: bool = True) -> _FramePlan:
     """The frame's plan: counts clamped to the footprint; tiles where the frame passes the memory bound
     (``tile_pixels``) or the work bound (``call_seconds``); and where one call (the frame, or a tile: it computes
-    its halo too) would still pass the work bound, the technique's own pieces (``AbstractTechnique.pieces``; its
-    work spread first where a call would take several bounds), so that progress shows and a signal lands within a
-    few seconds."""
+    its halo too unless the technique takes ``keep``) would still pass the work bound, the technique's own pieces
+    (``AbstractTechnique.pieces``; its work spread first where a call would take several bounds), so that progress
+    shows and a signal lands within a few seconds."""
     notes = []
     tech, message = _clamp(tech, buffers, material, camera)
     clamped = tech
     h, w = buffers.depth.shape[-2:]
     bound = call_seconds()
-    seconds_per_px = cost.per_px(tech)
+    share = _work_share(tech, buffers)
+    seconds_per_px = cost.per_px(tech) * share  # per pixel of the frame
     budget = min(tile_pixels, int(bound / seconds_per_px) if seconds_per_px else tile_pixels)
-    plan = _FramePlan(tech, notes)
+    plan = _FramePlan(tech, notes, share=share)
     call_px = h * w
     if h * w > budget and tiles_allowed:
         overlap = int(tech.reach_px(buffers, material, camera))
@@ -1132,7 +1144,7 @@ class _Cost:
         """Whether a frame of this shape, counts and calls has run (compiled) in this batch."""
         return self.key(tech, shape, calls) in self.seen
 
-    def measured(self, tech, pixels: int, seconds: float, *, shape: tuple[int, ...] = (), calls: int = 1) -> None:
+    def measured(self, tech, pixels: Real, seconds: float, *, shape: tuple[int, ...] = (), calls: int = 1) -> None:
         """Learn from a frame's seconds, except the first frame of each shape, counts and calls: it compiled (a 256x256
         Burley frame: ~1 s of compile against ~10 ms of work), and taken as work it made the next frames run in
         pieces, compiling again."""
@@ -1242,9 +1254,9 @@ def _takes_keep(tech) -> bool:
 def _run_tiled(tech, frame: Frame, use_albedo: bool, material, camera: Camera, plan: _FramePlan, on_tile) -> np.ndarray:
     """The frame in tiles overlapping by the technique's reach; each tile says where it lies in the frame
     (``origin``, ``frame_shape``), so the rotation hash and the frame border are the frame's; a technique whose call
-    takes ``keep`` (Burley, HDRP, EEVEE Next) is told the pixels the tile keeps and computes only those (its halo
-    read, not computed: a 3840x2160 close-up through Burley in 15 tiles, 28.0 -> 11.7 s, the frame whole 7.5 s). ``on_tile`` after each call (a tile
-    runs as the plan's pieces)."""
+    takes ``keep`` (Burley, the reference, HDRP, EEVEE Next) is told the pixels the tile keeps and computes only those
+    (its halo read, not computed: a 3840x2160 close-up through HDRP in 18 tiles 16.9 s, where 112 tiles computing
+    their halos took 135.9 s). ``on_tile`` after each call (a tile runs as the plan's pieces)."""
     ty, tx = plan.layout
     h, w = frame.shape
     r = plan.overlap
@@ -1645,7 +1657,7 @@ class _Batch:
     def computed(self, job: _Job, plan: _FramePlan, camera: Camera, shape: tuple[int, int], image: np.ndarray,
                  warned: list[str], seconds: float) -> None:
         """A computed frame: its seconds taught to the work estimate, its files handed to the writer."""
-        self.cost.measured(plan.tech, shape[0] * shape[1], seconds, shape=shape, calls=plan.calls)
+        self.cost.measured(plan.tech, shape[0] * shape[1] * plan.share, seconds, shape=shape, calls=plan.calls)
         self.write(job, image, camera, plan.tech, seconds, plan.notes, warned)
 
     def overlaps(self, plan: _FramePlan, shape: tuple[int, int]) -> bool:

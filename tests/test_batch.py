@@ -1325,13 +1325,14 @@ def test_a_technique_that_computes_only_what_a_tile_keeps_is_tiled_by_its_kept_p
     # compute only the pixels they keep now (keep=), so the work bound sizes the kept part and the memory bound the
     # tile with its halo
     import sss_jax._batch as B
-    from sss_jax._batch import _Cost, _plan_frame, _seconds_per_px, _takes_keep
+    from sss_jax._batch import _Cost, _plan_frame, _seconds_per_px, _takes_keep, _work_share
 
     sc = sj.demo_scene(96, 128)
     material = sj.BurleyMaterial((0.8, 0.5, 0.4), (3.0, 1.4, 0.8))
     # kept parts of at least 128x128 px where the frame has them (smaller calls run slower per pixel)
-    monkeypatch.setenv("SSS_JAX_CALL_SECONDS", repr(_seconds_per_px(sj.HdrpPass(quality="low")) * 32 * 32))
     big = sj.demo_scene(400, 600)
+    hdrp = sj.HdrpPass(quality="low")
+    monkeypatch.setenv("SSS_JAX_CALL_SECONDS", repr(_seconds_per_px(hdrp) * _work_share(hdrp, big.buffers) * 32 * 32))
     ty, tx = _plan_frame(sj.HdrpPass(quality="low"), big.buffers, material, big.camera, 1 << 21, _Cost()).layout
     assert 64 <= min(ty, tx) and max(ty, tx) <= 128, (ty, tx)  # (equal tiles: 400 px as 4 of 100)
     monkeypatch.setattr(B, "MIN_KEPT_SIDE", 8)  # the rule below it, on a small frame
@@ -1339,7 +1340,8 @@ def test_a_technique_that_computes_only_what_a_tile_keeps_is_tiled_by_its_kept_p
         assert _takes_keep(tech)
         halo = tech.reach_px(sc.buffers, material, sc.camera)
         assert (32 + 2 * halo) ** 2 > 2 * 32 * 32, (tech.name, halo)  # tiles with halos would cost 2x and more
-        monkeypatch.setenv("SSS_JAX_CALL_SECONDS", repr(_seconds_per_px(tech) * 32 * 32))
+        bound = _seconds_per_px(tech) * _work_share(tech, sc.buffers) * 32 * 32
+        monkeypatch.setenv("SSS_JAX_CALL_SECONDS", repr(bound))
         # the frame fits the memory bound, and passes the work bound: kept parts of ~32x32 px, whatever the halo
         plan = _plan_frame(tech, sc.buffers, material, sc.camera, 1 << 21, _Cost())
         assert plan.layout is not None, tech.name
@@ -1357,6 +1359,30 @@ def test_a_technique_that_computes_only_what_a_tile_keeps_is_tiled_by_its_kept_p
         ty, tx = plan.layout
         assert max(ty, tx) <= inner and (ty + 2 * halo) * (tx + 2 * halo) <= side * side, (tech.name, plan.layout)
         assert ty * tx >= 0.5 * inner * inner, (tech.name, plan.layout)  # (equal tiles: 96 px as 3 of 32)
+
+
+def test_the_work_of_a_technique_that_computes_only_sss_pixels_follows_their_share():
+    # burley, hdrp and eevee-next compute only the SSS pixels (a quarter of the demo frame): costed as if every pixel
+    # were computed, a 1920x1080 frame through HDRP (0.9-1.0 s of work) ran in 6 tiles, each compiling its own
+    # compacted program (5.6 s); costed by the share, it runs whole
+    from sss_jax._batch import MIN_WORK_SHARE, TILE_PIXELS, _Cost, _plan_frame, _seconds_per_px, _work_share
+
+    sc = sj.demo_scene(96, 128)
+    z, ids = np.asarray(sc.buffers.depth), np.asarray(sc.buffers.material_id)
+    share = float(np.mean(np.isfinite(z) & (z > 0) & (ids > 0)))
+    assert 0.1 < share < 0.5
+    material = sj.BurleyMaterial((0.8, 0.5, 0.4), (3.0, 1.4, 0.8))
+    for tech in (sj.Burley(samples=8), sj.HdrpPass(quality="low"), sj.EeveeNextPass(frames=2)):
+        assert type(tech).sss_pixels_only and _work_share(tech, sc.buffers) == pytest.approx(share)
+        plan = _plan_frame(tech, sc.buffers, material, sc.camera, TILE_PIXELS, _Cost())
+        assert plan.share == pytest.approx(share)
+        assert plan.estimate_s == pytest.approx(_seconds_per_px(plan.tech) * share * 96 * 128)
+        # a frame without SSS pixels is costed at the least share (the set-up runs over every pixel)
+        none = sj.Buffers(irradiance=sc.buffers.irradiance, depth=sc.buffers.depth,
+                          material_id=jax.numpy.zeros_like(sc.buffers.material_id))
+        assert _work_share(tech, none) == MIN_WORK_SHARE
+    for tech in (sj.JimenezPass(taps=11), sj.Reference(radius_px=3), sj.Separable(taps=9)):  # every pixel computed
+        assert not type(tech).sss_pixels_only and _work_share(tech, sc.buffers) == 1.0
 
 
 @pytest.mark.parametrize("callback", ["on_frame_done", "on_progress"])

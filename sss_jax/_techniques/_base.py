@@ -77,6 +77,9 @@ class AbstractTechnique(eqx.Module):
     material_type: eqx.AbstractClassVar[type | tuple[type, ...]]  # the material class(es) it takes
     # the option whose value is the technique's sample count, which a report sweeps ("samples", "taps"; None: none)
     count_option: ClassVar[str | None] = None
+    # an eager call computes only the SSS pixels (compacted on the host): its work follows their share of the frame
+    # (a batch's work estimate scales with it)
+    sss_pixels_only: ClassVar[bool] = False
 
     def __check_init__(self):
         for name, choices in _choices_of(type(self)):

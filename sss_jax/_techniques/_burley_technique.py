@@ -61,6 +61,7 @@ class Burley(AbstractTechnique):
 
     name: ClassVar[str] = "burley"
     conserves_energy: ClassVar[bool] = True
+    sss_pixels_only: ClassVar[bool] = True
     count_option: ClassVar[str | None] = "samples"
     material_type: ClassVar[type] = BurleyMaterial
 

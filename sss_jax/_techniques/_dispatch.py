@@ -15,6 +15,10 @@ layout only:
 kernels are not measured faster yet: no GPU figures). The old names stay accepted: ``"xla-cpu"`` (the CPU
 formulation) and ``"xla-gpu"`` (``"gather"``). Pallas runs in interpret mode off a GPU (slow: tests only); its
 gradient is the gather's (a custom VJP).
+
+A tile's place is checked here for every technique: ``check_tile`` (``origin``, ``frame_shape``) and ``check_keep``
+(``keep``, the pixels a caller keeps); ``kept_window``, ``crop`` and ``uncrop`` are how a per-pixel pass computes
+only those.
 """
 
 from __future__ import annotations

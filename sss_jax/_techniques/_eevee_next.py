@@ -42,13 +42,20 @@ from ._common import (
     ALBEDO_MODES,
     _as_seed,
     _finish,
+    _is_concrete,
     _prepare,
     _safe_sqrt,
     _work_dtype,
     check_seed,
 )
-from ._dispatch import crop, kept_window, uncrop
-from ._engine_frame import frame_geometry, nearest_fetch, pass_arguments
+from ._dispatch import kept_window
+from ._engine_frame import (
+    compacted_pixels,
+    computed_pixels,
+    frame_geometry,
+    nearest_fetch,
+    pass_arguments,
+)
 
 EEVEE_SAMPLE_LEN = 16  # SubsurfaceModule::end_sync, data_.sample_len (EEVEE Next, 4.2 and later)
 EEVEE_BURLEY_TRUNCATE = 16.0  # SSS_BURLEY_TRUNCATE
@@ -123,7 +130,7 @@ def _s_normalised(albedo: Array) -> Array:
 
 @eqx.filter_jit
 def _eevee_next_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, frames: int, albedo_mode: str,
-                     seed, noise: tuple, origin, frame_shape, start=None, size=None) -> Array:
+                     seed, noise: tuple, origin, frame_shape, start=None, size=None, idx=None) -> Array:
     dtype = _work_dtype(buffers.irradiance.dtype)
     d_table = checked(material.d_mm.astype(dtype), "d_mm")
     prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
@@ -136,10 +143,12 @@ def _eevee_next_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera,
     ids = jnp.where(prep.valid, ids, 0)
     flat = jnp.concatenate([prep.irradiance, prep.depth[..., None], ids[..., None].astype(dtype)],
                            axis=-1).reshape(h * w, 5)
-    # the pixels computed: the buffer's, or the window the caller keeps (``keep``; the fetches read the whole buffer)
-    rows, cols, ids = crop(rows, start, size), crop(cols, start, size), crop(ids, start, size)
-    irradiance, z, valid = (crop(a, start, size) for a in (prep.irradiance, prep.depth, prep.valid))
-    mat_rows = crop(prep.rows, start, size)
+    # the pixels computed (``computed_pixels``): the buffer's, the window the caller keeps, or the compacted SSS
+    # pixels; the fetches read the whole buffer
+    take, put, _, _ = computed_pixels((h, w), start, size, idx)
+    rows, cols, ids = take(rows), take(cols), take(ids)
+    irradiance, z, valid = (take(a) for a in (prep.irradiance, prep.depth, prep.valid))
+    mat_rows = take(prep.rows)
     albedo_mat = jnp.clip(material.albedo.astype(dtype), 0.0, 1.0)[mat_rows]
     # the radius EEVEE Next is given for the material (engines.EeveeNext), in mm, and the d its shader derives
     s_norm = _s_normalised(albedo_mat)
@@ -151,12 +160,12 @@ def _eevee_next_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera,
     scale_px = jnp.where(valid, focal * max_radius / (jnp.where(valid, z, 1.0) * mm_per_unit), 0.0)
     active = valid & (scale_px > 1.0)
     oy0, ox0 = (0, 0) if origin is None else (origin[0], origin[1])
-    theta = interleaved_gradient_noise(noise, dtype) * GOLDEN_ANGLE  # the kept window's texels (noise_terms)
+    theta = interleaved_gradient_noise(noise, dtype) * GOLDEN_ANGLE  # the computed pixels' texels (noise_terms)
     cos_t, sin_t = jnp.cos(theta), jnp.sin(theta)
     # positions in frame pixels, so a tile computes each sample's position as the whole frame does; fetched at the
     # frame's pixel less the tile's origin
-    frame_c = cols[:1, :].astype(dtype)
-    frame_r = rows[:, :1].astype(dtype)
+    frame_c = (cols[:1, :] if cols.ndim == 2 else cols).astype(dtype)  # a row of the window, or every pixel's
+    frame_r = (rows[:, :1] if rows.ndim == 2 else rows).astype(dtype)
     # view-space x, y of the centre (scene units; y down as sss_jax's camera)
     px_c = (frame_c + 0.5 - cx_f) / focal * z
     py_c = (frame_r + 0.5 - cy_f) / focal * z
@@ -190,7 +199,7 @@ def _eevee_next_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera,
         return acc + jnp.where(active[..., None], scattered, irradiance)
 
     total = jax.lax.fori_loop(0, frames, one_frame, jnp.zeros(irradiance.shape, dtype))
-    return _finish(buffers, prep, uncrop(prep.irradiance, total / frames, start))
+    return _finish(buffers, prep, put(prep.irradiance, total / frames))
 
 
 class EeveeNextPass(AbstractTechnique):
@@ -199,11 +208,14 @@ class EeveeNextPass(AbstractTechnique):
     ``frames`` TAA samples are averaged (each with its own ``rand_u``, ``rand_v``: EEVEE's viewport and renders
     accumulate 16 to 256 and more); ``blender_version`` must be 4.2 or later (the 16-sample pattern; EEVEE legacy,
     up to 4.1, ran a separable pass). Takes a ``BurleyMaterial``; ``EeveeNextPass.material_from_engine(params)``
-    reads Principled BSDF inputs (``engines.EeveeNext.from_engine``).
+    reads Principled BSDF inputs (``engines.EeveeNext.from_engine``). An eager call computes only the SSS pixels
+    where they are under half the frame (``_engine_frame.compacted_pixels``: EEVEE's stencil; the same values as
+    every pixel computed), a traced one every pixel.
     """
 
     name: ClassVar[str] = "eevee-next"
     conserves_energy: ClassVar[bool] = True
+    sss_pixels_only: ClassVar[bool] = True
     material_type: ClassVar[type | tuple[type, ...]] = BurleyMaterial
 
     frames: int = option(16, "TAA samples accumulated (each a new 16-sample pattern)")
@@ -235,14 +247,23 @@ class EeveeNextPass(AbstractTechnique):
         placed = pass_arguments(self.name, self.albedo_mode, buffers, origin, frame_shape, material.count)
         window = kept_window(self.name, keep, buffers.depth.shape)
         h, w = buffers.depth.shape
-        r0, c0, kh, kw = (0, 0, h, w) if window[0] is None else (*(int(v) for v in keep[:2]), *window[1])
         oy, ox = (int(v) for v in origin)  # checked by pass_arguments
         fh = h if placed[1] is None else placed[1][0]
+        dtype = _work_dtype(buffers.irradiance.dtype)
+        # concrete buffers: only the SSS pixels computed where they are under half the buffer's (EEVEE's stencil)
+        idx = compacted_pixels(buffers, keep) if _is_concrete(buffers, material, camera) else None
         # the computed pixels' texels; rows count from the frame's bottom (OpenGL)
-        noise = noise_terms(np.arange(ox + c0, ox + c0 + kw)[None, :],
-                            (fh - 1 - np.arange(oy + r0, oy + r0 + kh))[:, None], _work_dtype(buffers.irradiance.dtype))
+        if idx is not None:
+            window = (None, None)
+            safe = np.minimum(idx, h * w - 1)
+            noise = noise_terms(ox + safe % w, fh - 1 - (oy + safe // w), dtype)
+            idx = jnp.asarray(idx)
+        else:
+            r0, c0, kh, kw = (0, 0, h, w) if window[0] is None else (*(int(v) for v in keep[:2]), *window[1])
+            noise = noise_terms(np.arange(ox + c0, ox + c0 + kw)[None, :],
+                                (fh - 1 - np.arange(oy + r0, oy + r0 + kh))[:, None], dtype)
         return _eevee_next_impl(buffers, material, camera, int(self.frames), self.albedo_mode,
-                                _as_seed(self.seed), noise, *placed, *window)
+                                _as_seed(self.seed), noise, *placed, *window, idx)
 
     def pieces(self, count: int) -> tuple[tuple["EeveeNextPass", float], ...] | None:
         """The ``frames`` in about ``count`` calls of consecutive TAA samples (sample k of seed s is ``k + 1 + s``

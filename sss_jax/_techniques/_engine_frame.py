@@ -7,16 +7,24 @@ that land outside the buffer are treated as off-frame; a tile's halo (``reach_px
 keeps. A pass that gathers per pixel (``hdrp``, ``eevee-next``) takes ``keep=(row0, col0, rows, cols)`` too, the
 pixels the caller keeps (``_dispatch.kept_window``): it computes only those, fetching from the whole buffer, and
 returns the others as their local shading.
+
+Which pixels a pass computes (``computed_pixels``): every pixel of the buffer (under ``jit``, where nothing can be
+counted), the kept window, or, where a call's buffers are concrete and SSS pixels are under half of those
+(``compacted_pixels``), only the SSS pixels, compacted on the host into a list of the next quarter-octave size (as
+``burley``'s compacted formulation: one compilation per size bucket) and scattered back. The arithmetic per pixel is
+the same in every layout.
 """
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array
 
 from .._scene import Buffers, Camera
-from ._common import _check_albedo_mode, check_one_image
-from ._dispatch import check_tile
+from ._common import _check_albedo_mode, _sss_mask, check_one_image
+from ._dispatch import check_keep, check_tile, crop, uncrop
 
 
 def frame_geometry(buffers: Buffers, camera: Camera, origin, frame_shape):
@@ -57,3 +65,60 @@ def pass_arguments(name: str, albedo_mode: str, buffers: Buffers, origin, frame_
     _check_albedo_mode(albedo_mode)
     check_one_image(name, buffers, materials)
     return placement(buffers.depth.shape, origin, frame_shape)
+
+
+@jax.jit
+def _sss_pixels(buffers: Buffers) -> Array:
+    return _sss_mask(buffers)
+
+
+def compacted_pixels(buffers: Buffers, keep) -> np.ndarray | None:
+    """Host side: the flat indices (int32, row-major) of the buffer's SSS pixels, within ``keep``'s window where
+    given, padded with ``H * W`` to the next quarter-octave size (``_burley.compaction_capacity``); None where they
+    fill half the buffer or more (every pixel computed costs less than the compaction). Reads the SSS mask to the
+    host: concrete buffers only."""
+    from ._burley import compaction_capacity
+
+    h, w = buffers.depth.shape
+    mask = np.asarray(jax.device_get(_sss_pixels(buffers)))
+    keep = check_keep("keep", keep, (h, w))
+    if keep is not None:
+        r0, c0, kh, kw = keep
+        inside = np.zeros_like(mask)
+        inside[r0:r0 + kh, c0:c0 + kw] = True
+        mask = mask & inside
+    where = np.flatnonzero(mask.reshape(-1))
+    if keep is None:
+        capacity = compaction_capacity(where.size, h * w)
+    else:  # a tile's: an eighth, a quarter or half of its window (the tiles of a frame share at most three programs)
+        window = keep[2] * keep[3]
+        capacity = next((max(-(-window // k), 256) for k in (8, 4, 2) if where.size <= window // k), None)
+        capacity = None if capacity is None or 2 * capacity > h * w else capacity
+    if capacity is None:
+        return None
+    idx = np.full(capacity, h * w, np.int32)
+    idx[:where.size] = where
+    return idx
+
+
+def computed_pixels(shape: tuple[int, int], start: Array | None, size: tuple[int, int] | None, idx: Array | None):
+    """``(take, put, row, col)`` for the pixels a pass computes: ``take(a)`` the computed pixels' values of an
+    ``(H, W, ...)`` array, ``put(whole, part)`` ``whole`` with them replaced by ``part``, and their rows and columns
+    in the buffer (int32). The pixels: the compacted list ``idx`` (``compacted_pixels``: padding entries compute the
+    last pixel and are dropped), else the kept window (``start``, ``size``: ``_dispatch.kept_window``), else all."""
+    h, w = shape
+    if idx is not None:
+        safe = jnp.minimum(idx, h * w - 1)
+
+        def take(a):
+            return a.reshape((h * w,) + a.shape[2:])[safe]
+
+        def put(whole, part):
+            flat = whole.reshape((h * w,) + whole.shape[2:])
+            return flat.at[idx].set(part.astype(whole.dtype), mode="drop").reshape(whole.shape)
+
+        return take, put, safe // w, safe % w
+    r0, c0 = (0, 0) if start is None else (start[0], start[1])
+    kh, kw = (h, w) if size is None else size
+    return (lambda a: crop(a, start, size), lambda whole, part: uncrop(whole, part, start),
+            jnp.arange(kh, dtype=jnp.int32)[:, None] + r0, jnp.arange(kw, dtype=jnp.int32)[None, :] + c0)

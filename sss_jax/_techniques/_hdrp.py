@@ -58,8 +58,14 @@ from ._common import (
     _work_dtype,
     check_seed,
 )
-from ._dispatch import crop, kept_window, uncrop
-from ._engine_frame import frame_geometry, nearest_fetch, pass_arguments
+from ._dispatch import kept_window
+from ._engine_frame import (
+    compacted_pixels,
+    computed_pixels,
+    frame_geometry,
+    nearest_fetch,
+    pass_arguments,
+)
 
 HDRP_QUALITY_BUDGETS = {"low": 20, "medium": 40, "high": 80}  # DefaultSssSampleBudgetForQualityLevel
 HDRP_MAX_BUDGET = 1000  # DefaultSssSampleBudgetForQualityLevel.Max
@@ -87,7 +93,7 @@ def _exp_sum(x: Array) -> Array:
 
 @eqx.filter_jit
 def _hdrp_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, budget: int, frames: int,
-               albedo_mode: str, seed, origin, frame_shape, start=None, size=None) -> Array:
+               albedo_mode: str, seed, origin, frame_shape, start=None, size=None, idx=None) -> Array:
     dtype = _work_dtype(buffers.irradiance.dtype)
     d_table = checked(material.d_mm.astype(dtype), "d_mm")
     prep = _prepare(buffers, material.albedo, albedo_mode, dtype)
@@ -96,11 +102,12 @@ def _hdrp_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, budge
     mm_per_unit = camera.mm_per_unit.astype(dtype)
     flat = jnp.concatenate([prep.irradiance, prep.depth[..., None], prep.valid[..., None].astype(dtype)],
                            axis=-1).reshape(h * w, 5)
-    # the pixels computed: the buffer's, or the window the caller keeps (``keep``; the fetches read the whole buffer)
-    rows, cols = crop(rows, start, size), crop(cols, start, size)
-    irradiance, depth, valid = (crop(a, start, size) for a in (prep.irradiance, prep.depth, prep.valid))
-    kh, kw = depth.shape
-    d_pix = jnp.where(valid[..., None], d_table[crop(prep.rows, start, size)], 0.0)  # (kh, kw, 3), mm
+    # the pixels computed (``computed_pixels``): the buffer's, the window the caller keeps, or the compacted SSS
+    # pixels; the fetches read the whole buffer
+    take, put, local_r, local_c = computed_pixels((h, w), start, size, idx)
+    rows, cols = take(rows), take(cols)
+    irradiance, depth, valid = (take(a) for a in (prep.irradiance, prep.depth, prep.valid))
+    d_pix = jnp.where(valid[..., None], d_table[take(prep.rows)], 0.0)  # (pixels..., 3), mm
     d_max = jnp.max(d_pix, axis=-1)
     ppm = jnp.where(valid, px_per_mm(depth, focal_px=camera.focal_px.astype(dtype), mm_per_unit=mm_per_unit), 0.0)
     filter_px = FILTER_RADIUS_UNITS * d_max * ppm
@@ -110,8 +117,6 @@ def _hdrp_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, budge
     n_safe = jnp.where(active, n, 1.0)
     has_d = d_pix > 0
     shape = jnp.where(has_d, 1.0 / jnp.where(has_d, d_pix, 1.0), 0.0)  # S = 1/d per channel (mm^-1)
-    local_r = jnp.arange(kh, dtype=jnp.int32)[:, None] + (0 if start is None else start[0])
-    local_c = jnp.arange(kw, dtype=jnp.int32)[None, :] + (0 if start is None else start[1])
 
     def one_frame(k, acc):
         phase = spiral_rotation(rows, cols, k, seed, dtype=dtype)
@@ -139,14 +144,14 @@ def _hdrp_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, budge
             weight = jnp.where(ok[..., None], weight, 0.0)
             return total_e + weight * fetched[..., :3], total_w + weight
 
-        zero = jnp.zeros((kh, kw, 3), dtype)
+        zero = jnp.zeros(irradiance.shape, dtype)
         total_e, total_w = jax.lax.fori_loop(0, budget, sample, (zero, zero))
         scattered = jnp.where(total_w > 0, total_e / jnp.where(total_w > 0, total_w, 1.0), 0.0)
         local = ~active[..., None] | ~has_d
         return acc + jnp.where(local, irradiance, scattered)
 
-    total = jax.lax.fori_loop(0, frames, one_frame, jnp.zeros((kh, kw, 3), dtype))
-    return _finish(buffers, prep, uncrop(prep.irradiance, total / frames, start))
+    total = jax.lax.fori_loop(0, frames, one_frame, jnp.zeros(irradiance.shape, dtype))
+    return _finish(buffers, prep, put(prep.irradiance, total / frames))
 
 
 class HdrpPass(AbstractTechnique):
@@ -155,11 +160,13 @@ class HdrpPass(AbstractTechnique):
     ``quality`` low/medium/high is the sample budget 20/40/80; ``budget`` (1..1000) overrides it; ``frames`` averages
     that many TAA frames; ``seed`` turns the per-pixel hash. Takes a ``BurleyMaterial`` (HDRP's profile holds
     Burley's d directly: ``engines.Hdrp``); ``HdrpPass.material_from_engine(params)`` reads a diffusion profile's
-    values.
+    values. An eager call computes only the SSS pixels where they are under half the frame (``_engine_frame.
+    compacted_pixels``: HDRP's stencil; the same values as every pixel computed), a traced one every pixel.
     """
 
     name: ClassVar[str] = "hdrp"
     conserves_energy: ClassVar[bool] = True
+    sss_pixels_only: ClassVar[bool] = True
     material_type: ClassVar[type | tuple[type, ...]] = BurleyMaterial
 
     quality: str = option("medium", "sample budget by quality level (low 20, medium 40, high 80)",
@@ -188,10 +195,15 @@ class HdrpPass(AbstractTechnique):
         self.check_material(material)
         placed = pass_arguments(self.name, self.albedo_mode, buffers, origin, frame_shape, material.count)
         window = kept_window(self.name, keep, buffers.depth.shape)
+        # concrete buffers: only the SSS pixels computed where they are under half the buffer's (HDRP's stencil)
+        idx = compacted_pixels(buffers, keep) if _is_concrete(buffers, material, camera) else None
+        if idx is not None:
+            window = (None, None)
+            idx = jnp.asarray(idx)
         # the seed (checked when the object was made) as a uint32 array: traced, a sequence's seeds share one
         # program (a Python int would be static); so are a tile's origin and its kept window's corner
         out = _hdrp_impl(buffers, material, camera, self.samples, int(self.frames), self.albedo_mode,
-                         _as_seed(self.seed), *placed, *window)
+                         _as_seed(self.seed), *placed, *window, idx)
         # whole frames only: a tile's halo may be black
         if placed[0] is None and window[0] is None and _is_concrete(buffers, material, camera, out):
             message = black_pixels_message(buffers, out)
