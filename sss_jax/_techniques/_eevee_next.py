@@ -42,19 +42,17 @@ from ._common import (
     ALBEDO_MODES,
     _as_seed,
     _finish,
-    _is_concrete,
     _prepare,
     _safe_sqrt,
     _work_dtype,
     check_seed,
 )
-from ._dispatch import kept_window
 from ._engine_frame import (
-    compacted_pixels,
     computed_pixels,
     frame_geometry,
     nearest_fetch,
     pass_arguments,
+    pixels_to_compute,
 )
 
 EEVEE_SAMPLE_LEN = 16  # SubsurfaceModule::end_sync, data_.sample_len (EEVEE Next, 4.2 and later)
@@ -245,25 +243,23 @@ class EeveeNextPass(AbstractTechnique):
         (the samples still read the whole buffer), the others come back as their local shading."""
         self.check_material(material)
         placed = pass_arguments(self.name, self.albedo_mode, buffers, origin, frame_shape, material.count)
-        window = kept_window(self.name, keep, buffers.depth.shape)
+        # only the SSS pixels (EEVEE's stencil) where the call can count them, else the kept window or every pixel
+        start, size, idx = pixels_to_compute(self.name, buffers, material, camera, keep)
         h, w = buffers.depth.shape
         oy, ox = (int(v) for v in origin)  # checked by pass_arguments
         fh = h if placed[1] is None else placed[1][0]
         dtype = _work_dtype(buffers.irradiance.dtype)
-        # concrete buffers: only the SSS pixels computed where they are under half the buffer's (EEVEE's stencil)
-        idx = compacted_pixels(buffers, keep) if _is_concrete(buffers, material, camera) else None
         # the computed pixels' texels; rows count from the frame's bottom (OpenGL)
         if idx is not None:
-            window = (None, None)
             safe = np.minimum(idx, h * w - 1)
             noise = noise_terms(ox + safe % w, fh - 1 - (oy + safe // w), dtype)
-            idx = jnp.asarray(idx)
         else:
-            r0, c0, kh, kw = (0, 0, h, w) if window[0] is None else (*(int(v) for v in keep[:2]), *window[1])
+            r0, c0, kh, kw = (0, 0, h, w) if start is None else (*(int(v) for v in keep[:2]), *size)
             noise = noise_terms(np.arange(ox + c0, ox + c0 + kw)[None, :],
                                 (fh - 1 - np.arange(oy + r0, oy + r0 + kh))[:, None], dtype)
         return _eevee_next_impl(buffers, material, camera, int(self.frames), self.albedo_mode,
-                                _as_seed(self.seed), noise, *placed, *window, idx)
+                                _as_seed(self.seed), noise, *placed, start, size,
+                                None if idx is None else jnp.asarray(idx))
 
     def pieces(self, count: int) -> tuple[tuple["EeveeNextPass", float], ...] | None:
         """The ``frames`` in about ``count`` calls of consecutive TAA samples (sample k of seed s is ``k + 1 + s``

@@ -23,8 +23,8 @@ import numpy as np
 from jaxtyping import Array
 
 from .._scene import Buffers, Camera
-from ._common import _check_albedo_mode, _sss_mask, check_one_image
-from ._dispatch import check_keep, check_tile, crop, uncrop
+from ._common import _check_albedo_mode, _is_concrete, _sss_mask, check_one_image
+from ._dispatch import check_keep, check_tile, crop, kept_window, uncrop
 
 
 def frame_geometry(buffers: Buffers, camera: Camera, origin, frame_shape):
@@ -99,6 +99,16 @@ def compacted_pixels(buffers: Buffers, keep) -> np.ndarray | None:
     idx = np.full(capacity, h * w, np.int32)
     idx[:where.size] = where
     return idx
+
+
+def pixels_to_compute(name: str, buffers: Buffers, material, camera, keep
+                      ) -> tuple[Array | None, tuple[int, int] | None, np.ndarray | None]:
+    """What a pass's call computes, as ``(start, size, idx)``: the compacted SSS pixels (``compacted_pixels``, a host
+    array; ``start``, ``size`` None) where the call's inputs are concrete and those pixels fill under half the
+    buffer, else the kept window (``_dispatch.kept_window``: None, None for the whole buffer) and ``idx`` None."""
+    window = kept_window(name, keep, buffers.depth.shape)
+    idx = compacted_pixels(buffers, keep) if _is_concrete(buffers, material, camera) else None
+    return (None, None, idx) if idx is not None else (*window, None)
 
 
 def computed_pixels(shape: tuple[int, int], start: Array | None, size: tuple[int, int] | None, idx: Array | None):

@@ -58,13 +58,12 @@ from ._common import (
     _work_dtype,
     check_seed,
 )
-from ._dispatch import kept_window
 from ._engine_frame import (
-    compacted_pixels,
     computed_pixels,
     frame_geometry,
     nearest_fetch,
     pass_arguments,
+    pixels_to_compute,
 )
 
 HDRP_QUALITY_BUDGETS = {"low": 20, "medium": 40, "high": 80}  # DefaultSssSampleBudgetForQualityLevel
@@ -194,18 +193,14 @@ class HdrpPass(AbstractTechnique):
         (the samples still read the whole buffer), the others come back as their local shading."""
         self.check_material(material)
         placed = pass_arguments(self.name, self.albedo_mode, buffers, origin, frame_shape, material.count)
-        window = kept_window(self.name, keep, buffers.depth.shape)
-        # concrete buffers: only the SSS pixels computed where they are under half the buffer's (HDRP's stencil)
-        idx = compacted_pixels(buffers, keep) if _is_concrete(buffers, material, camera) else None
-        if idx is not None:
-            window = (None, None)
-            idx = jnp.asarray(idx)
+        # only the SSS pixels (HDRP's stencil) where the call can count them, else the kept window or every pixel
+        start, size, idx = pixels_to_compute(self.name, buffers, material, camera, keep)
         # the seed (checked when the object was made) as a uint32 array: traced, a sequence's seeds share one
         # program (a Python int would be static); so are a tile's origin and its kept window's corner
         out = _hdrp_impl(buffers, material, camera, self.samples, int(self.frames), self.albedo_mode,
-                         _as_seed(self.seed), *placed, *window, idx)
+                         _as_seed(self.seed), *placed, start, size, None if idx is None else jnp.asarray(idx))
         # whole frames only: a tile's halo may be black
-        if placed[0] is None and window[0] is None and _is_concrete(buffers, material, camera, out):
+        if placed[0] is None and keep is None and _is_concrete(buffers, material, camera, out):
             message = black_pixels_message(buffers, out)
             if message is not None:
                 warnings.warn(message, SamplingWarning, stacklevel=2)
