@@ -74,9 +74,10 @@ def _sss_pixels(buffers: Buffers) -> Array:
 
 def compacted_pixels(buffers: Buffers, keep) -> np.ndarray | None:
     """Host side: the flat indices (int32, row-major) of the buffer's SSS pixels, within ``keep``'s window where
-    given, padded with ``H * W`` to the next quarter-octave size (``_burley.compaction_capacity``); None where they
-    fill half the buffer or more (every pixel computed costs less than the compaction). Reads the SSS mask to the
-    host: concrete buffers only."""
+    given, padded with ``H * W``: for the whole buffer to the next quarter-octave size (``_burley.
+    compaction_capacity``), for a kept window to an eighth, a quarter or half of the window (at least 256). None
+    where they would fill half the buffer or more (every pixel computed costs less than the compaction), or more than
+    half the window. Reads the SSS mask to the host: concrete buffers only."""
     from ._burley import compaction_capacity
 
     h, w = buffers.depth.shape
