@@ -1325,7 +1325,13 @@ def test_a_technique_that_computes_only_what_a_tile_keeps_is_tiled_by_its_kept_p
     # compute only the pixels they keep now (keep=), so the work bound sizes the kept part and the memory bound the
     # tile with its halo
     import sss_jax._batch as B
-    from sss_jax._batch import _Cost, _plan_frame, _seconds_per_px, _takes_keep, _work_share
+    from sss_jax._batch import (
+        _Cost,
+        _plan_frame,
+        _seconds_per_px,
+        _takes_keep,
+        _work_share,
+    )
 
     sc = sj.demo_scene(96, 128)
     material = sj.BurleyMaterial((0.8, 0.5, 0.4), (3.0, 1.4, 0.8))
@@ -1365,7 +1371,14 @@ def test_the_work_of_a_technique_that_computes_only_sss_pixels_follows_their_sha
     # burley, hdrp and eevee-next compute only the SSS pixels (a quarter of the demo frame): costed as if every pixel
     # were computed, a 1920x1080 frame through HDRP (0.9-1.0 s of work) ran in 6 tiles, each compiling its own
     # compacted program (5.6 s); costed by the share, it runs whole
-    from sss_jax._batch import MIN_WORK_SHARE, TILE_PIXELS, _Cost, _plan_frame, _seconds_per_px, _work_share
+    from sss_jax._batch import (
+        MIN_WORK_SHARE,
+        TILE_PIXELS,
+        _Cost,
+        _plan_frame,
+        _seconds_per_px,
+        _work_share,
+    )
 
     sc = sj.demo_scene(96, 128)
     z, ids = np.asarray(sc.buffers.depth), np.asarray(sc.buffers.material_id)

@@ -543,8 +543,8 @@ def test_only_the_sss_pixels_are_computed(monkeypatch, x64):
     # the passes computed every pixel of the frame, where the engines' stencil runs them on SSS pixels only (a
     # quarter of the demo frame): an eager call compacts the SSS pixels on the host and computes those, the same
     # arithmetic per pixel as every pixel computed (bit for bit), and a frame mostly SSS runs every pixel
-    import sss_jax._techniques._engine_frame as F
     import sss_jax._techniques._eevee_next as E
+    import sss_jax._techniques._engine_frame as F
     import sss_jax._techniques._hdrp as H
 
     with jax.enable_x64(x64):
@@ -557,7 +557,7 @@ def test_only_the_sss_pixels_are_computed(monkeypatch, x64):
         for module, tech in ((H, HdrpPass(quality="low", seed=3)), (E, EeveeNextPass(frames=2, seed=5))):
             name = "_hdrp_impl" if module is H else "_eevee_next_impl"
             real, seen = getattr(module, name), []
-            monkeypatch.setattr(module, name, lambda *a, real=real: seen.append(a[-1]) or real(*a))
+            monkeypatch.setattr(module, name, lambda *a, real=real, seen=seen: seen.append(a[-1]) or real(*a))
             compacted = np.asarray(tech(b, SKIN, cam))
             real_compacted = F.compacted_pixels
             monkeypatch.setattr(F, "compacted_pixels", lambda *a: None)
