@@ -196,6 +196,31 @@ def test_a_tile_told_the_pixels_it_keeps_computes_only_those(monkeypatch, as_use
             sj.burley(crop, mat, CAM, samples=6, keep=bad)
 
 
+def test_a_tiles_slots_are_a_fraction_of_its_kept_window(monkeypatch):
+    # each tile's active count went into the next quarter-octave bucket, so a frame's tiles compiled a program each
+    # (a 3840x2160 close-up's 15 tiles: 8 programs, 10.0-10.8 s; with these sizes 3 programs, 6.6-7.4 s, the frame
+    # whole 7.5 s): a tile's slots are an eighth, a quarter, half or all of its kept window (at least 256)
+    import jax.numpy as jnp
+
+    import sss_jax._techniques._burley as B
+
+    assert [B.kept_capacity(c, 3840, 20000) for c in (0, 480, 481, 960, 961, 1920, 1921, 3840)] == \
+        [480, 480, 960, 960, 1920, 1920, 3840, 3840]
+    assert B.kept_capacity(1921, 3840, 6144) is None  # the slots would hold half the buffer: dense
+    h, w = 96, 128
+    capacities = []
+    real = B._burley_impl
+    monkeypatch.setattr(B, "_burley_impl", lambda *a, **k: capacities.append(a[6]) or real(*a, **k))
+    mat = sj.BurleyMaterial([0.8, 0.6, 0.5], [1.0, 0.5, 0.3])
+    for count in (300, 700, 1500):
+        ids = np.zeros((h, w), np.int32)
+        rows, cols = np.divmod(np.arange(count), 80)
+        ids[8 + rows, 8 + cols] = 1  # the SSS pixels in the kept window (48x80 = 3840 px)
+        b = sj.Buffers(irradiance=jnp.ones((h, w, 3)), depth=jnp.full((h, w), 50.0), material_id=jnp.asarray(ids))
+        sj.burley(b, mat, CAM, samples=4, keep=(8, 8, 48, 80), min_footprint_px=0.0)
+    assert capacities == [480, 960, 1920], capacities
+
+
 def test_compacted_tiles_of_one_shape_share_one_program():
     # the compacted pass took a tile's origin as a static argument: a 3840x2160 frame's 15 tiles compiled 15 programs
     # (~11 s of a 19-s frame); traced, the tiles of one shape and bucket compile once

@@ -56,6 +56,17 @@ def compaction_capacity(active_count: int, pixels: Real, *, minimum: int = 256) 
     return None if capacity * 2 > pixels else capacity
 
 
+def kept_capacity(active_count: int, window_px: int, pixels: int, *, minimum: int = 256) -> int | None:
+    """Slots of the compacted buffer for a tile's ``active_count`` active pixels in its kept window of ``window_px``
+    pixels (a buffer of ``pixels``): an eighth, a quarter, half or all of the window (at least ``minimum``), so the
+    tiles of a frame share at most four programs (with ``compaction_capacity``'s buckets, one per tile's count: 8
+    compiled programs for a 3840x2160 frame's 15 Burley tiles), or ``None`` (dense) where the slots would hold at least
+    half the buffer anyway."""
+    capacity = next(max(-(-window_px // k), minimum) for k in (8, 4, 2, 1) if active_count <= window_px // k
+                    or k == 1)
+    return None if 2 * capacity > pixels else capacity
+
+
 def burley_active_count(buffers: Buffers, material: BurleyMaterial, camera: Camera, *,
                         min_footprint_px: float = MIN_FOOTPRINT_PX) -> int:
     """Host side: how many pixels ``burley`` computes (SSS pixels whose footprint reaches ``min_footprint_px``)."""
@@ -239,7 +250,8 @@ def burley(
                                                                  float(min_footprint_px), albedo_mode, keep)
         truncate = needs_truncation(widest_d_px, frame_shape)
         if compact is not False:
-            capacity = compaction_capacity(count, h * w)
+            capacity = (compaction_capacity(count, h * w) if keep is None
+                        else kept_capacity(count, keep[2] * keep[3], h * w))
             if compact and capacity is None:
                 capacity = compaction_capacity(count, math.inf)  # the same buckets past half the frame
         if capacity is None:

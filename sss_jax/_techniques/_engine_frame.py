@@ -75,10 +75,10 @@ def _sss_pixels(buffers: Buffers) -> Array:
 def compacted_pixels(buffers: Buffers, keep) -> np.ndarray | None:
     """Host side: the flat indices (int32, row-major) of the buffer's SSS pixels, within ``keep``'s window where
     given, padded with ``H * W``: for the whole buffer to the next quarter-octave size (``_burley.
-    compaction_capacity``), for a kept window to an eighth, a quarter or half of the window (at least 256). None
-    where they would fill half the buffer or more (every pixel computed costs less than the compaction), or more than
-    half the window. Reads the SSS mask to the host: concrete buffers only."""
-    from ._burley import compaction_capacity
+    compaction_capacity``), for a kept window to an eighth, a quarter, half or all of the window (``_burley.
+    kept_capacity``). None where they would fill half the buffer or more (every pixel computed, or the window's,
+    costs less than the compaction). Reads the SSS mask to the host: concrete buffers only."""
+    from ._burley import compaction_capacity, kept_capacity
 
     h, w = buffers.depth.shape
     mask = np.asarray(jax.device_get(_sss_pixels(buffers)))
@@ -91,10 +91,8 @@ def compacted_pixels(buffers: Buffers, keep) -> np.ndarray | None:
     where = np.flatnonzero(mask.reshape(-1))
     if keep is None:
         capacity = compaction_capacity(where.size, h * w)
-    else:  # a tile's: an eighth, a quarter or half of its window (the tiles of a frame share at most three programs)
-        window = keep[2] * keep[3]
-        capacity = next((max(-(-window // k), 256) for k in (8, 4, 2) if where.size <= window // k), None)
-        capacity = None if capacity is None or 2 * capacity > h * w else capacity
+    else:  # a tile's: a fraction of its window (the tiles of a frame share at most four programs)
+        capacity = kept_capacity(where.size, keep[2] * keep[3], h * w)
     if capacity is None:
         return None
     idx = np.full(capacity, h * w, np.int32)
