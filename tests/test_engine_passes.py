@@ -577,8 +577,8 @@ def test_only_the_sss_pixels_are_computed(monkeypatch, x64):
 def test_a_tiles_sss_pixels_are_compacted_into_one_of_a_few_sizes():
     # a whole frame's SSS pixels go into the next quarter-octave size (as burley's), but the tiles of one frame, each
     # with its own count, then compiled a program each (a 1920x1080 frame through HDRP in 6 tiles: 5.6 s, against 4.7
-    # s whole); a tile's list is an eighth, a quarter, half or all of its kept window (_burley.kept_capacity), or
-    # the window is computed whole where the list would hold half the buffer
+    # s whole); a tile's list is an eighth, a quarter or half of its kept window (_burley.kept_capacity), or the
+    # window is computed whole (one program for every such tile)
     from sss_jax._techniques._engine_frame import compacted_pixels
 
     h, w = 64, 96

@@ -56,15 +56,15 @@ def compaction_capacity(active_count: int, pixels: Real, *, minimum: int = 256) 
     return None if capacity * 2 > pixels else capacity
 
 
-def kept_capacity(active_count: int, window_px: int, pixels: int, *, minimum: int = 256) -> int | None:
+def kept_capacity(active_count: int, window_px: int, pixels: int, *, minimum: int = 256,
+                  fractions: tuple[int, ...] = (8, 4, 2, 1)) -> int | None:
     """Slots of the compacted buffer for a tile's ``active_count`` active pixels in its kept window of ``window_px``
-    pixels (a buffer of ``pixels``): an eighth, a quarter, half or all of the window (at least ``minimum``), so the
-    tiles of a frame share at most four programs (with ``compaction_capacity``'s buckets, one per tile's count: 8
-    compiled programs for a 3840x2160 frame's 15 Burley tiles), or ``None`` (dense) where the slots would hold at least
-    half the buffer anyway."""
-    capacity = next(max(-(-window_px // k), minimum) for k in (8, 4, 2, 1) if active_count <= window_px // k
-                    or k == 1)
-    return None if 2 * capacity > pixels else capacity
+    pixels (a buffer of ``pixels``): an eighth, a quarter, half or all of the window (``1 / fractions``, at least
+    ``minimum``), so the tiles of a frame share at most four programs (with ``compaction_capacity``'s buckets, one per
+    tile's count: 8 compiled programs for a 3840x2160 frame's 15 Burley tiles), or ``None`` where the count passes
+    the largest fraction or the slots would hold at least half the buffer."""
+    capacity = next((max(-(-window_px // k), minimum) for k in fractions if active_count <= window_px // k), None)
+    return None if capacity is None or 2 * capacity > pixels else capacity
 
 
 def burley_active_count(buffers: Buffers, material: BurleyMaterial, camera: Camera, *,

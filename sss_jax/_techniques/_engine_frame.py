@@ -75,9 +75,9 @@ def _sss_pixels(buffers: Buffers) -> Array:
 def compacted_pixels(buffers: Buffers, keep) -> np.ndarray | None:
     """Host side: the flat indices (int32, row-major) of the buffer's SSS pixels, within ``keep``'s window where
     given, padded with ``H * W``: for the whole buffer to the next quarter-octave size (``_burley.
-    compaction_capacity``), for a kept window to an eighth, a quarter, half or all of the window (``_burley.
-    kept_capacity``). None where they would fill half the buffer or more (every pixel computed, or the window's,
-    costs less than the compaction). Reads the SSS mask to the host: concrete buffers only."""
+    compaction_capacity``), for a kept window to an eighth, a quarter or half of the window (``_burley.
+    kept_capacity``). None where they would fill half the buffer or the window or more (every pixel computed, or the
+    window's, costs less than the compaction). Reads the SSS mask to the host: concrete buffers only."""
     from ._burley import compaction_capacity, kept_capacity
 
     h, w = buffers.depth.shape
@@ -91,8 +91,8 @@ def compacted_pixels(buffers: Buffers, keep) -> np.ndarray | None:
     where = np.flatnonzero(mask.reshape(-1))
     if keep is None:
         capacity = compaction_capacity(where.size, h * w)
-    else:  # a tile's: a fraction of its window (the tiles of a frame share at most four programs)
-        capacity = kept_capacity(where.size, keep[2] * keep[3], h * w)
+    else:  # a tile's: an eighth, a quarter or half of its window, else the window computed whole (one program)
+        capacity = kept_capacity(where.size, keep[2] * keep[3], h * w, fractions=(8, 4, 2))
     if capacity is None:
         return None
     idx = np.full(capacity, h * w, np.int32)
