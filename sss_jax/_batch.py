@@ -1062,7 +1062,8 @@ def _plan_frame(tech, buffers: Buffers, material, camera: Camera, tile_pixels: i
         # the inner part at least as wide as the overlap: a tile never holds more than ~9x its own pixels (a wide
         # window on a small frame then runs whole, or in pieces, rather than in tiles made of overlap)
         least = overlap + 8
-        if _takes_keep(tech):
+        keeps = _takes_keep(tech)
+        if keeps:
             # a tile computes only the pixels it keeps (its halo read, not computed): the work bound sizes the kept
             # part, the memory bound the tile with its halo (HDRP on a 3840x2160 close-up: 112 tiles of 745x745 px
             # keeping 345x345 each, 135.9 s, against 17.3 s for the frame whole)
@@ -1072,13 +1073,13 @@ def _plan_frame(tech, buffers: Buffers, material, camera: Camera, tile_pixels: i
             work_side = math.isqrt(max(int(bound / seconds_per_px), 1)) if seconds_per_px else h + w
             inner = max(min(max(work_side, MIN_KEPT_SIDE), math.isqrt(tile_pixels) - 2 * overlap), least)
         else:
-            inner = max(math.isqrt(max(budget, 1)), 3 * overlap + 8) - 2 * overlap
+            inner = max(math.isqrt(max(budget, 1)) - 2 * overlap, least)
         # as few tiles as fit, of equal size (1600 px in tiles of at most 1352: two of 800, not 1352 and a shifted
         # 1352)
         ty, tx = -(-h // -(-h // inner)), -(-w // -(-w // inner))
         tiles = len(_starts(h, ty)) * len(_starts(w, tx))
         tile_px = min(ty + 2 * overlap, h) * min(tx + 2 * overlap, w)
-        computed_px = min(ty, h) * min(tx, w) if _takes_keep(tech) else tile_px
+        computed_px = min(ty, h) * min(tx, w) if keeps else tile_px
         # tiles only for the work bound (the frame fits the memory bound) that would compute their halos over and
         # over: the frame whole, in the technique's pieces where it has them, else in one call longer than the bound
         # (an HDRP pass over a 1920x1080 frame ran in 6 tiles of 1080x1212 px, 3.6x the work: 17.8 s against 5.0 s)

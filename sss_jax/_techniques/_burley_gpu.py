@@ -41,7 +41,14 @@ from ._burley_spec import (
     weight_offset,
     xla_fetch,
 )
-from ._common import _as_seed, _finish, _material_rows, _prepare, _work_dtype
+from ._common import (
+    _as_seed,
+    _finish,
+    _material_rows,
+    _prepare,
+    _work_dtype,
+    padded_indices,
+)
 
 
 def frame_result(pix: dict, fetch, cos_phi: Array, sin_phi: Array, *, samples: int, truncate: bool, border: str,
@@ -193,14 +200,8 @@ def _burley_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, sam
         raise ValueError("the compacted layout takes the host count's active mask and padded planes "
                          "(_burley._burley_active_mask with albedo_mode)")
     h, w = buffers.depth.shape
-    # host-side compaction (a CPU formulation's strategy): NumPy's flatnonzero of the mask takes ~0.1 ms at 640x360,
-    # XLA's nonzero (a prefix sum of reduce-windows and a scatter) ~1-2 ms
-    where = np.flatnonzero(np.asarray(jax.device_get(active)).reshape(-1))
-    if where.size > capacity:
-        raise ValueError(f"capacity {capacity} holds fewer slots than the {where.size} active pixels")
-    idx = np.full(capacity, h * w, np.int32)
-    idx[:where.size] = where
-    idx = jnp.asarray(idx)
+    # host-side compaction (a CPU formulation's strategy)
+    idx = jnp.asarray(padded_indices(np.asarray(jax.device_get(active)), capacity))
     if common["origin"] != (0, 0) or frame_shape != (h, w):
         # a tile's origin traced: the tiles of one shape and bucket share one program (static, each tile of a
         # 3840x2160 frame compiled its own: 15 compilations, ~11 s of a 19-s frame); the whole frame's program as before

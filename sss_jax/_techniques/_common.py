@@ -253,6 +253,18 @@ def _weighted_mean_jvp(primals, tangents):
     return out, (d_num - out * d_den) / den
 
 
+def padded_indices(mask: np.ndarray, capacity: int) -> np.ndarray:
+    """Host-side compaction: the flat indices (int32, row-major) of ``mask``'s true pixels, padded to ``capacity``
+    slots with ``mask.size`` (a pixel past the buffer: a gather clamps it, a scatter drops it). NumPy's flatnonzero
+    takes ~0.1 ms at 640x360, XLA's nonzero (a prefix sum of reduce-windows and a scatter) ~1-2 ms."""
+    where = np.flatnonzero(np.asarray(mask).reshape(-1))
+    if where.size > capacity:
+        raise ValueError(f"capacity {capacity} holds fewer slots than the {where.size} active pixels")
+    idx = np.full(capacity, mask.size, np.int32)
+    idx[:where.size] = where
+    return idx
+
+
 from .._errors import SamplingWarning as SamplingWarning  # noqa: E402  (the one definition is in _errors)
 
 

@@ -23,7 +23,13 @@ import numpy as np
 from jaxtyping import Array
 
 from .._scene import Buffers, Camera
-from ._common import _check_albedo_mode, _is_concrete, _sss_mask, check_one_image
+from ._common import (
+    _check_albedo_mode,
+    _is_concrete,
+    _sss_mask,
+    check_one_image,
+    padded_indices,
+)
 from ._dispatch import check_keep, check_tile, crop, kept_window, uncrop
 
 
@@ -88,16 +94,12 @@ def compacted_pixels(buffers: Buffers, keep) -> np.ndarray | None:
         inside = np.zeros_like(mask)
         inside[r0:r0 + kh, c0:c0 + kw] = True
         mask = mask & inside
-    where = np.flatnonzero(mask.reshape(-1))
+    count = int(np.count_nonzero(mask))
     if keep is None:
-        capacity = compaction_capacity(where.size, h * w)
+        capacity = compaction_capacity(count, h * w)
     else:  # a tile's: an eighth, a quarter or half of its window, else the window computed whole (one program)
-        capacity = kept_capacity(where.size, keep[2] * keep[3], h * w, fractions=(8, 4, 2))
-    if capacity is None:
-        return None
-    idx = np.full(capacity, h * w, np.int32)
-    idx[:where.size] = where
-    return idx
+        capacity = kept_capacity(count, keep[2] * keep[3], h * w, fractions=(8, 4, 2))
+    return None if capacity is None else padded_indices(mask, capacity)
 
 
 def pixels_to_compute(name: str, buffers: Buffers, material, camera, keep
