@@ -439,6 +439,35 @@ def test_the_separable_derivative_does_not_grow_with_the_taps():
     assert grad_49 <= 1.05 * grad_25 and grad_25 < 1.5 * call_25, (call_25, grad_25, call_49, grad_49)
 
 
+def test_the_banded_pass_traces_each_fetch_in_a_few_equations():
+    # the first call of a 25-tap separable pass is what compile_seconds (#28: < 5 s) measures: tracing its unrolled
+    # taps took ~1 s of it (2026-12-07, 256x256), 44 equations staged per fetch (a tap's pixel, 4 a tap: two passes,
+    # two linear corners), 18 of them lax.dynamic_slice's wrap of negative start indices; now the start indices are
+    # unsigned and a fetch's sums one cached jitted call, traced once: 16 equations per fetch, the same program
+    h, w = 24, 32
+    irr = jnp.asarray(np.random.default_rng(0).uniform(0.2, 1.0, (h, w, 3)), jnp.float32)
+    z, cam = jnp.full((h, w), 20.0, jnp.float32), sj.Camera(50.0, 10.0)
+    material = sj.BurleyMaterial(jnp.asarray([0.8, 0.55, 0.45]), jnp.asarray([3.0, 1.4, 0.8]))
+
+    def traced(taps: int) -> int:  # every equation JAX stages, a sub-program traced once counted once
+        jaxpr = jax.make_jaxpr(lambda e: sj.separable(sj.Buffers(irradiance=e, depth=z), material, cam,
+                                                      taps=taps))(irr).jaxpr
+        seen, count, stack = set(), 0, [jaxpr]
+        while stack:
+            for eqn in stack.pop().eqns:
+                count += 1
+                for v in eqn.params.values():
+                    for sub in v if isinstance(v, (tuple, list)) else (v,):
+                        sub = sub.jaxpr if isinstance(sub, jax.extend.core.ClosedJaxpr) else sub
+                        if isinstance(sub, jax.extend.core.Jaxpr) and id(sub) not in seen:
+                            seen.add(id(sub))
+                            stack.append(sub)
+        return count
+
+    per_fetch = (traced(25) - traced(9)) / (16 * 2 * 2)  # 16 taps more, two passes, two corners each
+    assert per_fetch <= 20, per_fetch
+
+
 @pytest.mark.parametrize("axis", [2, 1])
 @pytest.mark.parametrize("linear", [True, False])
 @pytest.mark.parametrize("taps_per_fusion", [33, 3])

@@ -73,18 +73,33 @@ def _separable_level(fetch: Callable[[Array], tuple[Array, Array]], z: Array, re
             off = spec.tap_offset(unit_offsets[i], reach_px, limit)
             w_i = tap_weight(i)
             for start, frac in spec.fetch_corners(off, interpolation):
-                ev, zv = fetch(start)
                 # the corner's fraction is one number at a constant reach: it weighs the tap, not each pixel
-                a, k, _ = spec.tap_sums([(ev, zv, None, None, None)], z, None, follow_surface=follow_surface,
-                                        planar=True)
-                wf = w_i if frac is None else w_i * frac
-                kept_e, kept = kept_e + wf * a, kept + wf * k[None]
+                kept_e, kept = _add_fetch((kept_e, kept), *fetch(start), z, w_i if frac is None else w_i * frac,
+                                          follow_surface=follow_surface)
         return kept_e, kept
 
     zero = jnp.zeros((3,) + z.shape, z.dtype)
     chunks = unit_offsets.shape[0] // taps_per_chunk
     first = chunk(0, (zero, zero))  # on its own: it holds the centre
     return first if chunks == 1 else jax.lax.fori_loop(1, chunks, chunk, first)
+
+
+@functools.partial(jax.jit, static_argnames=("follow_surface",))
+def _add_fetch(sums: tuple[Array, Array], ev: Array, zv: Array, z: Array, weight: Array, *, follow_surface: bool
+               ) -> tuple[Array, Array]:
+    """``_separable_level``'s sums ``(A, K)`` with one fetch of a tap added (``spec.tap_sums``, planar, weighed by
+    ``weight``, the tap's weight times the corner's fraction). A function of its own, jitted: every tap's fetch is
+    traced once (the unrolled taps are then one cached call each, which XLA inlines: the same program, traced and
+    lowered faster)."""
+    a, k, _ = spec.tap_sums([(ev, zv, None, None, None)], z, None, follow_surface=follow_surface, planar=True)
+    return sums[0] + weight * a, sums[1] + weight * k[None]
+
+
+def _unsigned(index: Array | int) -> Array:
+    """A start index of a slice known to be >= 0, as ``uint32``: ``lax.dynamic_slice`` and ``dynamic_update_slice``
+    stage no wrap of negative indices for an unsigned one (a comparison, an add and a select per index, traced for
+    each of the unrolled taps' fetches). The same slice: XLA clamps start indices into the operand either way."""
+    return jax.lax.convert_element_type(index, jnp.uint32)
 
 
 def _leaving(outside_pad: Array, pad: int, length: int, unit_offsets: Array, reach_px: Array, w_level: Array,
@@ -277,15 +292,18 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
     def block(k, out):
         row0 = jnp.minimum((k // col_blocks) * rows_per_band, h - rows_per_band).astype(jnp.int32)
         col0 = jnp.minimum((k % col_blocks) * cols, w - cols).astype(jnp.int32)
-        o = jnp.zeros((), jnp.int32)  # index arguments of one type (int64 under x64 otherwise)
+        # the slices' start indices as unsigned integers (every one is >= 0): ``lax.dynamic_slice`` then stages no
+        # wrap of negative indices (three operations per index: a third of the 25-tap pass's tracing time)
+        o, row0_u, col0_u = (_unsigned(i) for i in (0, row0, col0))
 
         def work():
-            b = {name: jax.lax.dynamic_slice(a, (o,) * (a.ndim - 2) + (row0, col0),
+            b = {name: jax.lax.dynamic_slice(a, (o,) * (a.ndim - 2) + (row0_u, col0_u),
                                              a.shape[:-2] + (rows_per_band, cols)) for name, a in planes.items()}
 
             def fetch(start, m):
-                at = jnp.clip((col0 if axis == 2 else row0) + start, -block_len, along) + pad  # in the padded planes
-                row, col = (row0, at) if axis == 2 else (at, col0)
+                # in the padded planes (>= 0)
+                at = _unsigned(jnp.clip((col0 if axis == 2 else row0) + start, -block_len, along) + pad)
+                row, col = (row0_u, at) if axis == 2 else (at, col0_u)
                 zq = (jax.lax.dynamic_slice(z_pad, (m, row, col), (1, rows_per_band, cols))[0] if follow_surface
                       else jax.lax.dynamic_slice(z_pad, (row, col), (rows_per_band, cols)))
                 return jax.lax.dynamic_slice(ev_pad, (o, row, col), (3, rows_per_band, cols)), zq
@@ -298,7 +316,7 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
                     w_p = w_levels[m, j]
                     tap_weight = lambda i: w_p[:, i][:, None, None]
                     zc = b["z"] * scale[m] if follow_surface else b["z"]
-                    kept_e, kept = _separable_level(lambda start: fetch(start, jnp.asarray(m, jnp.int32)), zc,
+                    kept_e, kept = _separable_level(lambda start: fetch(start, _unsigned(m)), zc,
                                                     reach_levels[m, j], tap_weight, unit_offsets, per_chunk, limit,
                                                     follow_surface, interpolation, skip_centre)
                     left = None
@@ -315,7 +333,7 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
             # a loop, not unrolled: the compile time does not grow with the number of materials and levels
             result = jax.lax.fori_loop(0, count * levels, level, jnp.zeros_like(b["e"]))
             result = jnp.where(b["skip"][None], b["e"], result)
-            return jax.lax.dynamic_update_slice(out, result, (o, row0, col0))  # in place
+            return jax.lax.dynamic_update_slice(out, result, (o, row0_u, col0_u))  # in place
 
         return jax.lax.cond(block_needed[k], work, lambda: out)
 
