@@ -316,7 +316,8 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
                     w_p = w_levels[m, j]
                     tap_weight = lambda i: w_p[:, i][:, None, None]
                     zc = b["z"] * scale[m] if follow_surface else b["z"]
-                    kept_e, kept = _separable_level(lambda start: fetch(start, _unsigned(m)), zc,
+                    m_u = _unsigned(m)
+                    kept_e, kept = _separable_level(lambda start: fetch(start, m_u), zc,
                                                     reach_levels[m, j], tap_weight, unit_offsets, per_chunk, limit,
                                                     follow_surface, interpolation, skip_centre)
                     left = None
