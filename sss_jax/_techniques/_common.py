@@ -56,9 +56,15 @@ def check_one_image(name: str, buffers: Buffers, materials: int | None = None, *
 
 
 def _sss_mask(buffers: Buffers) -> Array:
-    mask = surface_mask(buffers.depth)
-    if buffers.material_id is not None:
-        mask = mask & (buffers.material_id > 0)
+    return sss_mask_of(buffers.depth, buffers.material_id)
+
+
+def sss_mask_of(depth: Array | np.ndarray, material_id: Array | np.ndarray | None) -> Array | np.ndarray:
+    """The pixels with SSS: a surface (``surface_mask``) with a material (id > 0, where ids are given). Operators
+    only: NumPy planes give a NumPy mask (host side, no dispatch to wait behind a device's queue)."""
+    mask = surface_mask(depth)
+    if material_id is not None:
+        mask = mask & (material_id > 0)
     return mask
 
 
