@@ -155,21 +155,26 @@ class Frame:
             raise no_focal_length(self.path)
         return Camera(self.focal_px, self.scene_unit_mm, self.principal_point)
 
+    def host_planes(self, *, use_albedo: bool = True):
+        """The frame's planes (``sss_jax._scene.HostPlanes``) as NumPy arrays of the dtypes its JAX buffers take:
+        ``validate_buffers`` checks them on the host before ``to_buffers`` puts them on the device."""
+        import jax
+
+        from ._scene import HostPlanes
+
+        def host(a, dtype=None):
+            a = np.asarray(a)
+            return np.asarray(a, dtype or jax.dtypes.canonicalize_dtype(a.dtype))
+
+        opt = lambda a: None if a is None else host(a)
+        return HostPlanes(irradiance=host(self.irradiance), depth=host(self.depth),
+                          albedo=opt(self.albedo) if use_albedo else None, normal=opt(self.normal),
+                          thickness=opt(self.thickness),
+                          material_id=None if self.material_id is None else host(self.material_id, np.int32))
+
     def to_buffers(self, *, use_albedo: bool = True):
         """The frame as ``sss_jax.Buffers`` (``use_albedo=False`` drops the albedo buffer so materials decide)."""
-        import jax.numpy as jnp
-
-        from ._scene import Buffers
-
-        opt = lambda a: None if a is None else jnp.asarray(a)
-        return Buffers(
-            irradiance=jnp.asarray(self.irradiance),
-            depth=jnp.asarray(self.depth),
-            albedo=opt(self.albedo) if use_albedo else None,
-            normal=opt(self.normal),
-            thickness=opt(self.thickness),
-            material_id=None if self.material_id is None else jnp.asarray(self.material_id, dtype=jnp.int32),
-        )
+        return self.host_planes(use_albedo=use_albedo).to_buffers()
 
 
 # ------------------------------------------------------------------------------------------------------------------

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import threading
 import weakref
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -108,7 +109,25 @@ def _first_pixel(bad: np.ndarray) -> str:
     return f"row {row}, column {col}" + (f" of frame {tuple(lead)}" if lead else "")
 
 
-def validate_buffers(buffers: Buffers, *, materials: int | None = None, name: str | None = None,
+class HostPlanes(NamedTuple):
+    """A frame's planes held on the host (NumPy arrays, the dtypes of ``Buffers``' fields): ``validate_buffers``
+    checks them there, before they go to the device (``to_buffers``). On JAX's CPU backend an array just put on the
+    device is readable only once every computation queued before it is done, and an accelerator's would be read
+    back: a batch checks the next frame while the device computes the last one."""
+    irradiance: np.ndarray
+    depth: np.ndarray
+    albedo: np.ndarray | None = None
+    normal: np.ndarray | None = None
+    thickness: np.ndarray | None = None
+    material_id: np.ndarray | None = None
+
+    def to_buffers(self) -> Buffers:
+        """The planes on the device, as ``Buffers``."""
+        return Buffers(**{name: None if plane is None else jax.device_put(plane)
+                          for name, plane in self._asdict().items()})
+
+
+def validate_buffers(buffers: Buffers | HostPlanes, *, materials: int | None = None, name: str | None = None,
                      physical: bool = True) -> None:
     """Host-side value checks (outside jit) with messages that name the buffer, the offending values and the first
     pixel holding one (``name``: the caller, e.g. a technique, put before the message).
@@ -131,6 +150,7 @@ def validate_buffers(buffers: Buffers, *, materials: int | None = None, name: st
     on the host (``_techniques._common.check_one_image``); under ``jit``/``vmap``, or for buffers on an accelerator,
     call it yourself.
 
+    ``HostPlanes`` (a frame's NumPy planes) are checked the same way, on the host, before they go to the device.
     Buffers of JAX arrays (immutable) that pass are remembered, weakly and by identity with ``materials`` and
     ``physical``, and not read again: the batch checks a frame and then calls its technique, a fit calls one
     technique many times on one frame."""
@@ -187,7 +207,7 @@ _PASSED_LOCK = threading.Lock()
 _PASSED_KEPT = 16
 
 
-def passed(buffers: Buffers, materials: int | None, *, physical: bool = True) -> bool:
+def passed(buffers: Buffers | HostPlanes, materials: int | None, *, physical: bool = True) -> bool:
     """Whether ``validate_buffers(buffers, materials=materials, physical=physical)`` passed before (remembered): a
     frame that passed the physical rules passes the others."""
     entry = _PASSED.get(id(buffers))
@@ -195,7 +215,14 @@ def passed(buffers: Buffers, materials: int | None, *, physical: bool = True) ->
             and (entry[2] or not physical))
 
 
-def _remember(buffers: Buffers, materials: int | None, physical: bool) -> None:
+def remember_validated(buffers: Buffers, *, materials: int | None, physical: bool = True) -> None:
+    """Keep ``buffers`` (JAX arrays) as passed by ``validate_buffers``, where their caller checked the same values on
+    the host before putting them on the device (``Frame.to_buffers(host=True)``, then ``jax.device_put``): reading
+    them back would wait for every computation queued on the device before them."""
+    _remember(buffers, materials, physical)
+
+
+def _remember(buffers: Buffers | HostPlanes, materials: int | None, physical: bool) -> None:
     """Keep ``buffers`` as passed where its arrays cannot change (JAX arrays; a NumPy array could be written)."""
     if not all(isinstance(leaf, jax.Array) for leaf in jax.tree.leaves(buffers)):
         return

@@ -1367,6 +1367,39 @@ def test_a_technique_that_computes_only_what_a_tile_keeps_is_tiled_by_its_kept_p
         assert ty * tx >= 0.5 * inner * inner, (tech.name, plan.layout)  # (equal tiles: 96 px as 3 of 32)
 
 
+def test_a_frame_is_read_and_checked_while_the_device_computes(tmp_path):
+    # the reader thread checked a frame's device buffers, which JAX's CPU backend makes readable only once the
+    # computations queued before them are done: the next frame waited for the one computing. Checked on the host,
+    # put on the device and remembered as checked, the same buffers are ready while the device is busy
+    from sss_jax._batch import _Batch, _Job
+    from sss_jax._scene import passed
+
+    sc = sj.demo_scene(48, 64)
+    b = sc.buffers
+    src = tmp_path / "f.exr"
+    _io.write_exr(src, {"R": np.asarray(b.irradiance[..., 0]), "G": np.asarray(b.irradiance[..., 1]),
+                        "B": np.asarray(b.irradiance[..., 2]), "Z": np.asarray(b.depth),
+                        "id": np.asarray(b.material_id).astype(np.float32)},
+                  attributes={"sss_jax:focal_px": float(sc.camera.focal_px), "sss_jax:mm_per_unit": 10.0})
+    material = sj.BurleyMaterial(np.tile([[0.8, 0.5, 0.4]], (3, 1)), np.tile([[3.0, 1.4, 0.8]], (3, 1)))
+    a = jax.numpy.full((768, 768), 1e-3, jax.numpy.float32)
+    busy = jax.jit(lambda x: jax.lax.fori_loop(0, 150, lambda i, y: jax.numpy.tanh(y @ x), x))
+    busy(a).block_until_ready()  # compiled
+    reader = types.SimpleNamespace(material=material)
+    options = dict(channel_map=None, focal_px=None, mm_per_unit=None, depth_kind="planar")  # process_frames' defaults
+    _Batch.decode(reader, _Job(src, tmp_path / "o.exr", 0), options, True)  # warm
+    running = busy(a)  # ~0.5-1 s of work, not waited for
+    decoded, error, _ = _Batch.decode(reader, _Job(src, tmp_path / "o.exr", 0), options, True)
+    assert error is None and not running.is_ready()
+    frame, buffers, _ = decoded
+    assert passed(buffers, 3)  # the technique's own check finds it done
+    running.block_until_ready()
+    device = frame.to_buffers()  # the frame's buffers as they were put on the device before
+    for mine, theirs in zip(jax.tree.leaves(buffers), jax.tree.leaves(device), strict=True):
+        assert isinstance(mine, jax.Array) and mine.dtype == theirs.dtype
+        np.testing.assert_array_equal(np.asarray(mine), np.asarray(theirs))
+
+
 def test_the_plans_share_of_sss_pixels_does_not_wait_behind_the_device():
     # JAX's CPU backend runs one computation after another: the share as a JAX reduction waited, in the batch's plan,
     # for the frame computing before it (2.3 ms a 256x256 frame in a batch of Burley against 0.13 ms alone,
