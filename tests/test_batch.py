@@ -1386,7 +1386,8 @@ def test_a_frame_is_read_and_checked_while_the_device_computes(tmp_path):
     busy = jax.jit(lambda x: jax.lax.fori_loop(0, 150, lambda i, y: jax.numpy.tanh(y @ x), x))
     busy(a).block_until_ready()  # compiled
     reader = types.SimpleNamespace(material=material)
-    options = {"channel_map": None, "focal_px": None, "mm_per_unit": None, "depth_kind": "planar"}  # process_frames' defaults
+    # process_frames' defaults
+    options = {"channel_map": None, "focal_px": None, "mm_per_unit": None, "depth_kind": "planar"}
     _Batch.decode(reader, _Job(src, tmp_path / "o.exr", 0), options, True)  # warm
     running = busy(a)  # ~0.5-1 s of work, not waited for
     decoded, error, _ = _Batch.decode(reader, _Job(src, tmp_path / "o.exr", 0), options, True)
