@@ -217,8 +217,9 @@ def passed(buffers: Buffers | HostPlanes, materials: int | None, *, physical: bo
 
 def remember_validated(buffers: Buffers, *, materials: int | None, physical: bool = True) -> None:
     """Keep ``buffers`` (JAX arrays) as passed by ``validate_buffers``, where their caller checked the same values on
-    the host before putting them on the device (``Frame.to_buffers(host=True)``, then ``jax.device_put``): reading
-    them back would wait for every computation queued on the device before them."""
+    the host before putting them on the device (``validate_buffers`` of ``Frame.host_planes``, then
+    ``HostPlanes.to_buffers``): reading them back would wait for every computation queued on the device before them
+    (JAX's CPU backend), or copy them back (an accelerator)."""
     _remember(buffers, materials, physical)
 
 
