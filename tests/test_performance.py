@@ -442,8 +442,10 @@ def test_the_separable_derivative_does_not_grow_with_the_taps():
 def test_the_banded_pass_traces_each_fetch_in_a_few_equations():
     # the first call of a 25-tap separable pass is what compile_seconds (#28: < 5 s) measures: tracing its unrolled
     # taps took ~1 s of it (2026-12-07, 256x256), 44 equations staged per fetch (a tap's pixel, 4 a tap: two passes,
-    # two linear corners), 18 of them lax.dynamic_slice's wrap of negative start indices; now the start indices are
-    # unsigned and a fetch's sums one cached jitted call, traced once: 16 equations per fetch, the same program
+    # two linear corners); a fetch's sums are now one cached jitted call, traced once: 32 equations per fetch, the
+    # same compiled program (its fusions and operations counted). (Unsigned slice indices would save 16 more, which
+    # lax.dynamic_slice stages to wrap negative ones, but changed XLA's small index fusions and ran the pass 1-4%
+    # slower, side by side.)
     h, w = 24, 32
     irr = jnp.asarray(np.random.default_rng(0).uniform(0.2, 1.0, (h, w, 3)), jnp.float32)
     z, cam = jnp.full((h, w), 20.0, jnp.float32), sj.Camera(50.0, 10.0)
@@ -465,7 +467,7 @@ def test_the_banded_pass_traces_each_fetch_in_a_few_equations():
         return count
 
     per_fetch = (traced(25) - traced(9)) / (16 * 2 * 2)  # 16 taps more, two passes, two corners each
-    assert per_fetch <= 20, per_fetch
+    assert per_fetch <= 36, per_fetch
 
 
 @pytest.mark.parametrize("axis", [2, 1])

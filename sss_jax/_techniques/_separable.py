@@ -95,13 +95,6 @@ def _add_fetch(sums: tuple[Array, Array], ev: Array, zv: Array, z: Array, weight
     return sums[0] + weight * a, sums[1] + weight * k[None]
 
 
-def _unsigned(index: Array | int) -> Array:
-    """A start index of a slice known to be >= 0, as ``uint32``: ``lax.dynamic_slice`` and ``dynamic_update_slice``
-    stage no wrap of negative indices for an unsigned one (a comparison, an add and a select per index, traced for
-    each of the unrolled taps' fetches). The same slice: XLA clamps start indices into the operand either way."""
-    return jax.lax.convert_element_type(index, jnp.uint32)
-
-
 def _leaving(outside_pad: Array, pad: int, length: int, unit_offsets: Array, reach_px: Array, w_level: Array,
              interpolation: str, limit: float) -> Array:
     """``O`` of ``_separable_spec.tap_sums`` at one constant reach, tap weights ``w_level (3, n)``, for every
@@ -292,18 +285,15 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
     def block(k, out):
         row0 = jnp.minimum((k // col_blocks) * rows_per_band, h - rows_per_band).astype(jnp.int32)
         col0 = jnp.minimum((k % col_blocks) * cols, w - cols).astype(jnp.int32)
-        # the slices' start indices as unsigned integers (every one is >= 0): ``lax.dynamic_slice`` then stages no
-        # wrap of negative indices (three operations per index: a third of the 25-tap pass's tracing time)
-        o, row0_u, col0_u = (_unsigned(i) for i in (0, row0, col0))
+        o = jnp.zeros((), jnp.int32)  # index arguments of one type (int64 under x64 otherwise)
 
         def work():
-            b = {name: jax.lax.dynamic_slice(a, (o,) * (a.ndim - 2) + (row0_u, col0_u),
+            b = {name: jax.lax.dynamic_slice(a, (o,) * (a.ndim - 2) + (row0, col0),
                                              a.shape[:-2] + (rows_per_band, cols)) for name, a in planes.items()}
 
             def fetch(start, m):
-                # in the padded planes (>= 0)
-                at = _unsigned(jnp.clip((col0 if axis == 2 else row0) + start, -block_len, along) + pad)
-                row, col = (row0_u, at) if axis == 2 else (at, col0_u)
+                at = jnp.clip((col0 if axis == 2 else row0) + start, -block_len, along) + pad  # in the padded planes
+                row, col = (row0, at) if axis == 2 else (at, col0)
                 zq = (jax.lax.dynamic_slice(z_pad, (m, row, col), (1, rows_per_band, cols))[0] if follow_surface
                       else jax.lax.dynamic_slice(z_pad, (row, col), (rows_per_band, cols)))
                 return jax.lax.dynamic_slice(ev_pad, (o, row, col), (3, rows_per_band, cols)), zq
@@ -316,8 +306,8 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
                     w_p = w_levels[m, j]
                     tap_weight = lambda i: w_p[:, i][:, None, None]
                     zc = b["z"] * scale[m] if follow_surface else b["z"]
-                    m_u = _unsigned(m)
-                    kept_e, kept = _separable_level(lambda start: fetch(start, m_u), zc,
+                    m_index = jnp.asarray(m, jnp.int32)
+                    kept_e, kept = _separable_level(lambda start: fetch(start, m_index), zc,
                                                     reach_levels[m, j], tap_weight, unit_offsets, per_chunk, limit,
                                                     follow_surface, interpolation, skip_centre)
                     left = None
@@ -334,7 +324,7 @@ def _separable_pass(e: Array, z: Array, valid: Array, level_weights: Array, leve
             # a loop, not unrolled: the compile time does not grow with the number of materials and levels
             result = jax.lax.fori_loop(0, count * levels, level, jnp.zeros_like(b["e"]))
             result = jnp.where(b["skip"][None], b["e"], result)
-            return jax.lax.dynamic_update_slice(out, result, (o, row0_u, col0_u))  # in place
+            return jax.lax.dynamic_update_slice(out, result, (o, row0, col0))  # in place
 
         return jax.lax.cond(block_needed[k], work, lambda: out)
 
