@@ -90,7 +90,7 @@ from ._io import (EXR_MAGIC, Frame, SSSInputError, Window, _frame_from_decoded, 
                   check_writable, exr_is_complete, load_channel_map, no_focal_length, png_attribute, read_header,
                   write_exr, write_json_atomic, write_png_preview)
 from ._materials import DirectionalLight, ProfileMaterial, STAParams
-from ._scene import Buffers, Camera, remember_validated, validate_buffers
+from ._scene import Buffers, Camera, remember_validated, validate_buffers, validate_planes
 from ._errors import ReferenceWindowWarning, SamplingWarning, TilePlacementError
 from ._techniques import AbstractTechnique, get_technique
 from ._techniques import technique as make_technique
@@ -1593,8 +1593,9 @@ class _Batch:
             # checked on the host, then put on the device: JAX's CPU backend runs one computation after another, and
             # a frame put there is readable only once the frames computing before it are done (the check read it)
             host = frame.host_planes(use_albedo=use_albedo)
-            validate_buffers(host, materials=_material_count(self.material))
-            buffers = host.to_buffers()
+            validate_planes(host.irradiance, albedo=host.albedo, normal=host.normal, thickness=host.thickness,
+                            material_id=host.material_id, materials=_material_count(self.material))
+            buffers = host.to_buffers(use_albedo=use_albedo)
             remember_validated(buffers, materials=_material_count(self.material))
         except Exception as exc:  # noqa: BLE001 - a frame that cannot be read fails alone; the batch goes on
             return None, exc, said

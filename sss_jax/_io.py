@@ -155,26 +155,34 @@ class Frame:
             raise no_focal_length(self.path)
         return Camera(self.focal_px, self.scene_unit_mm, self.principal_point)
 
-    def host_planes(self, *, use_albedo: bool = True):
-        """The frame's planes (``sss_jax._scene.HostPlanes``) as NumPy arrays of the dtypes its JAX buffers take:
-        ``validate_buffers`` checks them on the host before ``to_buffers`` puts them on the device."""
+    def host_planes(self, *, use_albedo: bool = True) -> Frame:
+        """The frame with its planes as the dtypes its JAX buffers take (``use_albedo=False``: without the albedo),
+        still NumPy arrays: ``validate_buffers`` checks them on the host before ``to_buffers`` puts them on the device
+        (on JAX's CPU backend an array just put there is readable only once the computations queued before it are
+        done; an accelerator's would be copied back)."""
         import jax
-
-        from ._scene import HostPlanes
 
         def host(a, dtype=None):
             a = np.asarray(a)
             return np.asarray(a, dtype or jax.dtypes.canonicalize_dtype(a.dtype))
 
         opt = lambda a: None if a is None else host(a)
-        return HostPlanes(irradiance=host(self.irradiance), depth=host(self.depth),
-                          albedo=opt(self.albedo) if use_albedo else None, normal=opt(self.normal),
-                          thickness=opt(self.thickness),
-                          material_id=None if self.material_id is None else host(self.material_id, np.int32))
+        return dataclasses.replace(self, irradiance=host(self.irradiance), depth=host(self.depth),
+                                   albedo=opt(self.albedo) if use_albedo else None, normal=opt(self.normal),
+                                   thickness=opt(self.thickness),
+                                   material_id=None if self.material_id is None else host(self.material_id, np.int32))
 
     def to_buffers(self, *, use_albedo: bool = True):
         """The frame as ``sss_jax.Buffers`` (``use_albedo=False`` drops the albedo buffer so materials decide)."""
-        return self.host_planes(use_albedo=use_albedo).to_buffers()
+        import jax
+
+        from ._scene import Buffers
+
+        planes = self.host_planes(use_albedo=use_albedo)
+        put = lambda a: None if a is None else jax.device_put(a)
+        return Buffers(irradiance=put(planes.irradiance), depth=put(planes.depth), albedo=put(planes.albedo),
+                       normal=put(planes.normal), thickness=put(planes.thickness),
+                       material_id=put(planes.material_id))
 
 
 # ------------------------------------------------------------------------------------------------------------------

@@ -10,7 +10,6 @@ from __future__ import annotations
 import math
 import threading
 import weakref
-from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -109,25 +108,7 @@ def _first_pixel(bad: np.ndarray) -> str:
     return f"row {row}, column {col}" + (f" of frame {tuple(lead)}" if lead else "")
 
 
-class HostPlanes(NamedTuple):
-    """A frame's planes held on the host (NumPy arrays, the dtypes of ``Buffers``' fields): ``validate_buffers``
-    checks them there, before they go to the device (``to_buffers``). On JAX's CPU backend an array just put on the
-    device is readable only once every computation queued before it is done, and an accelerator's would be read
-    back: a batch checks the next frame while the device computes the last one."""
-    irradiance: np.ndarray
-    depth: np.ndarray
-    albedo: np.ndarray | None = None
-    normal: np.ndarray | None = None
-    thickness: np.ndarray | None = None
-    material_id: np.ndarray | None = None
-
-    def to_buffers(self) -> Buffers:
-        """The planes on the device, as ``Buffers``."""
-        return Buffers(**{name: None if plane is None else jax.device_put(plane)
-                          for name, plane in self._asdict().items()})
-
-
-def validate_buffers(buffers: Buffers | HostPlanes, *, materials: int | None = None, name: str | None = None,
+def validate_buffers(buffers: Buffers, *, materials: int | None = None, name: str | None = None,
                      physical: bool = True) -> None:
     """Host-side value checks (outside jit) with messages that name the buffer, the offending values and the first
     pixel holding one (``name``: the caller, e.g. a technique, put before the message).
@@ -150,12 +131,27 @@ def validate_buffers(buffers: Buffers | HostPlanes, *, materials: int | None = N
     on the host (``_techniques._common.check_one_image``); under ``jit``/``vmap``, or for buffers on an accelerator,
     call it yourself.
 
-    ``HostPlanes`` (a frame's NumPy planes) are checked the same way, on the host, before they go to the device.
+    ``validate_planes`` checks planes themselves (a batch's, on the host, before they go to the device).
     Buffers of JAX arrays (immutable) that pass are remembered, weakly and by identity with ``materials`` and
     ``physical``, and not read again: the batch checks a frame and then calls its technique, a fit calls one
     technique many times on one frame."""
     if passed(buffers, materials, physical=physical):
         return
+    validate_planes(buffers.irradiance, albedo=buffers.albedo, normal=buffers.normal, thickness=buffers.thickness,
+                    material_id=buffers.material_id, materials=materials, name=name, physical=physical)
+    _remember(buffers, materials, physical)
+
+
+Plane = Array | np.ndarray
+
+
+def validate_planes(irradiance: Plane, *, albedo: Plane | None = None, normal: Plane | None = None,
+                    thickness: Plane | None = None, material_id: Plane | None = None, materials: int | None = None,
+                    name: str | None = None, physical: bool = True) -> None:
+    """``validate_buffers``' checks of the planes themselves, JAX or NumPy arrays, nothing remembered: a batch checks
+    a frame's NumPy planes (``Frame.host_planes``) on the host before they go to the device, where JAX's CPU
+    backend makes an array readable only once the computations queued before it are done (and an accelerator's
+    would be copied back), then keeps the device buffers as checked (``remember_validated``)."""
     prefix = f"{name}: " if name else ""
 
     def fail(what: str, bad: np.ndarray, rule: str, *, channels: bool = True):
@@ -169,36 +165,35 @@ def validate_buffers(buffers: Buffers | HostPlanes, *, materials: int | None = N
         return v, (v.min(), v.max()) if v.size else (0, 0)
 
     finite = lambda lo, hi: bool(np.isfinite(lo) and np.isfinite(hi))
-    e, (lo, hi) = values(buffers.irradiance)
+    e, (lo, hi) = values(irradiance)
     if not finite(lo, hi):
         fail("irradiance has {n} non-finite value{s} (NaN or inf)", ~np.isfinite(e), "irradiance must be finite")
     if physical and lo < 0:
         fail(f"irradiance has {{n}} negative value{{s}} (min {float(lo):.3g})", e < 0, "irradiance must be >= 0")
-    if buffers.albedo is not None:
-        a, (lo, hi) = values(buffers.albedo)
+    if albedo is not None:
+        a, (lo, hi) = values(albedo)
         if physical and not (lo >= 0 and hi <= 1):  # NaN fails both
             fail("albedo buffer has {n} value{s} outside [0, 1] or NaN", ~((a >= 0) & (a <= 1)),
                  "the albedo buffer must be finite and within [0, 1]")
         if not finite(lo, hi):
             fail("albedo buffer has {n} non-finite value{s} (NaN or inf)", ~np.isfinite(a),
                  "the albedo buffer must be finite")
-    if buffers.thickness is not None:
-        t, (lo, _) = values(buffers.thickness)
+    if thickness is not None:
+        t, (lo, _) = values(thickness)
         if np.isnan(lo):
             fail("thickness buffer has {n} NaN value{s}", np.isnan(t),
                  "thickness must not be NaN (a negative value reads as 0, inf as infinitely thick)", channels=False)
-    if buffers.normal is not None:
-        nrm, (lo, hi) = values(buffers.normal)
+    if normal is not None:
+        nrm, (lo, hi) = values(normal)
         if not finite(lo, hi):
             fail("normal buffer has {n} non-finite value{s}", ~np.isfinite(nrm), "normals must be finite")
-    if buffers.material_id is not None:
-        ids, (lo, hi) = values(buffers.material_id)
+    if material_id is not None:
+        ids, (lo, hi) = values(material_id)
         if lo < 0:
             fail(f"material_id has {{n}} negative id{{s}} (min {int(lo)})", ids < 0, "ids must be >= 0", channels=False)
         if materials is not None and materials > 1 and hi > materials:
             fail(f"material_id uses id {int(hi)} but only {materials} materials were given (ids 1..{materials}): "
                  "{n} pixel{s} above", ids > materials, "an id k selects material row k (0: no SSS)", channels=False)
-    _remember(buffers, materials, physical)
 
 
 # ``validate_buffers``' passed buffers: id -> (weak reference, materials, physical); a few, the newest kept
@@ -207,7 +202,7 @@ _PASSED_LOCK = threading.Lock()
 _PASSED_KEPT = 16
 
 
-def passed(buffers: Buffers | HostPlanes, materials: int | None, *, physical: bool = True) -> bool:
+def passed(buffers: Buffers, materials: int | None, *, physical: bool = True) -> bool:
     """Whether ``validate_buffers(buffers, materials=materials, physical=physical)`` passed before (remembered): a
     frame that passed the physical rules passes the others."""
     entry = _PASSED.get(id(buffers))
@@ -217,13 +212,13 @@ def passed(buffers: Buffers | HostPlanes, materials: int | None, *, physical: bo
 
 def remember_validated(buffers: Buffers, *, materials: int | None, physical: bool = True) -> None:
     """Keep ``buffers`` (JAX arrays) as passed by ``validate_buffers``, where their caller checked the same values on
-    the host before putting them on the device (``validate_buffers`` of ``Frame.host_planes``, then
-    ``HostPlanes.to_buffers``): reading them back would wait for every computation queued on the device before them
+    the host before putting them on the device (``validate_planes`` of ``Frame.host_planes``, then
+    ``Frame.to_buffers``): reading them back would wait for every computation queued on the device before them
     (JAX's CPU backend), or copy them back (an accelerator)."""
     _remember(buffers, materials, physical)
 
 
-def _remember(buffers: Buffers | HostPlanes, materials: int | None, physical: bool) -> None:
+def _remember(buffers: Buffers, materials: int | None, physical: bool) -> None:
     """Keep ``buffers`` as passed where its arrays cannot change (JAX arrays; a NumPy array could be written)."""
     if not all(isinstance(leaf, jax.Array) for leaf in jax.tree.leaves(buffers)):
         return
