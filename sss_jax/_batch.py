@@ -1592,11 +1592,11 @@ class _Batch:
                 raise no_focal_length(job.src)
             # checked on the host, then put on the device: JAX's CPU backend runs one computation after another, and
             # a frame put there is readable only once the frames computing before it are done (the check read it)
-            host = frame.host_planes(use_albedo=use_albedo)
+            host, materials = frame.host_planes(use_albedo=use_albedo), _material_count(self.material)
             validate_planes(host.irradiance, albedo=host.albedo, normal=host.normal, thickness=host.thickness,
-                            material_id=host.material_id, materials=_material_count(self.material))
-            buffers = host.to_buffers(use_albedo=use_albedo)
-            remember_validated(buffers, materials=_material_count(self.material))
+                            material_id=host.material_id, materials=materials)
+            buffers = host.to_buffers()
+            remember_validated(buffers, materials=materials)
         except Exception as exc:  # noqa: BLE001 - a frame that cannot be read fails alone; the batch goes on
             return None, exc, said
         return (frame, buffers, _camera(frame)), None, said

@@ -157,7 +157,7 @@ class Frame:
 
     def host_planes(self, *, use_albedo: bool = True) -> Frame:
         """The frame with its planes as the dtypes its JAX buffers take (``use_albedo=False``: without the albedo),
-        still NumPy arrays: ``validate_buffers`` checks them on the host before ``to_buffers`` puts them on the device
+        still NumPy arrays: ``validate_planes`` checks them on the host before ``to_buffers`` puts them on the device
         (on JAX's CPU backend an array just put there is readable only once the computations queued before it are
         done; an accelerator's would be copied back)."""
         import jax
