@@ -179,10 +179,21 @@ class Frame:
         from ._scene import Buffers
 
         planes = self.host_planes(use_albedo=use_albedo)
-        put = lambda a: None if a is None else jax.device_put(a)
-        return Buffers(irradiance=put(planes.irradiance), depth=put(planes.depth), albedo=put(planes.albedo),
-                       normal=put(planes.normal), thickness=put(planes.thickness),
-                       material_id=put(planes.material_id))
+
+        def put(name: str):
+            plane, own = getattr(planes, name), getattr(self, name)
+            if plane is None:
+                return None
+            # a plane that is (or views) this frame's own array goes as a copy: JAX's CPU backend may take a NumPy
+            # array without copying it (a 64-byte aligned one), or copy it after the call returns, so the buffers
+            # would change with the frame's array, and a JAX array is taken for immutable (a buffer checked once
+            # is remembered as checked)
+            if own is not None and np.may_share_memory(plane, own):
+                plane = plane.copy()
+            return jax.device_put(plane)
+
+        return Buffers(**{name: put(name) for name in ("irradiance", "depth", "albedo", "normal", "thickness",
+                                                       "material_id")})
 
 
 # ------------------------------------------------------------------------------------------------------------------

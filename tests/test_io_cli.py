@@ -216,6 +216,38 @@ def test_generic_layout_and_channel_map(tmp_path):
         _io.read_frame(q, channel_map=bad)
 
 
+def test_a_frames_buffers_keep_their_values_when_its_arrays_are_edited_afterwards():
+    # JAX's CPU backend takes a 64-byte aligned NumPy array without copying it (jax 0.10.2) and copies others after
+    # device_put returns: Frame.to_buffers put the frame's own arrays, so its buffers changed with them, and buffers
+    # checked once (remembered as checked: a JAX array is immutable) then held a NaN that no check saw (a review,
+    # 2026-12-07)
+    from sss_jax._scene import validate_buffers
+
+    def aligned(shape, value, dtype):
+        n = int(np.prod(shape))
+        raw = np.full(n + 64, value, dtype)
+        start = (-raw.ctypes.data % 64) // raw.itemsize
+        return raw[start:start + n].reshape(shape)
+
+    for dtype in (np.float32, np.float64):  # float64 planes are converted where x64 is off, taken as they are here
+        f = _io.Frame(irradiance=aligned((16, 24, 3), 0.5, dtype), depth=aligned((16, 24), 2.0, dtype),
+                      albedo=aligned((16, 24, 3), 0.8, dtype), material_id=aligned((16, 24), 1, np.int32))
+        assert f.irradiance.ctypes.data % 64 == 0
+        b = f.to_buffers()
+        validate_buffers(b)
+        f.irradiance[5, 7, 0] = np.nan
+        f.depth[:] = -1.0
+        f.albedo[0, 0] = 2.0
+        f.material_id[:] = 9
+        np.testing.assert_array_equal(np.asarray(b.irradiance), 0.5)
+        np.testing.assert_array_equal(np.asarray(b.depth), 2.0)
+        np.testing.assert_array_equal(np.asarray(b.albedo), np.asarray(dtype(0.8)).astype(b.albedo.dtype))
+        np.testing.assert_array_equal(np.asarray(b.material_id), 1)
+        validate_buffers(b)  # still the values that were checked
+        with pytest.raises(ValueError, match="irradiance"):
+            validate_buffers(f.to_buffers())  # the edited frame's new buffers are checked afresh
+
+
 def test_distance_depth_converted_to_planar(tmp_path):
     # pixel (0, 0) of a 4x4 image with f = 2: centre offset (-1.5, -1.5) px -> z = dist / sqrt(1 + 2 * 0.75^2)
     p = tmp_path / "d.exr"
