@@ -1622,6 +1622,10 @@ class _Batch:
         t0 = time.perf_counter()
         try:
             frame, buffers, camera = self.read(job, read_options, use_albedo)
+        except Exception as exc:  # noqa: BLE001 - any error reading a frame fails that frame; the batch goes on
+            self.fail(job, exc)
+            return
+        try:
             self.framing[job] = (frame.window, frame.metadata)
             if following is not None and frame.shape[0] * frame.shape[1] <= tile_pixels:
                 # a sequence of frames that fit one call: the next one read meanwhile (larger frames, in tiles,

@@ -723,7 +723,9 @@ def focal_from_lens(camera: Mapping[str, Any], display: tuple[int, int], *, wher
         try:
             res = tuple(int(v) for v in resolution)
         except (TypeError, ValueError):
-            raise SSSInputError(f"{where}: resolution must be [width, height], got {resolution!r}") from None
+            res = ()
+        if len(res) != 2:
+            raise SSSInputError(f"{where}: resolution must be [width, height], got {resolution!r}")
         if res != tuple(display):
             raise SSSInputError(f"{where}: the render's resolution {res[0]}x{res[1]} is not the file's "
                                 f"{display[0]}x{display[1]} (cropped or scaled?): its lens gives no focal length for "

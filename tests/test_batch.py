@@ -421,18 +421,45 @@ def test_a_sidecar_whose_values_are_not_numbers_fails_its_frame(frames, tmp_path
     b = sj.demo_scene(40, 48).buffers
     channels = {"R": np.asarray(b.irradiance[..., 0]), "G": np.asarray(b.irradiance[..., 1]),
                 "B": np.asarray(b.irradiance[..., 2]), "Z": np.asarray(b.depth)}
-    for i in range(3):  # no focal length in the header: the sidecar's is the one
+    for i in range(4):  # no focal length in the header: the sidecar's is the one
         _io.write_exr(src / f"f{i}.exr", channels, attributes={"sss_jax:mm_per_unit": 10.0})
     (src / "f0.json").write_text(json.dumps({"camera": {"focal_px": 60.0}}))
     (src / "f1.json").write_text(json.dumps({"camera": "Camera.001"}))
     (src / "f2.json").write_text(json.dumps({"camera": {"focal_px": "wide"}}))
+    # a resolution of one number (before, an IndexError building the message ended the whole batch)
+    (src / "f3.json").write_text(json.dumps({"camera": {"lens_mm": 50, "sensor_width_mm": 36}, "resolution": [48]}))
     r = process_frames(str(src / "*.exr"), "separable", MAT, out_dir=tmp_path / "out", taps=9, progress=False,
                        devices=jax.devices()[:1])
-    assert [f.status for f in r.frames] == ["done", "failed", "failed"]
+    assert [f.status for f in r.frames] == ["done", "failed", "failed", "failed"]
     assert "no focal length" in r.frames[1].message
     assert "camera.focal_px of f2.json is 'wide', not a number" in r.frames[2].message
+    assert "resolution must be [width, height], got [48]" in r.frames[3].message
     with pytest.raises(_io.SSSInputError, match="f2.exr: focal_px from camera.focal_px of f2.json"):
         _io.read_frame(src / "f2.exr")
+
+
+def test_any_error_reading_a_frame_fails_that_frame_and_the_batch_goes_on(frames, tmp_path, monkeypatch):
+    # the reader's errors of any type, not only the OSError and ValueError it raises on purpose: before, another
+    # type (an IndexError of a sidecar's reading) ended the whole batch, the frames after it never run and the
+    # manifest left "interrupted"
+    import sss_jax._batch as batch
+
+    decoded = batch._frame_from_decoded
+
+    def flaky(path, *args, **kwargs):
+        if pathlib.Path(path).name == "f1.exr":
+            raise KeyError("a channel the reader did not expect")
+        return decoded(path, *args, **kwargs)
+
+    monkeypatch.setattr(batch, "_frame_from_decoded", flaky)
+    out = tmp_path / "out"
+    r = process_frames([str(frames / f"f{i}.exr") for i in range(3)], "separable", MAT, out_dir=out, taps=9,
+                       progress=False, devices=jax.devices()[:1])
+    assert [f.status for f in r.frames] == ["done", "failed", "done"]
+    assert "f1.exr" in r.frames[1].message and "KeyError" in r.frames[1].message
+    book = json.loads((out / MANIFEST_NAME).read_text())
+    assert book["state"] == "complete"
+    assert [f["status"] for f in sorted(book["frames"], key=lambda f: f["input"])] == ["done", "failed", "done"]
 
 
 def test_a_temporary_that_cannot_be_stated_is_left_alone(tmp_path):
