@@ -36,7 +36,8 @@
   output, status, message, warnings and seconds. Each finished frame's entry is appended to the run's journal beside
   it (O(1) per frame); the JSON is folded from it atomically at the first frame, about every second and at the end,
   and a killed run's journal is folded by the next run. Runs into one folder merge their entries frame by frame
-  under a lock, so it never says a complete frame failed.
+  under a lock, so it never says a complete frame failed; an output made from an input since re-rendered is not
+  complete: a run that fails the new input says so.
 - **long frames**: a frame whose calls would pass the work bound (``call_seconds``: about a second on this
   project's 2-core CPU, by the technique's cost per pixel) runs in pieces: tiles, and where a tile (or the frame)
   is still too long, the technique's own pieces (``AbstractTechnique.pieces``: Burley's frames in groups with the
@@ -672,13 +673,25 @@ def _journal_entries(path: pathlib.Path) -> list[dict[str, Any]]:
 
 def _merge_entry(frames: dict[str, Any], entry: dict[str, Any]) -> None:
     """Put ``entry`` in ``frames``, unless the entry there is another run's, says the output is complete while
-    ``entry`` does not, and that output exists (the disk holds it)."""
+    ``entry`` does not, and that output exists (the disk holds it) made from what ``entry`` was to be made from:
+    its ``record`` (the digest of its resume record, ``_resume_record``), where it has one. An output an earlier
+    run made from an input since re-rendered is not this frame's: a run that fails the new input says so."""
     out = entry.get("output")
     old = frames.get(out)
     keep_old = (old is not None and old.get("run") != entry.get("run")
-                and _RANK.get(old.get("status"), 0) > _RANK.get(entry.get("status"), 0) and os.path.exists(out))
+                and _RANK.get(old.get("status"), 0) > _RANK.get(entry.get("status"), 0) and os.path.exists(out)
+                and _made_from(out, entry.get("record")))
     if not keep_old:
         frames[out] = entry
+
+
+def _made_from(output: str, record: str | None) -> bool:
+    """Whether the existing ``output`` carries the resume record ``record`` (any output where ``record`` is None:
+    an entry that does not say what it was made from)."""
+    if record is None:
+        return True
+    header = _existing_output(pathlib.Path(output))
+    return bool(header) and header.get("sss_jax:record") == record
 
 
 class _Manifest:
@@ -695,7 +708,9 @@ class _Manifest:
     Runs into one folder at once share it: each fold merges, under a lock on the folder, this run's entries into what
     is on disk, frame by frame; an entry that says an output is complete (done/skipped) is not replaced by another
     run's pending or failed one while that output exists (the disk holds it; that run's own result says it failed).
-    So the manifest never says a complete frame failed."""
+    So the manifest never says a complete frame failed. Complete means made from the same input and parameters: an
+    entry says what it was to be made from (``record``, its resume record's digest), and an earlier run's output
+    of an input since re-rendered does not hide a run that fails the new input."""
 
     def __init__(self, path: pathlib.Path | None, run: dict[str, Any], jobs: list["_Job"]):
         self.path = path
@@ -717,10 +732,13 @@ class _Manifest:
         self.fold_s = 0.0  # what the last fold took
         self.write(dead_journals=True)
 
-    def record(self, r: "FrameResult") -> None:
+    def record(self, r: "FrameResult", digest: str | None = None) -> None:
+        """The frame's entry; ``digest``: its resume record's (``_resume_record``), where the run computed it."""
         entry = {"input": os.path.abspath(r.input), "output": os.path.abspath(r.output), "status": r.status,
                  "message": r.message, "warnings": list(r.warnings), "seconds": round(r.seconds, 4),
                  "run": self.run_id}
+        if digest is not None:
+            entry["record"] = digest
         self.mine[entry["output"]] = entry
         if self.path is None:
             return
@@ -1418,7 +1436,8 @@ class _Batch:
         self.reader: concurrent.futures.ThreadPoolExecutor | None = None  # decodes the next frame's input
         self.writer: concurrent.futures.ThreadPoolExecutor | None = None  # writes the last frame's files
         self.ahead: tuple[_Job, concurrent.futures.Future] | None = None
-        self.in_flight: tuple[_Job, FrameResult, concurrent.futures.Future] | None = None
+        # the frame whose files the writer writes: its job, result, resume record's digest and the write
+        self.in_flight: tuple[_Job, FrameResult, str, concurrent.futures.Future] | None = None
         self.computer: concurrent.futures.ThreadPoolExecutor | None = None  # small frames, COMPUTE_THREADS at once
         self.computing: collections.deque[_Computing] = collections.deque()  # in the frames' order
         self.call_warnings = _CallWarnings()
@@ -1457,21 +1476,27 @@ class _Batch:
         self.read_said.pop(job, None)
 
     # -- results
-    def finish(self, r: FrameResult) -> None:
+    def finish(self, r: FrameResult, digest: str | None = None) -> None:
         self.settle()  # the frames computing and the frame in flight first: results and manifest in the frames' order
         self.collect()
-        self.append(r)
+        self.append(r, digest)
 
-    def append(self, r: FrameResult) -> None:
+    def append(self, r: FrameResult, digest: str | None = None) -> None:
         """A frame's result recorded (the frames before it are)."""
         with self.signals.critical():  # a skipped or failed frame's entry too: the manifest never lags the results
-            self.record_result(r)
+            self.record_result(r, digest)
         self.report(r)
 
-    def record_result(self, r: FrameResult) -> None:
-        """(Inside a critical section.) The result in the run's results and the manifest."""
+    def record_result(self, r: FrameResult, digest: str | None = None) -> None:
+        """(Inside a critical section.) The result in the run's results and the manifest (``digest``: the frame's
+        resume record's, ``_Manifest.record``)."""
         self.results.append(r)
-        self.book.record(r)
+        self.book.record(r, digest)
+
+    def digest_of(self, job: _Job) -> str | None:
+        """The digest of the job's resume record, where the run has computed it and not yet forgotten it."""
+        known = self.records.get(job)
+        return None if known is None else known[1]
 
     def report(self, r: FrameResult) -> None:
         if len(self.results) % 64 == 0:
@@ -1484,8 +1509,9 @@ class _Batch:
             _call_back("on_frame_done", self.on_frame_done, r)
 
     def fail(self, job: _Job, exc: BaseException, path: pathlib.Path | None = None) -> None:
+        digest = self.digest_of(job)
         self.forget(job)
-        self.finish(self.failure(job, exc, path))
+        self.finish(self.failure(job, exc, path), digest)
 
     @staticmethod
     def failure(job: _Job, exc: BaseException, path: pathlib.Path | None = None) -> FrameResult:
@@ -1519,8 +1545,8 @@ class _Batch:
         self.collect()
         if self.writer is None:
             self.writer = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="sss_jax-write")
-        self.in_flight = (job, done, self.writer.submit(self.write_files, job, image, attrs,
-                                                        job.dst in self.existing, *framing))
+        self.in_flight = (job, done, attrs["sss_jax:record"],
+                          self.writer.submit(self.write_files, job, image, attrs, job.dst in self.existing, *framing))
 
     def write_files(self, job: _Job, image: np.ndarray, attrs: dict, overwrite: bool, window: Window | None = None,
                     like: Mapping[str, Any] | None = None):
@@ -1555,12 +1581,12 @@ class _Batch:
         if self.in_flight is None:
             return
         with self.signals.critical():  # the files and their manifest entry together, or neither
-            job, r, future = self.in_flight
+            job, r, digest, future = self.in_flight
             failed = future.result()
             self.in_flight = None
             if failed is not None:
                 r = self.failure(job, *failed)
-            self.record_result(r)
+            self.record_result(r, digest)
         self.report(r)
 
     def close(self) -> None:
@@ -1705,9 +1731,10 @@ class _Batch:
             try:
                 image, warned, seconds = c.future.result()
             except (OSError, ValueError) as exc:
+                digest = self.digest_of(c.job)
                 self.forget(c.job)
                 self.collect()
-                self.append(self.failure(c.job, exc))
+                self.append(self.failure(c.job, exc), digest)
                 continue
             self.computed(c.job, c.plan, c.camera, c.shape, image, warned, c.read_s + seconds)
 

@@ -1098,6 +1098,29 @@ def test_two_runs_into_one_folder_leave_a_true_manifest(frames, tmp_path):
     assert len(book["runs"]) == 2 and {r["state"] for r in book["runs"]} == {"complete"}
 
 
+def test_a_frame_failing_after_its_input_was_re_rendered_is_failed_in_the_manifest(frames, tmp_path):
+    # a first run completes every frame; f1 is re-rendered and lands cut short, and the next run (resume) fails it.
+    # Before, the manifest kept the first run's "done" because its output exists, though that output was made from
+    # the earlier input (a review, 2026-12-07); an output made from this very input stays complete (the test above)
+    src = tmp_path / "src"
+    src.mkdir()
+    for i in range(3):
+        copy_frame(frames, f"f{i}.exr", src / f"f{i}.exr")
+    out = tmp_path / "out"
+    run = lambda: process_frames(str(src / "*.exr"), "separable", MAT, out_dir=out, taps=9, progress=False,
+                                 devices=jax.devices()[:1])
+    assert run().ok
+    data = (src / "f1.exr").read_bytes()
+    (src / "f1.exr").write_bytes(data[: len(data) // 2])
+    again = run()
+    assert [f.status for f in again.frames] == ["skipped", "failed", "skipped"]
+    book = json.loads((out / MANIFEST_NAME).read_text())
+    status = {pathlib.Path(f["output"]).name: (f["status"], f["message"]) for f in book["frames"]}
+    assert [status[f"f{i}.exr"][0] for i in range(3)] == ["skipped", "failed", "skipped"]
+    assert "f1.exr" in status["f1.exr"][1]
+    assert (out / "f1.exr").exists()  # the earlier output stays on the disk: the manifest says it is not this input's
+
+
 def test_a_killed_runs_journal_is_folded_into_the_manifest_by_the_next_run(frames, tmp_path):
     # entries go to a per-run journal between folds of the manifest: a run killed (SIGKILL) before its fold leaves
     # its journal, and the next run into the folder folds it in (its frames' entries are not lost), then removes it
