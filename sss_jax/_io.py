@@ -896,6 +896,10 @@ def _frame_from_decoded(path: pathlib.Path, decoded, *, channel_map, depth_kind:
         warn(f"{path}: no diffuse light passes (DiffDir, DiffInd): the irradiance is the Combined pass, which is "
              "shaded already (the surface colour, specular and emission in it), so the albedo counts twice and the "
              "highlights scatter; render the Diffuse Direct, Indirect and Color passes", UserWarning)
+    elif layout == "blender" and not isinstance(plan["irradiance"], tuple) and \
+            any(".DiffDir." in name or name.startswith("DiffDir.") for name in plan["irradiance"]):
+        warn(f"{path}: no Diffuse Indirect pass (DiffInd): the irradiance is the direct diffuse light alone, the "
+             "light bounced between surfaces left out; render the Diffuse Indirect pass too", UserWarning)
     if "sss_jax:file_format" not in metadata:  # an EXR's integer channel holds ids or counts, never light or lengths
         for key, names in plan.items():
             stored = [n for n in _flat_names(names) if n in integers]

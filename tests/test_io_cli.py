@@ -713,6 +713,21 @@ def test_a_combined_pass_taken_for_light_is_said_and_a_png_named_exr_is_named(tm
                                          "shaded already"):
         frame = _io.read_frame(tmp_path / "combined.exr")
     assert np.all(frame.irradiance == np.float32(0.3))
+    # the direct diffuse light without the indirect: read, and said (before, the bounced light was left out silently)
+    ch = {**{f"ViewLayer.DiffDir.{c}": 0.5 * one for c in "RGB"}, "ViewLayer.Depth.Z": 2 * one}
+    with OpenEXR.File({"type": OpenEXR.scanlineimage, "sss_jax:focal_px": 100.0}, ch) as f:
+        f.write(str(tmp_path / "direct.exr"))
+    with pytest.warns(UserWarning, match=r"direct.exr: no Diffuse Indirect pass \(DiffInd\): the irradiance is the "
+                                         "direct diffuse light alone"):
+        frame = _io.read_frame(tmp_path / "direct.exr")
+    assert np.all(frame.irradiance == np.float32(0.5))
+    with OpenEXR.File({"type": OpenEXR.scanlineimage, "sss_jax:focal_px": 100.0},
+                      {**ch, **{f"ViewLayer.DiffInd.{c}": 0.25 * one for c in "RGB"}}) as f:
+        f.write(str(tmp_path / "both.exr"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)
+        frame = _io.read_frame(tmp_path / "both.exr", mm_per_unit=10.0)  # both passes: nothing to say
+    assert np.all(frame.irradiance == np.float32(0.75))
     png = tmp_path / "beauty.exr"
     out = oiio.ImageOutput.create("png")
     assert out.open(str(png), oiio.ImageSpec(6, 4, 3, oiio.UINT8)) and out.write_image(np.zeros((4, 6, 3), np.uint8))
