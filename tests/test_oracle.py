@@ -151,9 +151,14 @@ def test_burley_matches_the_numpy_loop(impl, opts, wide):
 def test_a_tile_with_its_halo_gives_the_untiled_frames_pixels(impl, opts):
     b, mat, *_ = _case(h=32, w=44, seed=9)
     frame = np.asarray(sj.burley(b, mat, CAM, samples=6, impl=impl, **opts))
-    halo = sj._techniques._burley.burley_halo_px(b, mat, CAM, samples=6)
+    halo_px = lambda fetch: sj._techniques._burley.burley_halo_px(b, mat, CAM, samples=6, interpolation=fetch)
+    halo = halo_px(opts["interpolation"])
     r0, r1, c0, c1 = 13, 19, 18, 26  # the tile, its halo inside the frame
     assert halo < 13
+    # one reach: the batch's tiles take the technique's (before, it added one pixel for the bilinear footprint and
+    # this two, whatever the fetch); a bilinear fetch reaches one pixel further than a nearest one
+    assert sj.technique("burley", samples=6, **opts).reach_px(b, mat, CAM) == halo
+    assert halo_px("bilinear") == halo_px("nearest") + 1
     a0, a1, b0, b1 = r0 - halo, r1 + halo, c0 - halo, c1 + halo
     crop = jax_tree_crop(b, a0, a1, b0, b1)
     tile = np.asarray(sj.burley(crop, mat, CAM, samples=6, impl=impl, origin=(a0, b0), frame_shape=(32, 44), **opts))

@@ -273,12 +273,13 @@ def burley(
 
 
 def burley_halo_px(buffers: Buffers, material: BurleyMaterial, camera: Camera, *, samples: int = 32,
-                   min_footprint_px: float = MIN_FOOTPRINT_PX, frame_shape: tuple[int, int] | None = None) -> int:
+                   min_footprint_px: float = MIN_FOOTPRINT_PX, frame_shape: tuple[int, int] | None = None,
+                   interpolation: str = "bilinear") -> int:
     """Host side: the halo (px) a tile of ``buffers`` needs around it so that ``burley`` gives the untiled frame's
-    pixels there: how far the outermost sample of the widest active profile lands (at most the frame's diagonal)."""
+    pixels there: how far a pixel's fetches reach (``burley_reach_px``)."""
     frame_shape = tuple(buffers.depth.shape[-2:]) if frame_shape is None else tuple(frame_shape)
     _, widest_d_px = _burley_active(buffers, material, camera, float(min_footprint_px))
-    return burley_reach_px(widest_d_px, frame_shape, int(samples))
+    return burley_reach_px(widest_d_px, frame_shape, int(samples), interpolation)
 
 
 def burley_channel_samples(d_mm, samples: int):

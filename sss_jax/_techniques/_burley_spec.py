@@ -492,10 +492,15 @@ def frame_rotation(pix: dict, frame: ArrayLike, seed: ArrayLike, *, pattern: str
     return turn_cos_sin(turn, pix["z"].dtype)
 
 
-def burley_reach_px(widest_d_px: float, frame_shape: tuple[int, int], samples: int) -> int:
-    """Host side: how far (px) the outermost sample of the widest active profile lands, at most the frame's
-    diagonal: the halo a tile needs so that its pixels are the untiled frame's."""
+def burley_reach_px(widest_d_px: float, frame_shape: tuple[int, int], samples: int,
+                    interpolation: str = "bilinear") -> int:
+    """Host side: how far (px, along a row or a column) a pixel's fetches reach: the outermost sample of the widest
+    active profile (the largest stratified CDF value ``(n - 1/2) / n``; truncation at the frame's diagonal only draws
+    it closer) lands at most ``ceil(rho d)`` pixels away, rounded to the nearest pixel or, bilinear, with the
+    footprint's second pixel one further; no further than the frame's larger extent (a fetch beyond it is outside the
+    frame). The halo a tile needs so that its pixels are the untiled frame's."""
     if not widest_d_px > 0:
         return 0
     rho = unit_radius(0.5 / samples)
-    return int(math.ceil(min(rho * widest_d_px, math.hypot(*frame_shape)))) + 2
+    reach = math.ceil(min(rho * widest_d_px, math.hypot(*frame_shape))) + (1 if interpolation == "bilinear" else 0)
+    return int(min(reach, max(frame_shape)))

@@ -13,7 +13,6 @@ from .._errors import SamplingWarning
 from .._materials import BurleyMaterial
 from .._scene import Buffers, Camera
 from . import _burley
-from ._burley_spec import unit_radius
 from ._base import AbstractTechnique, built, call_options, default_of, frame_pieces, option, tile_options
 from ._common import ALBEDO_MODES, BORDERS
 from ._dispatch import IMPLS
@@ -97,15 +96,10 @@ class Burley(AbstractTechnique):
         return _f(buffers, material, camera, **options, **tile_options(_f, buffers, origin, frame_shape), keep=keep)
 
     def reach_px(self, buffers: Buffers, material: BurleyMaterial, camera: Camera) -> int:
-        """The farthest sample: the largest stratified CDF value ``(n - 1/2) / n`` of the widest channel's profile
-        at the active pixel with the widest d in px (truncation to the frame only shortens it), plus the bilinear
-        fetch's second pixel; at most the frame's larger extent."""
-        _, d_px = _burley._burley_active(buffers, material, camera, float(self.min_footprint_px))
-        if d_px <= 0:
-            return 0
-        unit = unit_radius(0.5 / self.samples)
-        reach = math.ceil(unit * d_px) + (1 if self.interpolation == "bilinear" else 0)
-        return int(min(reach, max(buffers.depth.shape[-2:])))
+        """How far a pixel's fetches reach (``_burley_spec.burley_reach_px``: the farthest sample of the widest
+        active profile, plus the bilinear fetch's second pixel; at most the frame's larger extent)."""
+        return _burley.burley_halo_px(buffers, material, camera, samples=self.samples,
+                                      min_footprint_px=self.min_footprint_px, interpolation=self.interpolation)
 
     def pieces(self, count: int) -> tuple[tuple["Burley", float], ...] | None:
         """The ``frames`` in about ``count`` groups of consecutive frames, each a call with fewer frames and the seed
