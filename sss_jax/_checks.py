@@ -60,16 +60,23 @@ def _shown(x) -> str:
     return items[0] if a.ndim == 0 else "[" + ", ".join(items) + "]"
 
 
+# the largest count: the passes count samples, taps and frames in int32 on the device (a larger one stopped a jitted
+# call with an OverflowError from deep inside JAX)
+COUNT_MAX = 2**31 - 1
+
+
 def check_host_count(x, name: str, *, lo: int = 1, hi: int | None = None, whole_floats: bool = False) -> int:
-    """``x`` as a Python integer in ``[lo, hi]`` (``hi=None``: no upper bound), or an error naming it. Python and
-    NumPy integers and 0-d integer arrays pass; bools never (``True == 1``); floats only with ``whole_floats`` and
-    an integer value (a count read from JSON, 17.0). Every count of the library's public functions, techniques and
-    engine conversions is checked here, with one message."""
+    """``x`` as a Python integer in ``[lo, hi]`` (``hi=None``: up to ``COUNT_MAX``), or an error naming it. Python
+    and NumPy integers and 0-d integer arrays pass; bools never (``True == 1``); floats only with ``whole_floats``
+    and an integer value (a count read from JSON, 17.0). Every count of the library's public functions, techniques
+    and engine conversions is checked here, with one message."""
     v = _as_count(x, whole_floats)
     if v is None or v < lo or (hi is not None and v > hi):
         what = ("a positive integer" if lo == 1 and hi is None else f"an integer >= {lo}" if hi is None
                 else f"an integer in [{lo}, {hi}]")
         raise ValueError(f"{name} must be {what}, got {x!r}")
+    if hi is None and v > COUNT_MAX:
+        raise ValueError(f"{name} must be at most {COUNT_MAX} (the passes count in int32), got {x!r}")
     return v
 
 

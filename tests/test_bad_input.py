@@ -664,6 +664,11 @@ def _flat(h=8, w=8, z=1.0):
     (lambda: sj.Burley(samples=0), "burley: samples must be a positive integer, got 0"),
     (lambda: sj.Burley(frames=0), "burley: frames must be a positive integer, got 0"),
     (lambda: sj.Burley(samples=True), "burley: samples must be a positive integer, got True"),
+    # past int32 a jitted call stopped with an OverflowError from inside JAX (sss-jax report, bench, advise: a
+    # traceback)
+    (lambda: sj.Burley(samples=3_000_000_000),
+     r"burley: samples must be at most 2147483647 \(the passes count in int32\), got 3000000000"),
+    (lambda: sj.technique("burley", frames=2**31), "burley: frames must be at most 2147483647"),
     (lambda: sj.Burley(seed=-1), r"burley: seed must be an integer in \[0, 2\*\*32\)"),
     (lambda: sj.Reference(radius_px=-3), "reference: radius_px must be a non-negative integer, got -3"),
     (lambda: sj.Reference(near_subsamples=0), "reference: near_subsamples must be a positive integer, got 0"),
