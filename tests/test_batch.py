@@ -482,6 +482,17 @@ def test_unwritable_output_folder_is_refused_before_any_frame(frames, tmp_path, 
     assert sorted(p.name for p in blocked.iterdir()) == ["f0.exr"]
 
 
+def test_the_demo_refuses_a_folder_it_cannot_write_before_rendering(readonly_dir, monkeypatch, capsys):
+    # an existing folder that takes no file: before, the demo rendered every technique and then stopped with a
+    # PermissionError traceback at its first image (found by a review, 2026-12-07)
+    import sss_jax._demo as demo
+    from sss_jax.cli import main
+
+    monkeypatch.setattr(demo, "run_demo", lambda **kw: pytest.fail("rendered before the folder was checked"))
+    assert main(["demo", "--out", str(readonly_dir), "--size", "16x12"]) == 2
+    assert "output directory is not writable" in capsys.readouterr().err
+
+
 @pytest.fixture
 def readonly_dir(tmp_path):
     """A folder no file can be created in: permission bits where they bind; as root (who ignores them) sysfs,

@@ -82,7 +82,7 @@ def _parse_size(text: str) -> tuple[int, int]:
 
 def run(args) -> int:
     from .._demo import run_demo, summary_rows
-    from .._io import write_exr, write_json_atomic, write_png_preview
+    from .._io import check_output_folder, write_exr, write_json_atomic, write_png_preview
 
     try:
         width, height = _parse_size(args.size)
@@ -92,6 +92,9 @@ def run(args) -> int:
             raise ValueError(f"--taps must be an odd number >= 1, got {args.taps}")
         out = args.out
         _check_out(out, overwrite=args.overwrite)
+        # before any work: a folder that exists but takes no file (read-only, a pseudo filesystem) failed only
+        # when the first image was written, after the rendering, with a traceback
+        check_output_folder(out, "--out")
         try:
             out.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
