@@ -291,6 +291,14 @@ def test_report_jimenez_taps_given_are_checked(tmp_path, capsys, as_users_run_it
     rc = main(["report", str(frame), "--out", str(tmp_path / "rep"), "--d-mm", "1,1,1", "--techniques",
                "separable,jimenez", "--taps", "9", "--no-progress"])
     assert rc == 2 and "--taps: jimenez: taps=9 is not one of (11, 17, 25)" in capsys.readouterr().err
+    # a count that none of the report's techniques takes is refused, not dropped (before, the report ran burley's own
+    # sweep and said nothing of --taps 5; found by a review, 2026-12-07)
+    for techniques, flag in (("burley", "--taps"), ("separable", "--samples")):
+        rc = main(["report", str(frame), "--out", str(tmp_path / "rep2"), "--d-mm", "1,1,1", "--techniques",
+                   techniques, flag, "5", "--no-progress"])
+        assert rc == 2 and f"{flag}: none of the techniques run ({techniques}) has {flag[2:]}" in \
+            capsys.readouterr().err
+        assert not (tmp_path / "rep2").exists()
 
 
 # ---- fit --render -------------------------------------------------------------------------------------------------

@@ -82,7 +82,12 @@ def _parse_size(text: str) -> tuple[int, int]:
 
 def run(args) -> int:
     from .._demo import run_demo, summary_rows
-    from .._io import check_output_folder, write_exr, write_json_atomic, write_png_preview
+    from .._io import (
+        check_output_folder,
+        write_exr,
+        write_json_atomic,
+        write_png_preview,
+    )
 
     try:
         width, height = _parse_size(args.size)

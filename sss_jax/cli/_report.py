@@ -11,7 +11,7 @@ import sys
 import tempfile
 
 from . import rgb_triple
-from ._options import (WarningPrinter, add_camera_flags, add_technique_flags, sta_thickness_warning,
+from ._options import (WarningPrinter, add_camera_flags, add_counts, add_technique_flags, sta_thickness_warning,
                        technique_entries)
 from ._options import add_sta_flags, comma_separated_counts, given_sta_flag_names, sta_params, technique_options
 
@@ -149,6 +149,8 @@ def _runs(entries: list[tuple[str, dict]], args, sta) -> list:
     from .._techniques import TECHNIQUES
 
     names = [n for n, _ in entries]
+    # a count no technique of the report takes would do nothing: refused, as apply, bench and advise refuse it
+    add_counts(args, {}, list(dict.fromkeys(names)), "the techniques run")
     flags = {n: technique_options(args, n, others=names) for n in dict.fromkeys(names)}
     runs = []
     for name, own in entries:
