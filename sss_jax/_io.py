@@ -684,19 +684,24 @@ def _stack(channels: dict[str, np.ndarray], spec) -> np.ndarray:
 
 
 def _header_number(path: pathlib.Path, name: str, given, *sources: tuple[Any, str]) -> float | None:
-    """``given`` (the caller's) or the first source that is set (a falsy value counts as unset, as 0 is no focal
-    length or scale), as a float; ``SSSInputError`` naming where a value that is not a number came from."""
+    """``given`` (the caller's) or the first source that is set (None or an empty text is unset), as a positive
+    finite float; ``SSSInputError`` naming where a value that is not one came from. (A 0 counted as unset before: a
+    sidecar's ``scene_unit_mm: 0`` was passed over for 1 mm a unit without a word, the scene read 10-1000x off.)"""
     value, where = given, f"the {name} argument"
     if value is None:
-        value, where = next(((v, w) for v, w in sources if v), (None, ""))
+        value, where = next(((v, w) for v, w in sources if v is not None and not (isinstance(v, str) and not v)),
+                            (None, ""))
     if value is None:
         return None
     try:
         if isinstance(value, (bool, np.bool_)):  # float(True) is 1.0: a flag, not a length
             raise TypeError(name)
-        return float(value)
+        number = float(value)
     except (TypeError, ValueError):
         raise SSSInputError(f"{path}: {name} from {where} is {value!r}, not a number") from None
+    if not 0 < number < math.inf:
+        raise SSSInputError(f"{path}: {name} from {where} is {value!r}: it must be a positive number")
+    return number
 
 
 BLENDER_MM_PER_UNIT = 1000.0  # Blender's scene unit at the default unit scale: the metre
@@ -768,7 +773,10 @@ def _sidecar(path: pathlib.Path) -> dict[str, Any]:
         data = json.loads(side.read_text())
     except Exception as exc:
         raise SSSInputError(f"{side}: invalid scene description JSON ({exc})") from None
-    return data if isinstance(data, dict) else {}
+    if not isinstance(data, dict):  # passed over before, and the frame then told to put its camera in this file
+        raise SSSInputError(f"{side}: a scene description is a JSON object ({{\"camera\": {{...}}, "
+                            f"\"scene_unit_mm\": ...}}), not a {type(data).__name__}")
+    return data
 
 
 def world_to_camera_rotation(metadata: Mapping[str, Any], side: Mapping[str, Any],

@@ -321,6 +321,29 @@ def test_blender_render_reads_out_of_the_box(shared_dir):
     assert np.all(np.isinf(f.depth[col("ViewLayer.Depth.Z") > 1e9]))
 
 
+def test_a_sidecars_zero_or_a_sidecar_that_is_no_object_is_refused_naming_it(tmp_path):
+    # a scale or focal length of 0 counted as unset: scene_unit_mm 0 was passed over for 1 mm a unit, the scene
+    # read 10-1000x off without a word; a sidecar that is a JSON list was passed over and the frame then told to
+    # put its camera in that very file (found by a review, 2026-12-07)
+    b = sj.demo_scene(8, 10).buffers
+    src = tmp_path / "s.exr"
+    _io.write_exr(src, {"R": np.asarray(b.irradiance[..., 0]), "G": np.asarray(b.irradiance[..., 1]),
+                        "B": np.asarray(b.irradiance[..., 2]), "Z": np.asarray(b.depth)})
+    side = tmp_path / "s.json"
+    for scene, message in (({"camera": {"focal_px": 35.2}, "scene_unit_mm": 0},
+                            r"s.exr: mm_per_unit from scene_unit_mm of s.json is 0: it must be a positive number"),
+                           ({"camera": {"focal_px": 0}, "scene_unit_mm": 10},
+                            r"s.exr: focal_px from camera.focal_px of s.json is 0: it must be a positive number"),
+                           ({"camera": {"focal_px": -3.0}}, r"focal_px from camera.focal_px of s.json is -3.0"),
+                           ([1, 2], r"s.json: a scene description is a JSON object .* not a list")):
+        side.write_text(json.dumps(scene))
+        with pytest.raises(_io.SSSInputError, match=message):
+            _io.read_frame(src)
+    side.write_text(json.dumps({"camera": {"focal_px": 35.2}, "scene_unit_mm": 10}))
+    frame = _io.read_frame(src)
+    assert frame.focal_px == 35.2 and frame.scene_unit_mm == 10.0
+
+
 def test_a_sidecar_with_the_lens_and_sensor_gives_the_focal_length(shared_dir, tmp_path, capsys):
     # a Blender camera described as Blender shows it (lens and sensor in mm, no focal length in pixels): focal_px =
     # lens / sensor x the image's larger side (sensor fit AUTO, Blender's default); before, "no focal length"
