@@ -1217,6 +1217,11 @@ def test_an_option_added_to_a_technique_appears_on_every_command(capsys, monkeyp
     (["--technique", "separable", "--interpolation", "bilinear"],
      "--interpolation bilinear: separable takes one of linear, nearest"),
     (["--technique", "burley", "--frames", "1.5"], "--frames: expected an integer"),
+    # a one-number option given R,G,B: before, "float() argument must be ... not 'tuple'" from deep inside; an
+    # integer read through a float (99999999999999999999 said as 100000000000000000000)
+    (["--technique", "burley", "--min-footprint-px", "1,2"], "--min-footprint-px: expected a number, got '1,2'"),
+    (["--technique", "burley", "--seed", "99999999999999999999"],
+     "burley: seed must be an integer in [0, 2**32), got 99999999999999999999"),
 ])
 def test_technique_flags_bad_values(tmp_path, capsys, as_users_run_it, argv, message):
     a = tmp_path / "a.exr"

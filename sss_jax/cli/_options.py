@@ -189,15 +189,20 @@ def _parse_value(text: str, specs: list[OptionSpec]) -> Any:
         return None
     try:
         if kinds & {int}:
-            value = float(word)
+            try:
+                return int(word)  # exactly (through a float, 99999999999999999999 read as 1e20)
+            except ValueError:
+                value = float(word)  # 1e3
             if value != int(value):
                 raise ValueError
             return int(value)
-        if kinds & {float} or not kinds:
+        if kinds & {float}:  # one number (R,G,B reached the option as a tuple, refused deep inside by float())
+            return float(word)
+        if not kinds:
             values = tuple(float(v) for v in word.split(","))
             return values[0] if len(values) == 1 else values
     except (ValueError, OverflowError):
-        what = "an integer" if kinds & {int} else "a number (or R,G,B)"
+        what = "an integer" if kinds & {int} else "a number" if kinds & {float} else "a number (or R,G,B)"
         raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
     return word
 
