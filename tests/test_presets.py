@@ -306,19 +306,21 @@ def test_fit_command_writes_a_new_artist_preset(tmp_path, capsys):
 @pytest.mark.parametrize("argv, message", [
     (["--name", "x", "--albedo", "0.5,0.5,0.5"], "needs all of --name, --albedo R,G,B and --d-mm R,G,B"),
     (["--name", "skin", "--albedo", "0.5,0.5,0.5", "--d-mm", "1,1,1"], "'skin' is a built-in material"),
-    (["--name", "x", "--albedo", "1.5,0.5,0.5", "--d-mm", "1,1,1", "--photons", "10"], r"x: albedo must be 3 values in \(0, 1\)"),
-    (["--name", "x", "--albedo", "0.5,0.5,0.5", "--d-mm", "1,0,1", "--photons", "10"], r"x: d_mm must be 3 values in \(0, 10000\] mm"),
+    (["--name", "x", "--albedo", "1.5,0.5,0.5", "--d-mm", "1,1,1", "--photons", "20"], r"x: albedo must be 3 values in \(0, 1\)"),
+    (["--name", "x", "--albedo", "0.5,0.5,0.5", "--d-mm", "1,0,1", "--photons", "20"], r"x: d_mm must be 3 values in \(0, 10000\] mm"),
     # an albedo of 0 wrote a preset whose engine errors were -1.5e17 (a ratio to a black reference); a d of 1e30
     # failed after the Monte Carlo with "Residuals are not finite in the initial point"
-    (["--name", "x", "--albedo", "0,0,0", "--d-mm", "1,1,1", "--photons", "10"], r"x: albedo must be 3 values in \(0, 1\)"),
-    (["--name", "x", "--albedo", "0.5,0.5,0.5", "--d-mm", "1e30,1,1", "--photons", "10"], r"x: d_mm must be 3 values in"),
+    (["--name", "x", "--albedo", "0,0,0", "--d-mm", "1,1,1", "--photons", "20"], r"x: albedo must be 3 values in \(0, 1\)"),
+    (["--name", "x", "--albedo", "0.5,0.5,0.5", "--d-mm", "1e30,1,1", "--photons", "20"], r"x: d_mm must be 3 values in"),
     (["--material", "skin", "--photons", "0"], "--photons must be a positive integer"),
     (["--material", "skin", "--seed", "-1"], r"--seed must be an integer in \[0, 2\*\*32\), got -1"),
     (["--material", "skin", "--taps", "0"], "--taps must be a positive integer"),
     # checked before any work (before: --taps 4 failed each material after its Monte Carlo, --photons 5 said
     # "got 0", a preset named schema was overwritten by the schema, a/b failed after its Monte Carlo was written)
     (["--material", "skin", "--taps", "4"], "--taps must be odd"),
-    (["--material", "skin", "--photons", "5"], "--photons must be at least 10"),
+    (["--material", "skin", "--photons", "5"], "--photons must be at least 20"),
+    # 10 passed the check and failed each material after its first walks: the medium's slabs ran one photon
+    (["--material", "skin", "--photons", "10"], r"--photons must be at least 20 \(the medium's slabs run a tenth"),
     (["--name", "schema", "--albedo", "0.5,0.5,0.5", "--d-mm", "1,1,1"], "'schema' is reserved"),
     (["--name", "a/b", "--albedo", "0.5,0.5,0.5", "--d-mm", "1,1,1"], "preset name 'a/b': use letters"),
     (["--name", "../x", "--albedo", "0.5,0.5,0.5", "--d-mm", "1,1,1"], r"preset name '\.\./x'"),
