@@ -147,7 +147,13 @@ def preset_from_data(data: Any, path: pathlib.Path) -> Preset:
             alb = src.get("medium", {}).get("single_scattering_albedo") if isinstance(src.get("medium"), dict) \
                 else None
             table = tr if alb is None or "albedo" in tr else {**tr, "albedo": alb}
-            medium = MediumMaterial.from_tables(burley, [table])
+            try:
+                medium = MediumMaterial.from_tables(burley, [table])
+            except (ValueError, TypeError, IndexError, KeyError) as exc:  # the field named ("tuple index out of
+                # range" for an empty thickness list named none)
+                what = str(exc) if isinstance(exc, ValueError) else f"{type(exc).__name__}: {exc}"
+                raise SSSInputError(f"{path}: transmittance (thickness_mm, T and resolved: a list per channel) "
+                                    f"is not a table of numbers: {what}") from None
     except SSSInputError:
         raise
     except (ValueError, TypeError, IndexError, KeyError) as exc:

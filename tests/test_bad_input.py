@@ -330,6 +330,12 @@ GOOD_PRESET = {"name": "p", "albedo": [0.8, 0.6, 0.5], "burley": {"d_mm": [3.0, 
     ('{"albedo": [0.8, "x", 0.5], "burley": {"d_mm": [1, 1, 1]}}', "burley", "albedo must be a list of 3 numbers"),
     (json.dumps(dict(GOOD_PRESET, sta=3)), "burley", "sta must be an object of STA parameters"),
     (json.dumps(dict(GOOD_PRESET, sta={"power": -1.0})), "burley", r"invalid preset: power must be finite and >= 0"),
+    # a transmittance table of no values or of text: "invalid preset: tuple index out of range", "could not convert
+    # string to float", naming no field (found by a review, 2026-12-07)
+    *[(json.dumps(dict(GOOD_PRESET, transmittance={"thickness_mm": bad, "T": [[0.5]] * 3,
+                                                   "resolved": [[True]] * 3})), "burley",
+       r"transmittance \(thickness_mm, T and resolved: a list per channel\) is not a table of numbers")
+      for bad in ([], [["x"]] * 3)],
 ])
 def test_invalid_preset_files(tmp_path, capsys, content, technique, message):
     preset = tmp_path / "bad.json"
