@@ -675,6 +675,9 @@ def _flat(h=8, w=8, z=1.0):
     (lambda: sj.Burley(samples=3_000_000_000),
      r"burley: samples must be at most 2147483647 \(the passes count in int32\), got 3000000000"),
     (lambda: sj.technique("burley", frames=2**31), "burley: frames must be at most 2147483647"),
+    # a formulation of another technique is refused when the object is made, not at its first call
+    (lambda: sj.Burley(impl="banded"), r"burley: impl='banded' is not one of \('auto', 'compacted', 'gather'"),
+    (lambda: sj.Separable(impl="compacted"), r"separable: impl='compacted' is not one of \('auto', 'banded'"),
     (lambda: sj.Burley(seed=-1), r"burley: seed must be an integer in \[0, 2\*\*32\)"),
     (lambda: sj.Reference(radius_px=-3), "reference: radius_px must be a non-negative integer, got -3"),
     (lambda: sj.Reference(near_subsamples=0), "reference: near_subsamples must be a positive integer, got 0"),

@@ -1220,6 +1220,8 @@ def test_an_option_added_to_a_technique_appears_on_every_command(capsys, monkeyp
     # a one-number option given R,G,B: before, "float() argument must be ... not 'tuple'" from deep inside; an
     # integer read through a float (99999999999999999999 said as 100000000000000000000)
     (["--technique", "burley", "--min-footprint-px", "1,2"], "--min-footprint-px: expected a number, got '1,2'"),
+    # another technique's formulation: before, accepted and every frame failed at its call (exit 1)
+    (["--technique", "burley", "--impl", "banded"], "--impl banded: burley takes one of auto, compacted, gather"),
     (["--technique", "burley", "--seed", "99999999999999999999"],
      "burley: seed must be an integer in [0, 2**32), got 99999999999999999999"),
 ])

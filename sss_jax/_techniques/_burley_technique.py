@@ -15,7 +15,7 @@ from .._scene import Buffers, Camera
 from . import _burley
 from ._base import AbstractTechnique, built, call_options, default_of, frame_pieces, option, tile_options
 from ._common import ALBEDO_MODES, BORDERS
-from ._dispatch import IMPLS
+from ._dispatch import impl_choices
 
 _f = _burley.burley
 
@@ -74,7 +74,7 @@ class Burley(AbstractTechnique):
     compact: bool | None = option(default_of(_f, "compact"), "compute only the active pixels, compacted (None: "
                                   "where that holds under half the frame)", choices=(None, True, False))
     impl: str = option(default_of(_f, "impl"), "the formulation ('auto': the fastest one with these options on "
-                       "the backend)", choices=IMPLS)
+                       "the backend)", choices=impl_choices("burley"))
     pattern: str = option(default_of(_f, "pattern"), "the spiral turned per pixel and frame ('rotated') or the "
                           "same for every pixel ('fixed')", choices=_burley.BURLEY_PATTERNS)
     frames: int = option(default_of(_f, "frames"), "frames averaged, each with its own rotations (converged TAA)")

@@ -33,6 +33,12 @@ ALIASES = {"xla-cpu": {"burley": "compacted", "separable": "banded"},
            "xla-gpu": {"burley": "gather", "separable": "gather"}}
 IMPLS = ("auto", "compacted", "banded", "gather", "pallas", *ALIASES)
 
+
+def impl_choices(technique: str) -> tuple[str, ...]:
+    """The ``impl`` values ``technique`` takes (``resolve_impl``'s): its technique object refuses any other when made,
+    not at its first call (a batch failed every frame of ``--impl banded`` for burley)."""
+    return ("auto", *FORMULATIONS[technique], *ALIASES)
+
 # options a formulation does not implement, by technique and formulation: none today (every layout runs the spec);
 # a future one that lacks an option lists it here and cannot be chosen for it
 UNSUPPORTED: dict[tuple[str, str], dict[str, tuple]] = {}
@@ -42,8 +48,7 @@ def resolve_impl(impl: str, technique: str = "burley", options: dict | None = No
     """``impl`` checked against ``technique``'s formulations (and the old names); ``"auto"`` becomes the CPU
     formulation on a CPU backend, else ``"gather"``. ``options``: the call's option values, checked against what the
     chosen formulation implements (``UNSUPPORTED``); ``"auto"`` skips a formulation that lacks one."""
-    names = FORMULATIONS[technique]
-    valid = ("auto", *names, *ALIASES)
+    names, valid = FORMULATIONS[technique], impl_choices(technique)
     if impl not in valid:
         raise ValueError(f"impl={impl!r} is not one of {valid}")
     options = options or {}

@@ -17,7 +17,7 @@ from .._scene import Buffers, Camera
 from . import _separable
 from ._base import AbstractTechnique, built, call_options, default_of, option, tile_options
 from ._common import ALBEDO_MODES, BORDERS, _material_rows, _sss_mask
-from ._dispatch import IMPLS
+from ._dispatch import impl_choices
 
 _f = _separable.separable
 
@@ -60,7 +60,7 @@ class Separable(AbstractTechnique):
                                      "below this (px) keep their local shading; 0 disables that")
     scale_levels: int = option(default_of(_f, "scale_levels"), "reach levels of the banded formulation")
     impl: str = option(default_of(_f, "impl"), "the formulation ('auto': the fastest one with these options on "
-                       "the backend)", choices=IMPLS)
+                       "the backend)", choices=impl_choices("separable"))
     border: str = option(default_of(_f, "border"), "light reaching past the frame leaves ('leaves') or the "
                          "kernel is renormalised over the frame ('renormalise')", choices=BORDERS)
 
