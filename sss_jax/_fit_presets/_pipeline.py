@@ -167,11 +167,11 @@ def _json_bytes(data: Any) -> bytes:
     return (json.dumps(data, indent=2) + "\n").encode()
 
 
-
 def least_photons() -> int:
     """The fewest photons a preset's fit takes: its slab and medium runs get a fifth and a tenth of them each, and a
     Monte Carlo run needs two (its standard error)."""
     return 2 * max(SLAB_PHOTONS_FRACTION, MEDIUM_SLAB_PHOTONS_FRACTION)
+
 
 def fit_presets(names: Iterable[str] | None = None, *, out_dir: str | os.PathLike = "fits",
                 photons: int = DEFAULT_PHOTONS, seed: int = 0, solver: str = "optimistix", taps: int = 25,

@@ -39,6 +39,7 @@ def impl_choices(technique: str) -> tuple[str, ...]:
     not at its first call (a batch failed every frame of ``--impl banded`` for burley)."""
     return ("auto", *FORMULATIONS[technique], *ALIASES)
 
+
 # options a formulation does not implement, by technique and formulation: none today (every layout runs the spec);
 # a future one that lacks an option lists it here and cannot be chosen for it
 UNSUPPORTED: dict[tuple[str, str], dict[str, tuple]] = {}
