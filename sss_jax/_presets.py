@@ -149,11 +149,11 @@ def preset_from_data(data: Any, path: pathlib.Path) -> Preset:
             table = tr if alb is None or "albedo" in tr else {**tr, "albedo": alb}
             try:
                 medium = MediumMaterial.from_tables(burley, [table])
-            except (ValueError, TypeError, IndexError, KeyError) as exc:  # the field named ("tuple index out of
-                # range" for an empty thickness list named none)
-                what = str(exc) if isinstance(exc, ValueError) else f"{type(exc).__name__}: {exc}"
+            except ValueError as exc:  # the table's own message, the field named
+                raise SSSInputError(f"{path}: transmittance: {exc}") from None
+            except (TypeError, IndexError, KeyError) as exc:  # "tuple index out of range" named no field before
                 raise SSSInputError(f"{path}: transmittance (thickness_mm, T and resolved: a list per channel) "
-                                    f"is not a table of numbers: {what}") from None
+                                    f"is not a table of numbers ({type(exc).__name__}: {exc})") from None
     except SSSInputError:
         raise
     except (ValueError, TypeError, IndexError, KeyError) as exc:

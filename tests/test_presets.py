@@ -354,7 +354,8 @@ def test_a_fitted_preset_that_would_not_load_is_not_written(tmp_path, monkeypatc
     assert json.loads((out / "wax.json").read_text()) == good
     # a table of the wrong shape is refused with the file named, not an IndexError
     (out / "odd.json").write_text(json.dumps(dict(good, transmittance=dict(tr, thickness_mm=[0.5, 1.0]))))
-    with pytest.raises(_io.SSSInputError, match="odd.json: invalid preset"):
+    with pytest.raises(_io.SSSInputError, match=r"odd.json: transmittance \(thickness_mm, T and resolved: a list per "
+                                                r"channel\) is not a table of numbers \(IndexError"):
         _presets.load_preset(out / "odd.json")
 
 

@@ -164,9 +164,11 @@ def test_blender_frame_report_against_cycles_truth(shared_dir, tmp_path, capsys)
     assert len(list((out / "cache").glob("reference-*.npz"))) == 1
 
     # a second run (of one technique, to stay cheap) reads the reference back from the cache and states the same
-    # numbers against the truth (STA's light left out with it: a flag of a technique that does not run is refused)
-    at = BLENDER_ARGS.index("--light-dir")
-    second = [a if a != "sta,separable,burley" else "separable" for a in BLENDER_ARGS[:at] + BLENDER_ARGS[at + 2:]]
+    # numbers against the truth (STA's light and burley's samples left out with them: a flag of a technique that does
+    # not run is refused)
+    at, counts = BLENDER_ARGS.index("--light-dir"), BLENDER_ARGS.index("--samples")
+    second = [a if a != "sta,separable,burley" else "separable"
+              for a in BLENDER_ARGS[:at] + BLENDER_ARGS[at + 2:counts] + BLENDER_ARGS[counts + 2:]]
     assert main(["report", str(src), "--out", str(out), "--truth", str(truth), *second]) == 0
     again = json.loads((out / "report.json").read_text())
     assert "read from the cache" in (out / "report.html").read_text()
