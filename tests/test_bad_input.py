@@ -334,8 +334,8 @@ GOOD_PRESET = {"name": "p", "albedo": [0.8, 0.6, 0.5], "burley": {"d_mm": [3.0, 
     # string to float", naming no field (found by a review, 2026-12-07)
     *[(json.dumps(dict(GOOD_PRESET, transmittance={"thickness_mm": bad, "T": [[0.5]] * 3,
                                                    "resolved": [[True]] * 3})), "burley", message)
-      for bad, message in (([], r"transmittance \(thickness_mm, T and resolved: a list per channel\) is not a table "
-                                r"of numbers \(IndexError"),
+      for bad, message in (([], (r"transmittance \(thickness_mm, T and resolved: a list per channel\) is not a "
+                                 r"table of numbers \(IndexError")),
                            ([["x"]] * 3, "transmittance: could not convert string to float: 'x'"))],
 ])
 def test_invalid_preset_files(tmp_path, capsys, content, technique, message):
