@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
@@ -141,6 +142,8 @@ def resolve_material(material: str | BurleyMaterial) -> tuple[str, BurleyMateria
     try:
         preset = load_preset(material)
     except SSSInputError as exc:
+        if os.path.isfile(material):  # a preset file given: what is wrong with it, not "unknown material"
+            raise ValueError(str(exc)) from None
         raise ValueError(f"unknown material {material!r}; known materials: {', '.join(known_materials())} "
                          f"({exc})") from None
     b = preset.burley

@@ -810,6 +810,16 @@ def test_unknown_material_lists_the_known_ones():
         resolve_material("unobtainium")
 
 
+def test_a_broken_preset_file_given_as_the_material_is_named_with_what_is_wrong(tmp_path):
+    # a file given: its own problem leads (before, "unknown material 'bad.json'; known materials: ..." and the JSON
+    # error only in parentheses at the end; found by a review, 2026-12-07)
+    bad = tmp_path / "bad.json"
+    bad.write_text("{")
+    with pytest.raises(ValueError, match=r"^\S*bad.json: preset is not valid JSON") as raised:
+        resolve_material(str(bad))
+    assert "unknown material" not in str(raised.value)
+
+
 def test_advise_cli(tmp_path, monkeypatch, capsys):
     import sss_jax._advise as adv
 
