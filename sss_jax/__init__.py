@@ -45,6 +45,7 @@ from ._scene import (
     validate_buffers as validate_buffers,
 )
 from ._errors import (
+    HalfRangeWarning as HalfRangeWarning,
     NoSSSPixelsWarning as NoSSSPixelsWarning,
     ReferenceWindowWarning as ReferenceWindowWarning,
     SamplingWarning as SamplingWarning,

@@ -92,7 +92,7 @@ from ._io import (EXR_MAGIC, Frame, SSSInputError, Window, _frame_from_decoded, 
                   write_exr, write_json_atomic, write_png_preview)
 from ._materials import DirectionalLight, ProfileMaterial, STAParams
 from ._scene import Buffers, Camera, remember_validated, validate_buffers, validate_planes
-from ._errors import ReferenceWindowWarning, SamplingWarning, TilePlacementError
+from ._errors import HalfRangeWarning, ReferenceWindowWarning, SamplingWarning, TilePlacementError
 from ._techniques import AbstractTechnique, get_technique
 from ._techniques import technique as make_technique
 from ._techniques._burley_spec import BURLEY_R99, unit_radius
@@ -1186,6 +1186,8 @@ class _Cost:
 # ------------------------------------------------------------------------------------------------------------------
 
 _TECHNIQUE_WARNINGS = (SamplingWarning, ReferenceWindowWarning)
+# what a frame's result and manifest entry record: its technique's warnings and its writer's (a half output's clamp)
+_FRAME_WARNINGS = (*_TECHNIQUE_WARNINGS, HalfRangeWarning)
 
 
 def _material_count(material) -> int:
@@ -1213,11 +1215,11 @@ class _CallWarnings:
                 caught = getattr(self.local, "caught", None)
                 if caught is None:
                     previous(message, category, filename, lineno, file, line)
-                elif issubclass(category, _TECHNIQUE_WARNINGS):  # a call's other warnings are not the frame's
+                elif issubclass(category, _FRAME_WARNINGS):  # a call's other warnings are not the frame's
                     caught.append(str(message))
 
             warnings.showwarning = show
-            for category in _TECHNIQUE_WARNINGS:
+            for category in _FRAME_WARNINGS:
                 warnings.simplefilter("always", category)
             yield self
 
@@ -1386,6 +1388,8 @@ def _category(message: str) -> type[Warning]:
         return ReferenceWindowWarning
     if "clamped to" in message:
         return UserWarning
+    if "beyond half's range" in message:
+        return HalfRangeWarning
     return SamplingWarning
 
 
@@ -1549,10 +1553,15 @@ class _Batch:
                           self.writer.submit(self.write_files, job, image, attrs, job.dst in self.existing, *framing))
 
     def write_files(self, job: _Job, image: np.ndarray, attrs: dict, overwrite: bool, window: Window | None = None,
-                    like: Mapping[str, Any] | None = None):
-        """(In the writer thread.) The frame's files, atomically: the PNG preview first, then the EXR (an EXR with
-        its resume record means the frame is complete). Returns None, or ``(error, file)`` of a failed write (a
-        fresh preview of a frame that has no EXR removed)."""
+                    like: Mapping[str, Any] | None = None) -> tuple[tuple | None, list[str]]:
+        """(In the writer thread.) ``_write_files`` and what it warned (a half output's clamp): the frame's."""
+        return self.call_warnings.call(self._write_files, job, image, attrs, overwrite, window, like)
+
+    def _write_files(self, job: _Job, image: np.ndarray, attrs: dict, overwrite: bool, window: Window | None = None,
+                     like: Mapping[str, Any] | None = None):
+        """The frame's files, atomically: the PNG preview first, then the EXR (an EXR with its resume record means
+        the frame is complete). Returns None, or ``(error, file)`` of a failed write (a fresh preview of a frame
+        that has no EXR removed)."""
         preview = job.dst.with_suffix(".png")
         fresh_png = self.png and not preview.exists()
         current = preview if self.png else job.dst
@@ -1582,10 +1591,14 @@ class _Batch:
             return
         with self.signals.critical():  # the files and their manifest entry together, or neither
             job, r, digest, future = self.in_flight
-            failed = future.result()
+            failed, said = future.result()
             self.in_flight = None
             if failed is not None:
                 r = self.failure(job, *failed)
+            elif said:  # the writer's warnings are the frame's too (before: printed, not in its result or entry)
+                self.warned.frame(job.src, said)
+                r = dataclasses.replace(r, message="; ".join(filter(None, [r.message, *said])),
+                                        warnings=[*r.warnings, *said])
             self.record_result(r, digest)
         self.report(r)
 

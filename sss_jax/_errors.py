@@ -23,6 +23,11 @@ class NoSSSPixelsWarning(UserWarning):
     not a result."""
 
 
+class HalfRangeWarning(UserWarning):
+    """An output written as half float held values beyond half's range: they were written as its largest (a float
+    output keeps them)."""
+
+
 class TilePlacementError(ValueError):
     """A technique was handed a tile of a larger frame that it cannot place: its formulation takes no
     ``origin``/``frame_shape``, or would give other pixels in a tile than in its frame (separable's banded levels

@@ -66,6 +66,7 @@ _HALF_MAX = 65504.0  # the largest finite half float
 BUFFER_NAMES = ("irradiance", "depth", "albedo", "normal", "thickness", "id")
 
 
+from ._errors import HalfRangeWarning  # noqa: E402
 from ._errors import NoSSSPixelsWarning as NoSSSPixelsWarning  # noqa: E402
 from ._errors import SSSInputError as SSSInputError  # noqa: E402  (the one definition is in _errors)
 
@@ -1264,7 +1265,8 @@ def write_exr(
         if over.any():
             largest = float(np.abs(data[over]).max())
             warnings.warn(f"{path}: {int(over.sum())} value(s) beyond half's range (up to {largest:.3g}) written as "
-                          f"+-{_HALF_MAX:g}, half's largest; a float output keeps them", UserWarning, stacklevel=2)
+                          f"+-{_HALF_MAX:g}, half's largest; a float output keeps them", HalfRangeWarning,
+                          stacklevel=2)
             data = np.where(over, np.sign(data) * _HALF_MAX, data)
     pixels = np.ascontiguousarray(data.astype(np.float16 if half else np.float32, copy=False))
     attributes = {key: _header_value(value) for key, value in (attributes or {}).items()}

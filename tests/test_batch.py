@@ -462,6 +462,28 @@ def test_any_error_reading_a_frame_fails_that_frame_and_the_batch_goes_on(frames
     assert [f["status"] for f in sorted(book["frames"], key=lambda f: f["input"])] == ["done", "failed", "done"]
 
 
+def test_a_half_outputs_clamp_is_in_the_frames_warnings_and_the_manifest(tmp_path):
+    # the writer thread's warning (values beyond half's range written as 65504) was printed but missing from the
+    # frame's result and its manifest entry, where every other warning of the frame is (found by a review, 2026-12-07)
+    src = tmp_path / "bright.exr"
+    sc = sj.demo_scene(20, 24)
+    b = sc.buffers
+    _io.write_exr(src, {**{c: np.asarray(b.irradiance[..., i]) * 1e6 for i, c in enumerate("RGB")},
+                        "Z": np.asarray(b.depth), "id": np.asarray(b.material_id).astype(np.float32)},
+                  attributes={"sss_jax:focal_px": float(sc.camera.focal_px), "sss_jax:mm_per_unit": 10.0})
+    out = tmp_path / "out"
+    r = process_frames(str(src), "separable", MAT, out_dir=out, taps=9, half=True, progress=False,
+                       devices=jax.devices()[:1])
+    (frame,) = r.frames
+    assert frame.status == "done"
+    said = [w for w in frame.warnings if "beyond half's range" in w]
+    assert len(said) == 1 and "written as +-65504" in said[0] and said[0] in frame.message
+    (entry,) = json.loads((out / MANIFEST_NAME).read_text())["frames"]
+    assert said[0] in entry["warnings"]
+    channels, _, _ = _io.read_channels(out / "bright.exr")
+    assert max(float(np.abs(channels[c]).max()) for c in "RGB") == 65504.0
+
+
 def test_a_temporary_that_cannot_be_stated_is_left_alone(tmp_path):
     # an old-style temporary that is gone between the folder's listing and its stat (here a dangling link): before,
     # the sweep read a verdict it had never set (UnboundLocalError) and the batch stopped before its first frame
