@@ -1473,11 +1473,13 @@ class _Batch:
             self.records[job] = _resume_record(job.src, params)
         return self.records[job]
 
-    def forget(self, job: _Job) -> None:
-        """The job's record dropped: the frame is written, failed or skipped."""
-        self.records.pop(job, None)
+    def forget(self, job: _Job) -> str | None:
+        """The job's record dropped: the frame is written, failed or skipped. Returns the record's digest (None where
+        the run had not computed it), which the frame's manifest entry keeps (``_Manifest.record``)."""
+        known = self.records.pop(job, None)
         self.framing.pop(job, None)
         self.read_said.pop(job, None)
+        return None if known is None else known[1]
 
     # -- results
     def finish(self, r: FrameResult, digest: str | None = None) -> None:
@@ -1497,11 +1499,6 @@ class _Batch:
         self.results.append(r)
         self.book.record(r, digest)
 
-    def digest_of(self, job: _Job) -> str | None:
-        """The digest of the job's resume record, where the run has computed it and not yet forgotten it."""
-        known = self.records.get(job)
-        return None if known is None else known[1]
-
     def report(self, r: FrameResult) -> None:
         if len(self.results) % 64 == 0:
             _release_free_memory()
@@ -1513,9 +1510,7 @@ class _Batch:
             _call_back("on_frame_done", self.on_frame_done, r)
 
     def fail(self, job: _Job, exc: BaseException, path: pathlib.Path | None = None) -> None:
-        digest = self.digest_of(job)
-        self.forget(job)
-        self.finish(self.failure(job, exc, path), digest)
+        self.finish(self.failure(job, exc, path), self.forget(job))
 
     @staticmethod
     def failure(job: _Job, exc: BaseException, path: pathlib.Path | None = None) -> FrameResult:
@@ -1744,8 +1739,7 @@ class _Batch:
             try:
                 image, warned, seconds = c.future.result()
             except (OSError, ValueError) as exc:
-                digest = self.digest_of(c.job)
-                self.forget(c.job)
+                digest = self.forget(c.job)
                 self.collect()
                 self.append(self.failure(c.job, exc), digest)
                 continue

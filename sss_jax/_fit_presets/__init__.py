@@ -43,7 +43,7 @@ from ._files import (
     write_presets_readme as write_presets_readme,
 )
 from ._pipeline import check_preset_name as check_preset_name, export_taps as export_taps, fit_preset as fit_preset
-from ._pipeline import fit_presets as fit_presets, least_photons as least_photons
+from ._pipeline import LEAST_PHOTONS as LEAST_PHOTONS, fit_presets as fit_presets
 from ._references import (
     fit_burley_d as fit_burley_d,
     montecarlo_medium_slabs as montecarlo_medium_slabs,

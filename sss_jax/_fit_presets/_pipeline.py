@@ -167,10 +167,9 @@ def _json_bytes(data: Any) -> bytes:
     return (json.dumps(data, indent=2) + "\n").encode()
 
 
-def least_photons() -> int:
-    """The fewest photons a preset's fit takes: its slab and medium runs get a fifth and a tenth of them each, and a
-    Monte Carlo run needs two (its standard error)."""
-    return 2 * max(SLAB_PHOTONS_FRACTION, MEDIUM_SLAB_PHOTONS_FRACTION)
+# the fewest photons a preset's fit takes: its slab and medium runs get a fifth and a tenth of them each, and a Monte
+# Carlo run needs two (its standard error)
+LEAST_PHOTONS = 2 * max(SLAB_PHOTONS_FRACTION, MEDIUM_SLAB_PHOTONS_FRACTION)
 
 
 def fit_presets(names: Iterable[str] | None = None, *, out_dir: str | os.PathLike = "fits",
@@ -185,9 +184,8 @@ def fit_presets(names: Iterable[str] | None = None, *, out_dir: str | os.PathLik
     artist = dict(artist or {})
     for name in artist:  # before any work: the name is a file of out_dir (and of its Monte Carlo cache)
         check_preset_name(name)
-    least = least_photons()
-    if not isinstance(photons, (int, np.integer)) or photons < least:
-        raise ValueError(f"photons must be an integer >= {least} (the medium's slabs run photons / "
+    if not isinstance(photons, (int, np.integer)) or photons < LEAST_PHOTONS:
+        raise ValueError(f"photons must be an integer >= {LEAST_PHOTONS} (the medium's slabs run photons / "
                          f"{MEDIUM_SLAB_PHOTONS_FRACTION} each, and a Monte Carlo run needs 2), got {photons!r}")
     _check_taps(taps)  # the exported kernel has a centre tap
     out = pathlib.Path(out_dir)

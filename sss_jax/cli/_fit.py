@@ -101,9 +101,9 @@ def run(args) -> int:
     from .._fit_presets import (
         ARTIST_MATERIALS,
         DEFAULT_PHOTONS,
+        LEAST_PHOTONS,
         check_preset_name,
         fit_presets,
-        least_photons,
         measured_materials,
     )
     from .._io import SSSInputError, check_output_folder
@@ -117,8 +117,8 @@ def run(args) -> int:
         photons = DEFAULT_PHOTONS if args.photons is None else args.photons
         if photons < 1:
             raise ValueError(f"--photons must be a positive integer, got {photons}")
-        if photons < least_photons():
-            raise ValueError(f"--photons must be at least {least_photons()} (the medium's slabs run a tenth each, "
+        if photons < LEAST_PHOTONS:
+            raise ValueError(f"--photons must be at least {LEAST_PHOTONS} (the medium's slabs run a tenth each, "
                              f"and a Monte Carlo run needs 2), got {photons}")
         if not 0 <= args.seed < 2**32:  # checked here, not after the first material's walks have begun
             raise ValueError(f"--seed must be an integer in [0, 2**32), got {args.seed}")
