@@ -595,12 +595,20 @@ def _table_log_T(table: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
 
 def _log_sinh_ratio(a: Array, b: Array, k: Array) -> Array:
     """``log(sinh(k a) / sinh(k b))`` for ``0 < a <= b``, ``k >= 0``: ``log(a / b)`` as k -> 0 (a medium that absorbs
-    nothing), ``-k (b - a)`` as k a grows, without overflow or 0 / 0."""
-    small = k * b < 1e-3
-    ka, kb = jnp.maximum(k * a, 1e-3), jnp.maximum(k * b, 1e-3)
-    log_sinh = lambda v: v + jnp.log1p(-jnp.exp(-2.0 * v)) - jnp.log(2.0)
+    nothing), ``-k (b - a)`` as k a grows, without overflow or 0 / 0.
+
+    Each argument takes its own form of log sinh (the series below 1e-3, the exponential one above): k a can be
+    small while k b is not (a long way past the table in a medium that absorbs almost nothing)."""
+    small = k * b < 1e-3  # both arguments small: the ratio's own series, which stays exact at k = 0
     series = jnp.log(a / b) + k * k * (a * a - b * b) / 6.0
-    return jnp.where(small, series, log_sinh(ka) - log_sinh(kb))
+
+    def log_sinh(v: Array) -> Array:  # v > 0 where it is selected; the other branch's input kept finite (grad)
+        low = v < 1e-3
+        v_low, v_high = jnp.maximum(jnp.where(low, v, 1.0), 1e-30), jnp.maximum(v, 1e-3)
+        return jnp.where(low, jnp.log(v_low) + v_low * v_low / 6.0,
+                         v_high + jnp.log(-jnp.expm1(-2.0 * v_high)) - jnp.log(2.0))
+
+    return jnp.where(small, series, log_sinh(k * a) - log_sinh(k * b))
 
 
 class MediumMaterial(eqx.Module):

@@ -8,6 +8,7 @@ the searchlight fit written out by hand.
 import functools
 import math
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -323,3 +324,33 @@ def test_a_measured_medium_past_its_table_follows_a_fresh_monte_carlo(preset, ch
     mc = simulate(albedo, photons=6000, eta=eta, slab_mfp=thickness_mm / mfp, seed=11)
     table = float(np.asarray(medium.transmittance(np.asarray([thickness_mm])))[0, channel])
     assert abs(table - mc.total_transmittance) < 3 * mc.total_transmittance_stderr + 0.05 * mc.total_transmittance
+
+
+def test_past_the_table_a_medium_that_barely_absorbs_keeps_the_diffusion_shape():
+    # past the last node T follows sinh(k a) / sinh(k b) (a, b: the last node's and the thickness's extrapolated
+    # lengths). Where k a < 1e-3 <= k b (albedo within ~1e-9 of 1, a long way past the table) log sinh(k a) was taken
+    # at 1e-3 instead of k a: T rose between 50 and 100 mm (found by a review). Truth: NumPy's float64
+    # log(sinh(k a) / sinh(k b)) and the same shape anchored at the last node
+    a = np.array([19.5, 19.5, 2.0, 2.0, 5.0, 1.0, 3.0])
+    b = np.array([100.0, 60.0, 2.0, 1e4, 8.0, 1e3, 300.0])
+    k = np.array([2e-5, 3e-5, 0.4, 2e-6, 0.0, 1.0, 1e-4])
+    want = [np.log(x / y) if kk == 0 else  # sinh(1000) overflows NumPy: its exponential form
+            kk * (x - y) + np.log(-np.expm1(-2 * kk * x)) - np.log(-np.expm1(-2 * kk * y)) if kk * y > 700 else
+            np.log(np.sinh(kk * x) / np.sinh(kk * y)) for x, y, kk in zip(a, b, k)]
+    got = _slab._log_sinh_ratio(jnp.asarray(a), jnp.asarray(b), jnp.asarray(k))
+    np.testing.assert_allclose(np.asarray(got), want, rtol=1e-9, atol=1e-12)
+    grads = jax.grad(lambda kk: jnp.sum(_slab._log_sinh_ratio(jnp.asarray(a), jnp.asarray(b), kk)))(jnp.asarray(k))
+    assert np.all(np.isfinite(np.asarray(grads)))
+
+    medium = sj.load_preset("marble").medium
+    alb = 1.0 - 2e-10
+    medium = eqx.tree_at(lambda m: m.albedo_ss, medium, jnp.full_like(medium.albedo_ss, alb))
+    mfp = np.asarray(medium.mfp_mm, np.float64)[0, 0]
+    last = float(np.asarray(medium.thickness_mm)[0, -1, 0])
+    z_e = float(_slab._extrapolation_mfp(medium.eta[0])) * mfp
+    kk = np.sqrt(3.0 * (1.0 - alb)) / mfp
+    thick = np.array([last, 50.0, 100.0, 300.0])
+    got = np.asarray(medium.transmittance(jnp.asarray(thick)))[:, 0]
+    shape = np.sinh(kk * (last + 2 * z_e)) / np.sinh(kk * (thick + 2 * z_e))
+    np.testing.assert_allclose(got / got[0], shape, rtol=1e-5)
+    assert np.all(np.diff(got) < 0)
