@@ -87,9 +87,9 @@ import numpy as np
 from jaxtyping import Array
 
 from ._checks import check_host_count, is_bool
-from ._io import (EXR_MAGIC, Frame, SSSInputError, Window, _frame_from_decoded, _read_image, check_depth_kind,
-                  check_writable, exr_is_complete, load_channel_map, no_focal_length, png_attribute, read_header,
-                  write_exr, write_json_atomic, write_png_preview)
+from ._io import (EXR_MAGIC, Frame, SSSInputError, Window, _frame_from_decoded, _identity, _read_image,
+                  check_depth_kind, check_writable, exr_is_complete, load_channel_map, no_focal_length, output_problems,
+                  png_attribute, read_header, write_exr, write_json_atomic, write_png_preview)
 from ._materials import DirectionalLight, ProfileMaterial, STAParams
 from ._scene import Buffers, Camera, remember_validated, validate_buffers, validate_planes
 from ._errors import HalfRangeWarning, ReferenceWindowWarning, SamplingWarning, TilePlacementError
@@ -218,42 +218,15 @@ def output_paths(inputs: Sequence[str | pathlib.Path], out_dir: str | pathlib.Pa
     return [pathlib.Path(out_dir) / p.relative_to(common).with_suffix(".exr") for p in absolute]
 
 
-def _identity(path: pathlib.Path) -> str:
-    return os.path.normcase(str(path.resolve()))
-
-
 def _check_plan(jobs: list[tuple[pathlib.Path, pathlib.Path]], png: bool, manifest: pathlib.Path | None) -> None:
     """No two frames write one file, no output is an input: checked over the whole batch (every process of a
     multi-host run plans the same batch), before anything runs."""
     if not jobs:
         return
-    inputs: dict[str, list[pathlib.Path]] = {}
-    for src, _ in jobs:
-        inputs.setdefault(_identity(src), []).append(src)
-    writes: dict[str, list[tuple[pathlib.Path, pathlib.Path]]] = {}
-    for src, dst in jobs:
-        for out in [dst] + ([dst.with_suffix(".png")] if png else []):
-            writes.setdefault(_identity(out), []).append((src, out))
+    writes = [(str(src), out) for src, dst in jobs for out in [dst] + ([dst.with_suffix(".png")] if png else [])]
     if manifest is not None:
-        writes.setdefault(_identity(manifest), []).append((pathlib.Path("(the manifest)"), manifest))
-    files = {}  # the inputs by file (a hard link is another path to one)
-    for src, _ in jobs:
-        with contextlib.suppress(OSError):
-            st = src.stat()
-            files.setdefault((st.st_dev, st.st_ino), src)
-    problems = []
-    for key, users in writes.items():
-        if len(users) > 1:
-            problems.append(f"{users[0][1]} would be written by " + " and ".join(str(s) for s, _ in users))
-        src, out = users[0]
-        if key in inputs:
-            problems.append(f"output {out} is the input {inputs[key][0]}: an input is never overwritten")
-            continue
-        with contextlib.suppress(OSError):
-            st = out.stat()
-            if (st.st_dev, st.st_ino) in files:
-                problems.append(f"output {out} is the input {files[st.st_dev, st.st_ino]} under another name (a hard "
-                                "link): an input is never overwritten")
+        writes.append(("(the manifest)", manifest))
+    problems = output_problems(writes, [src for src, _ in jobs])
     if problems:
         raise SSSInputError("batch refused before any frame ran: " + "; ".join(problems[:10])
                             + (f"; and {len(problems) - 10} more" if len(problems) > 10 else ""))

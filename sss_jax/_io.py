@@ -1058,6 +1058,39 @@ def check_writable(path: str | os.PathLike, *, create_dirs: bool = True) -> path
     return path
 
 
+def _identity(path: pathlib.Path) -> str:
+    return os.path.normcase(str(pathlib.Path(path).resolve()))
+
+
+def output_problems(writes: list[tuple[str, pathlib.Path]], inputs: list[pathlib.Path]) -> list[str]:
+    """What would lose a file, before anything is written: two writers (``(who, path)``) of one path, an output that
+    is an input, by its name or under another (a hard link). Each problem a sentence naming the files."""
+    by_name: dict[str, pathlib.Path] = {}
+    by_file: dict[tuple[int, int], pathlib.Path] = {}  # a hard link is another path to one file
+    for src in inputs:
+        by_name.setdefault(_identity(src), src)
+        with contextlib.suppress(OSError):
+            st = pathlib.Path(src).stat()
+            by_file.setdefault((st.st_dev, st.st_ino), src)
+    writers: dict[str, list[tuple[str, pathlib.Path]]] = {}
+    for who, out in writes:
+        writers.setdefault(_identity(out), []).append((who, pathlib.Path(out)))
+    problems = []
+    for key, users in writers.items():
+        if len(users) > 1:
+            problems.append(f"{users[0][1]} would be written by " + " and ".join(w for w, _ in users))
+        out = users[0][1]
+        if key in by_name:
+            problems.append(f"output {out} is the input {by_name[key]}: an input is never overwritten")
+            continue
+        with contextlib.suppress(OSError):
+            st = out.stat()
+            if (st.st_dev, st.st_ino) in by_file:
+                problems.append(f"output {out} is the input {by_file[st.st_dev, st.st_ino]} under another name (a "
+                                "hard link): an input is never overwritten")
+    return problems
+
+
 def check_output_folder(folder: pathlib.Path, flag: str) -> None:
     """Before any work: ``folder`` is a folder or can become one (its nearest existing ancestor is a folder that takes
     files): a path under a file, a read-only place or a pseudo filesystem is refused, naming ``flag``."""

@@ -8,6 +8,8 @@ frames are decimated 2x (every other pixel; the focal length in pixels halves wi
 import contextlib
 import json
 import math
+import os
+import shutil
 
 import jax
 import jax.numpy as jnp
@@ -272,6 +274,30 @@ def test_bad_fit_input_is_refused_with_a_message(blender, tmp_path, capsys, extr
     assert main(argv) == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "o.json").exists()
+
+
+def test_fit_render_never_writes_over_its_inputs_or_one_output_over_another(blender, tmp_path, capsys):
+    # `--html` the truth's own path exited 0 and left an HTML page where the truth EXR was; `--json` and `--html` one
+    # path left the HTML in the JSON (check_writable says only that a path can be written; found by a review)
+    f = blender["frames"]["f00"]
+    render, truth = tmp_path / "render.exr", tmp_path / "truth.exr"
+    shutil.copy(f["render"], render)
+    shutil.copy(f["truth"], truth)
+    os.link(truth, tmp_path / "truth_link.exr")
+    before = {p: p.read_bytes() for p in (render, truth)}
+    base = ["fit", "--render", str(render), "--truth", str(truth), "--technique", "burley", "--d-mm", "1,1,1",
+            "--samples", "4", "--max-steps", "1"]
+    for extra, message in [
+        (["--html", str(truth)], f"output {truth} is the input {truth}: an input is never overwritten"),
+        (["--json", str(render)], f"output {render} is the input {render}"),
+        (["--json", str(tmp_path / "truth_link.exr")], "under another name (a hard link)"),
+        (["--json", str(tmp_path / "o.json"), "--html", str(tmp_path / "o.json")],
+         f"{tmp_path / 'o.json'} would be written by --json and --html"),
+    ]:
+        assert main(base + extra) == 2
+        assert message in capsys.readouterr().err
+        assert {p: p.read_bytes() for p in (render, truth)} == before
+        assert not (tmp_path / "o.json").exists()
 
 
 def test_truth_of_another_size_names_the_file(blender, tmp_path, capsys):

@@ -33,7 +33,8 @@ With --render (repeatable, one --truth per --render) the command matches instead
 (burley), the two-Gaussian kernel (separable) or the STA parameters (sta), starting from the material given as
 `apply` takes it (--preset, --albedo with --d-mm/--mfp-mm, STA flags), so the technique at --samples/--taps
 looks like the offline render on the material's pixels; --holdout IN TRUTH frames are measured, not fitted.
-See docs/match.md.
+--json, --html and --report are refused before the fit where one would write over an input (a frame, a truth, a
+sidecar, the channel map) or over another of them. See docs/match.md.
 """
 
 
@@ -199,6 +200,23 @@ def _register_match(p) -> None:
                         rename={"seed": "burley-seed"}, title="technique options (with --render)")
 
 
+def _check_outputs_apart(args) -> None:
+    """--json, --html and the report's files are files of their own, none of them an input (a render, a truth, a
+    held-back frame, a render's sidecar, the channel map): ``check_writable`` says only that a path can be written."""
+    from .._io import SSSInputError, output_problems
+
+    writes = [(flag, path) for flag, path in (("--json", args.json), ("--html", args.html)) if path is not None]
+    if args.report is not None:
+        writes += [("--report", args.report / name) for name in ("report.json", "report.html")]
+    frames = [*(args.render or []), *(args.truth or []), *(p for pair in (args.holdout or []) for p in pair)]
+    inputs = frames + [p.with_suffix(".json") for p in frames if p.with_suffix(".json").is_file()]
+    if args.channel_map is not None and pathlib.Path(args.channel_map).is_file():
+        inputs.append(pathlib.Path(args.channel_map))
+    problems = output_problems(writes, inputs)
+    if problems:
+        raise SSSInputError("; ".join(problems))
+
+
 def _run_match(args) -> int:
     from .._checks import check_host_count
     from .._io import SSSInputError, check_writable, write_json_atomic
@@ -248,6 +266,7 @@ def _run_match(args) -> int:
         for out in (args.json, args.html):  # before the fit: a folder, a path under a file, a read-only folder
             if out is not None:
                 check_writable(out)
+        _check_outputs_apart(args)
         if args.report is not None:  # a path under a file, a read-only place, another's report.json: now
             check_report_out(args.report, "--report")
         if args.report is not None and args.technique == "sta":
