@@ -46,6 +46,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._batch import _has_seed, _with_seed, frame_number, frame_seed
 from ._checks import check_host_count, check_host_range
 from ._io import SSSInputError, check_writable, display_transform, no_focal_length, read_frame, write_bytes_atomic
 from ._kernels import _check_taps
@@ -80,26 +81,55 @@ class MatchFrame:
     """One view to match: the technique's input buffers, the camera, and the offline render of the same view.
 
     ``truth``: ``(H, W, 3)`` float32 linear RGB; ``material_id``: ``(H, W)`` int32, 0 where there is no SSS
-    surface (no id channel: 1 on every pixel of finite depth)."""
+    surface (no id channel: 1 on every pixel of finite depth). ``number``: the frame's number in its sequence, mixed
+    into a seeded technique's seed as ``apply`` mixes it (``frame_seed``): ``load_match_frame`` takes it from the
+    file name as ``apply`` does, so the fitted material renders through ``apply`` with the rotations it was fitted
+    with."""
 
     buffers: Buffers
     camera: Camera
     truth: np.ndarray
     material_id: np.ndarray
     name: str = "frame"
+    number: int = 0
 
-    def __post_init__(self):  # made directly (not by match_frame): the shapes the fit indexes by, checked
+    def __post_init__(self):  # every check match_frame's frames pass, also for a frame made directly
+        name = self.name
         if not isinstance(self.buffers, Buffers) or not isinstance(self.camera, Camera):
-            raise TypeError(f"{self.name}: MatchFrame needs Buffers and a Camera, got "
+            raise TypeError(f"{name}: MatchFrame needs Buffers and a Camera, got "
                             f"{type(self.buffers).__name__} and {type(self.camera).__name__}")
         shape = tuple(self.buffers.depth.shape)
         if np.shape(self.truth) != shape + (3,) or np.shape(self.material_id) != shape:
-            raise SSSInputError(f"{self.name}: truth {np.shape(self.truth)} and material_id "
+            raise SSSInputError(f"{name}: truth {np.shape(self.truth)} and material_id "
                                 f"{np.shape(self.material_id)} must be {shape + (3,)} and {shape}, as the buffers")
+        check_host_count(self.number, f"{name}: number", lo=0, hi=2**63 - 1)
+        truth, ids = np.asarray(self.truth), np.asarray(self.material_id)
+        if not np.all(np.isfinite(truth)):
+            raise SSSInputError(f"{name}: truth has {int(np.sum(~np.isfinite(truth)))} non-finite values")
+        # the buffers' own check (a NaN irradiance on an SSS pixel left the solver at "nonfinite_input" with a NaN
+        # error, one on the background a fit that "converged" without moving): named as every technique names it
+        try:
+            validate_buffers(self.buffers, physical=False, name=name)
+        except ValueError as exc:
+            raise SSSInputError(str(exc)) from None
+        if not np.issubdtype(ids.dtype, np.integer) or (ids.size and ids.min() < 0):
+            raise SSSInputError(f"{name}: material_id must be integers >= 0 (0: no SSS), got {ids.dtype}"
+                                + (f" down to {ids.min()}" if ids.size and np.issubdtype(ids.dtype, np.number) else ""))
+        if not np.any(ids > 0):
+            raise SSSInputError(f"{name}: no SSS pixels (a surface's depth and material id > 0)")
+        if ids.max() > _MAX_ID:
+            raise SSSInputError(f"{name}: material id {int(ids.max())} is above {_MAX_ID}")
+        # the error is ||out - truth|| / ||truth|| over the SSS pixels: a truth black there (or negative overall) has
+        # nothing to match (the fit "succeeded" without moving, or fitted garbage to -truth)
+        if not np.sum(truth[ids > 0], dtype=np.float64) > 0:
+            raise SSSInputError(f"{name}: truth is black (or negative overall) on the frame's SSS pixels: nothing to "
+                                "match")
 
 
-def match_frame(buffers: Buffers, camera: Camera, truth, *, name: str = "frame") -> MatchFrame:
-    """A ``MatchFrame`` from arrays; ``truth`` is ``(H, W, 3)`` linear RGB of the same view as ``buffers``."""
+def match_frame(buffers: Buffers, camera: Camera, truth, *, name: str = "frame", number: int = 0) -> MatchFrame:
+    """A ``MatchFrame`` from arrays; ``truth`` is ``(H, W, 3)`` linear RGB of the same view as ``buffers``;
+    ``number``: the frame's number in its sequence (``MatchFrame``). The material ids: the buffers' (1 on every
+    surface pixel where they have none), 0 off the surface."""
     if not isinstance(buffers, Buffers) or not isinstance(camera, Camera):
         raise TypeError(f"{name}: match_frame needs Buffers and a Camera, got {type(buffers).__name__} and "
                         f"{type(camera).__name__}")
@@ -107,28 +137,10 @@ def match_frame(buffers: Buffers, camera: Camera, truth, *, name: str = "frame")
     shape = tuple(buffers.depth.shape)
     if truth.shape != shape + (3,):
         raise SSSInputError(f"{name}: truth is {truth.shape}, the buffers are {shape} (expected truth {shape + (3,)})")
-    if not np.all(np.isfinite(truth)):
-        raise SSSInputError(f"{name}: truth has {int(np.sum(~np.isfinite(truth)))} non-finite values")
-    # the buffers' own check (a NaN irradiance on an SSS pixel left the solver at "nonfinite_input" with a NaN error,
-    # one on the background a fit that "converged" without moving): named as every technique names it
-    try:
-        validate_buffers(buffers, physical=False, name=name)
-    except ValueError as exc:
-        raise SSSInputError(str(exc)) from None
-    depth = np.asarray(buffers.depth)
     ids = (np.ones(shape, np.int32) if buffers.material_id is None else np.asarray(buffers.material_id, np.int32))
     # a surface as every technique reads it (a background's huge finite depth, Blender's 1e10, is none)
-    ids = np.where(surface_mask(depth), ids, 0).astype(np.int32)
-    if not np.any(ids > 0):
-        raise SSSInputError(f"{name}: no SSS pixels (a surface's depth and material id > 0)")
-    if ids.max() > _MAX_ID:
-        raise SSSInputError(f"{name}: material id {int(ids.max())} is above {_MAX_ID}")
-    # the error is ||out - truth|| / ||truth|| over the SSS pixels: a truth black there (or negative overall) has
-    # nothing to match (the fit "succeeded" without moving, or fitted garbage to -truth)
-    if not np.sum(truth[ids > 0], dtype=np.float64) > 0:
-        raise SSSInputError(f"{name}: truth is black (or negative overall) on the frame's SSS pixels: nothing to "
-                            "match")
-    return MatchFrame(buffers, camera, truth, ids, name)
+    ids = np.where(surface_mask(np.asarray(buffers.depth)), ids, 0).astype(np.int32)
+    return MatchFrame(buffers, camera, truth, ids, name, number)
 
 
 def load_match_frame(render: str | os.PathLike, truth: str | os.PathLike, *, truth_channels=None, channel_map=None,
@@ -144,7 +156,8 @@ def load_match_frame(render: str | os.PathLike, truth: str | os.PathLike, *, tru
         raise no_focal_length(render)
     rgb = read_truth(truth, truth_channels, frame=frame)  # the report's reader: one rule for a truth
     camera = frame.camera()
-    return match_frame(frame.to_buffers(use_albedo=use_albedo_pass), camera, rgb, name=pathlib.Path(render).name)
+    return match_frame(frame.to_buffers(use_albedo=use_albedo_pass), camera, rgb, name=pathlib.Path(render).name,
+                       number=frame_number(render, 0))  # the number `apply` of this file alone gives it
 
 
 # ------------------------------------------------------------------------------------------------------------------
@@ -419,6 +432,7 @@ class _FrameData(eqx.Module):
     weight: jax.Array  # (H, W): 1 / ||truth_k|| (pooled over the fitted frames) on id k, 0 elsewhere
     scale: jax.Array  # (H, W): the Huber unit, mean truth of the pixel's material (1 where no SSS)
     ids: jax.Array  # (H, W) int32
+    seed: Any = None  # a seeded technique's seed for this frame (uint32, as `apply` mixes it), None: no seed
 
 
 class _Problem(eqx.Module):
@@ -433,7 +447,8 @@ class _Problem(eqx.Module):
 
 def _render(problem: _Problem, frame: _FrameData, y) -> jax.Array:
     y = jax.tree_util.tree_map(lambda v: jnp.asarray(v, problem.albedo.dtype), y)
-    return problem.fit.render(problem.technique, frame, _natural(problem.fit, y, problem.albedo))
+    technique = problem.technique if frame.seed is None else _with_seed(problem.technique, frame.seed)
+    return problem.fit.render(technique, frame, _natural(problem.fit, y, problem.albedo))
 
 
 def _huber_residual(e: jax.Array, delta: float) -> jax.Array:
@@ -461,9 +476,16 @@ def _render_jit(problem: _Problem, frame: _FrameData, y):
     return _render(problem, frame, y)
 
 
-def _frame_data(frame: MatchFrame, norms: Mapping[int, float], means: Mapping[int, float], dtype,
+def _frame_seed(technique, frame: MatchFrame) -> int | None:
+    """The seed ``apply`` renders ``frame`` with: the technique's mixed with the frame's number; None: no seed."""
+    return frame_seed(int(np.asarray(technique.seed)), frame.number) if _has_seed(technique) else None
+
+
+def _frame_data(frame: MatchFrame, norms: Mapping[int, float], means: Mapping[int, float], dtype, technique,
                 scored: np.ndarray | None = None) -> _FrameData:
     ids = frame.material_id if scored is None else scored  # the weights: the scored pixels only
+    seed = _frame_seed(technique, frame)
+    seed = None if seed is None else np.uint32(seed)
     weight = np.zeros(ids.shape, np.float64)
     scale = np.ones(ids.shape, np.float64)
     for k, n in norms.items():
@@ -474,7 +496,7 @@ def _frame_data(frame: MatchFrame, norms: Mapping[int, float], means: Mapping[in
     return _FrameData(b, Camera(jnp.asarray(frame.camera.focal_px, dtype), jnp.asarray(frame.camera.mm_per_unit, dtype),
                                 frame.camera.principal_point),
                       jnp.asarray(frame.truth, dtype), jnp.asarray(weight, dtype), jnp.asarray(scale, dtype),
-                      jnp.asarray(frame.material_id, jnp.int32))
+                      jnp.asarray(frame.material_id, jnp.int32), seed)
 
 
 def _pooled_stats(frames: Sequence[MatchFrame], ids: Sequence[int],
@@ -720,7 +742,7 @@ def match_render(
     # float, float32 unless x64 is on
     dtype = jnp.result_type(float)
     norms, means = _pooled_stats(frames, ids, scored_fit)
-    data = tuple(_frame_data(f, norms, means, dtype, m) for f, m in zip(frames, scored_fit))
+    data = tuple(_frame_data(f, norms, means, dtype, technique, m) for f, m in zip(frames, scored_fit))
     problem = _Problem(data, jnp.asarray(albedo, dtype), jnp.asarray(gain, dtype), technique, fit, loss,
                        float(huber_delta))
     y0 = {k: jnp.asarray(v, dtype) for k, v in y0.items()}
@@ -737,7 +759,7 @@ def match_render(
     # errors, before and after, in the plain metric, on fitted and held-back frames (same dense pass as the fit)
     def run(fs, params):
         ns, ms = _pooled_stats(fs, ids)
-        return [np.asarray(_render_jit(problem, _frame_data(f, ns, ms, dtype), params)) for f in fs]
+        return [np.asarray(_render_jit(problem, _frame_data(f, ns, ms, dtype, technique), params)) for f in fs]
 
     before, after = run(frames, y0), run(frames, y)
     errors = {"fitted": {"frames": [f.name for f in frames], "before": _errors(frames, before, ids),
@@ -767,6 +789,8 @@ def match_render(
     options.update({k: v if isinstance(v, (str, int, float, bool, type(None))) else str(v) for k, v in given.items()})
     options["fit_albedo"] = bool(fit_albedo)
     options["albedo_from"] = albedo_from
+    if _has_seed(technique):  # each frame's, as `apply` renders it: the technique's seed mixed with its number
+        options["frame_seeds"] = {f.name: _frame_seed(technique, f) for f in frames + holdout}
     if getattr(technique, "border", None) is not None:
         options["border"] = technique.border
     held_rule = f"SSS pixels holding >= {held_fraction:g} of the starting kernel's energy inside the frame"
