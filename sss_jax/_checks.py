@@ -21,6 +21,14 @@ def checked(x: Array, name: str, *, positive: bool = False, finite: bool = True)
     return eqx.error_if(x, bad, f"{name} must be {what}")
 
 
+def clamp(x: Array, low: float, high: float | None = None) -> Array:
+    """``x`` held to ``[low, high]`` with the whole derivative at the bounds themselves: ``jnp.clip`` and
+    ``jnp.maximum`` split a tie's derivative in two, which halved the gradient at an albedo or ``w`` of exactly 0 or 1
+    or a thickness of 0 (valid values, and where a bounded optimiser parks a parameter)."""
+    x = jnp.where(x < low, jnp.asarray(low, x.dtype), x)
+    return x if high is None else jnp.where(x > high, jnp.asarray(high, x.dtype), x)
+
+
 def check_host_range(x, name: str, *, low: float = 0.0, high: float = math.inf, low_open: bool = False,
                      finite: bool = True) -> None:
     """An error naming ``name`` where ``x``, known on the host (Python, NumPy, a concrete JAX array), is not finite

@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._checks import check_host_range, checked, is_bool
+from ._checks import check_host_range, checked, clamp, is_bool
 from ._custom_types import ParamLike
 from ._kernels import (
     SeparableKernel,
@@ -177,7 +177,7 @@ class TwoGaussianMaterial(AbstractMaterial):
 
     def _kernel_rows(self, dtype) -> tuple[Array, Array, Array]:
         """``w`` (clipped to [0, 1]), ``sigma_near_mm`` and ``sigma_far_mm`` (checked) as the kernels take them."""
-        return (jnp.clip(self.w.astype(dtype), 0.0, 1.0), checked(self.sigma_near_mm.astype(dtype), "sigma_near_mm"),
+        return (clamp(self.w.astype(dtype), 0.0, 1.0), checked(self.sigma_near_mm.astype(dtype), "sigma_near_mm"),
                 checked(self.sigma_far_mm.astype(dtype), "sigma_far_mm"))
 
     def separable_kernels(self, taps: int, dtype) -> SeparableKernel:

@@ -337,10 +337,13 @@ def normals_from_depth(depth: Array, camera: Camera) -> Array:
 
     dx, dy = diff(1), diff(0)
     n = jnp.cross(dy, dx)  # x right, y down, z forward: dy x dx points towards the camera (-z)
-    norm = jnp.linalg.norm(n, axis=-1, keepdims=True)
-    ok = (norm > 0) & jnp.isfinite(norm)  # an overflowing cross product (absurd focal lengths) faces the camera
+    # the norm from a square kept away from 0 where it is not used: a pixel with surface neighbours along one axis
+    # only (a 1-pixel strip, a 1-row frame) has n = 0, and the norm's derivative there (0 / 0) made the depth's
+    # gradient NaN though the normal (facing the camera) does not move
+    sq = jnp.sum(n * n, axis=-1, keepdims=True)
+    ok = (sq > 0) & jnp.isfinite(sq)  # an overflowing cross product (absurd focal lengths) faces the camera
     facing = jnp.zeros_like(n).at[..., 2].set(-1.0)
-    return jnp.where(ok, n / jnp.where(ok, norm, 1.0), facing)
+    return jnp.where(ok, n / jnp.sqrt(jnp.where(ok, sq, 1.0)), facing)
 
 
 # ------------------------------------------------------------------------------------------------------------------

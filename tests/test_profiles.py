@@ -265,3 +265,46 @@ def test_burley_inverse_cdf_keeps_its_relative_precision_for_small_u(u):
         tol = 2e-7 if u < 0.5 else 1e-6
         np.testing.assert_allclose(float(sj.burley_inverse_cdf(np.float32(u), np.float32(2.0))), 2 * r, rtol=tol)
         np.testing.assert_allclose(float(unit_radius_for_cdf(jnp.float32(u))), r, rtol=tol)
+
+
+def test_a_bisected_radius_follows_the_profiles_shape():
+    # GaussianSumProfile and TabulatedProfile invert their CDF by bisection, whose derivative moved only with its
+    # bracket: d radius_for_energy(0.99) / d weights was 0 (central differences: 0.78), and a separable kernel built
+    # from such a profile (its reach) had the wrong gradient in the profile's weights (found by a review). Truth:
+    # central differences of the same float64 functions
+    import equinox as eqx
+
+    def fd(f, x, e, h):
+        return (float(f(x + h * e)) - float(f(x - h * e))) / (2 * h)
+
+    w0 = jnp.asarray([[0.6, 0.5, 0.4], [0.4, 0.5, 0.6]])
+    v0 = jnp.asarray([[0.2, 0.1, 0.05], [2.0, 1.0, 0.5]])
+    radius = lambda w, v: jnp.sum(sj.GaussianSumProfile(w, v).radius_for_energy(0.99) * jnp.asarray([1.0, 2.0, 3.0]))
+    for arg, x in ((0, w0), (1, v0)):
+        f = (lambda x: radius(x, v0)) if arg == 0 else (lambda x: radius(w0, x))
+        g = jax.grad(f)(x)
+        for k, c in ((0, 0), (1, 0), (1, 2)):
+            e = jnp.zeros_like(x).at[k, c].set(1.0)
+            assert float(g[k, c]) == pytest.approx(fd(f, x, e, 1e-6), rel=1e-5, abs=1e-9), (arg, k, c)
+    u_grad = jax.grad(lambda u: sj.GaussianSumProfile(w0, v0).inverse_cdf(u)[0])(jnp.asarray(0.7))
+    assert float(u_grad) == pytest.approx(fd(lambda u: sj.GaussianSumProfile(w0, v0).inverse_cdf(u)[0],
+                                              jnp.asarray(0.7), 1.0, 1e-6), rel=1e-5)
+
+    rr = jnp.linspace(0.05, 8.0, 40)
+    R0 = jnp.stack([jnp.exp(-rr / s) / rr for s in (1.5, 0.8, 0.4)], -1)
+    table = sj.TabulatedProfile(rr, R0)  # built from host arrays: the table traced by replacing R
+    tab = lambda R: jnp.sum(eqx.tree_at(lambda p: p.R, table, R).radius_for_energy(0.9))
+    g = jax.grad(tab)(R0)
+    for k in (5, 25):
+        e = jnp.zeros_like(R0).at[k, 0].set(float(R0[k, 0]))
+        assert float(jnp.vdot(g, e)) == pytest.approx(fd(tab, R0, e, 1e-6), rel=1e-4)
+
+    rng = np.random.default_rng(3)
+    b = sj.Buffers(irradiance=jnp.asarray(rng.uniform(0.2, 1.0, (10, 10, 3))), depth=jnp.full((10, 10), 1.0))
+    cam, wt = sj.Camera(20.0, 10.0), jnp.asarray(rng.normal(size=(10, 10, 3)))
+    sep = lambda w: jnp.sum(sj.separable(b, sj.ProfileMaterial(sj.GaussianSumProfile(w, v0), albedo=(0.8, 0.6, 0.5)),
+                                         cam, taps=9) * wt)
+    g = jax.grad(sep)(w0)
+    for k in (0, 1):
+        e = jnp.zeros_like(w0).at[k, 0].set(1.0)
+        assert float(g[k, 0]) == pytest.approx(fd(sep, w0, e, 1e-6), rel=1e-4)

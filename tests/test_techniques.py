@@ -290,6 +290,54 @@ def test_gradients_finite_at_degenerate_inputs():
             assert np.all(np.isfinite(np.asarray(grad(jnp.asarray(d))))), d
 
 
+def test_gradients_at_the_bounds_of_a_valid_range_are_whole():
+    # an albedo or w of exactly 0 or 1 and a thickness of 0 are valid (saturated textures, a bounded optimiser's
+    # parked parameter, the default thickness), and the passes are smooth up to them: jnp.clip / jnp.maximum split
+    # the tie's derivative and gave half of it (found by a review). Truth: one-sided differences from inside
+    b = _small()
+    h = 1e-6
+    inward = lambda f, x, e, s: (float(f(x + s * h * e)) - float(f(x))) / (s * h)
+    wt = jnp.asarray(np.random.default_rng(4).normal(size=(HS, WS, 3)))
+    a0 = jnp.asarray([1.0, 0.6, 0.0])
+    f = lambda a: jnp.sum(sj.burley(b, sj.BurleyMaterial(a, [9.0, 6.0, 4.0]), CAM, samples=6) * wt)
+    g = jax.grad(f)(a0)
+    for c, s in ((0, -1.0), (2, 1.0)):
+        assert float(g[c]) == pytest.approx(inward(f, a0, jnp.eye(3)[c], s), rel=1e-4), c
+    w0 = jnp.asarray([1.0, 0.5, 0.0])
+    f = lambda w: jnp.sum(sj.separable(b, sj.TwoGaussianMaterial([1, 1, 1], w, [4.0, 3.0, 2.0], [12.0, 9.0, 7.0]),
+                                       CAM, taps=5) * wt)
+    g = jax.grad(f)(w0)
+    for c, s in ((0, -1.0), (2, 1.0)):
+        assert float(g[c]) == pytest.approx(inward(f, w0, jnp.eye(3)[c], s), rel=1e-4), c
+    light = sj.DirectionalLight(jnp.asarray([0.2, -0.1, 1.0]))
+    p = sj.STAParams(distortion=0.3, power=3.0, thickness_mm=2.0, scale=1.5, ambient=0.1)
+    f = lambda t: jnp.sum(sj.translucency(sj.Buffers(irradiance=b.irradiance, depth=b.depth, thickness=t), p, CAM,
+                                          light) * wt)
+    t0, e = jnp.zeros((HS, WS)), jnp.zeros((HS, WS)).at[4, 5].set(1.0)
+    assert float(jax.grad(f)(t0)[4, 5]) == pytest.approx(inward(f, t0, e, 1.0), rel=1e-4)
+    # Burley's CDF 1 - exp(-r/d)/4 - 3 exp(-r/3d)/4 has slope (1/4 + 1/4) / d at r = 0
+    assert float(jax.grad(lambda r: sj.burley_cdf(r, 2.0))(0.0)) == pytest.approx(0.25, rel=1e-12)
+
+
+def test_normals_from_depth_have_finite_gradients_where_a_surface_is_one_pixel_across():
+    # a pixel with surface neighbours along one axis only (a 1-row frame, a 1-pixel strip) has a zero cross product:
+    # its normal faces the camera whatever the depth, but the norm's derivative (0 / 0) made every depth gradient
+    # of STA NaN there (found by a review). Truth: the normal there does not move, so the gradient is 0
+    cam = sj.Camera(20.0, 10.0)
+    depth = 1.0 + 0.01 * jnp.arange(12.0)
+    jac = jax.jacfwd(lambda z: sj.normals_from_depth(z, cam))(depth[None, :])
+    assert np.all(np.asarray(jac) == 0.0)
+    strip = jnp.full((6, 12), jnp.inf).at[3].set(depth)
+    light = sj.DirectionalLight(jnp.asarray([0.2, -0.1, 1.0]))
+    rng = np.random.default_rng(5)
+    e = jnp.asarray(rng.uniform(0.2, 1.0, (6, 12, 3)))
+    wt = jnp.asarray(rng.normal(size=(6, 12, 3)))
+    f = lambda z: jnp.sum(sj.translucency(sj.Buffers(irradiance=e, depth=z), sj.STAParams(), cam, light) * wt)
+    g = np.asarray(jax.grad(f)(strip))
+    assert np.all(np.isfinite(g[3])), g[3]
+    assert np.all(g[3] == 0.0)
+
+
 # ------------------------------------------------------------------------------------------------------------------
 # agreement with the reference on a test scene
 # ------------------------------------------------------------------------------------------------------------------

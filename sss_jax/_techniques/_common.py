@@ -19,6 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
+from .._checks import clamp
 from .._scene import Buffers, Camera, on_host, passed, surface_mask, validate_buffers
 
 ALBEDO_MODES = ("post", "pre_post")
@@ -87,7 +88,7 @@ def _prepare(buffers: Buffers, material_albedo: Array, albedo_mode: str, dtype) 
     valid = _sss_mask(buffers)
     rows = _material_rows(buffers, material_albedo.shape[0])
     albedo = buffers.albedo if buffers.albedo is not None else material_albedo.astype(dtype)[rows]
-    albedo = jnp.clip(albedo.astype(dtype), 0.0, 1.0)
+    albedo = clamp(albedo.astype(dtype), 0.0, 1.0)
     # pixels that take no part hold nothing a neighbour could read: no NaN or inf depth, no stray irradiance
     e = jnp.where(valid[..., None], buffers.irradiance.astype(dtype), 0.0)
     depth = jnp.where(valid, buffers.depth.astype(dtype), 0.0)

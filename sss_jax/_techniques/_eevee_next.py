@@ -33,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._checks import check_host_count, checked
+from .._checks import check_host_count, checked, clamp
 from .._materials import BurleyMaterial
 from .._profiles import burley_inverse_ccdf
 from .._scene import Buffers, Camera
@@ -147,7 +147,7 @@ def _eevee_next_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera,
     rows, cols, ids = take(rows), take(cols), take(ids)
     irradiance, z, valid = (take(a) for a in (prep.irradiance, prep.depth, prep.valid))
     mat_rows = take(prep.rows)
-    albedo_mat = jnp.clip(material.albedo.astype(dtype), 0.0, 1.0)[mat_rows]
+    albedo_mat = clamp(material.albedo.astype(dtype), 0.0, 1.0)[mat_rows]
     # the radius EEVEE Next is given for the material (engines.EeveeNext), in mm, and the d its shader derives
     s_norm = _s_normalised(albedo_mat)
     radius = jnp.where(valid[..., None], d_table[mat_rows] * 4 * jnp.pi * s_norm, 0.0)

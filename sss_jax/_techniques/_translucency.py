@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._checks import check_host_range, checked, is_bool
+from .._checks import check_host_range, checked, clamp, is_bool
 from .._custom_types import ParamLike
 from .._materials import BurleyMaterial, DirectionalLight, STAParams
 from .._profiles import burley_cdf
@@ -62,7 +62,7 @@ def _thickness_mm(buffers: Buffers, thickness: ParamLike | None, camera: Camera,
     """Per-pixel thickness in mm: the thickness buffer (a negative value as 0, as every model reads it: the STA
     term's exp(-t / s) would grow without bound), else the constant ``thickness`` (scene units), else 0."""
     if buffers.thickness is not None:
-        thick_units = jnp.maximum(buffers.thickness.astype(dtype), 0.0)
+        thick_units = clamp(buffers.thickness.astype(dtype), 0.0)
     elif thickness is not None:  # checked on the host by the callers; here where it is traced (inf: thick)
         thick_units = jnp.broadcast_to(checked(jnp.asarray(thickness, dtype), "thickness", finite=False), shape)
     else:
@@ -126,10 +126,10 @@ def _transmission_impl(buffers: Buffers, material: BurleyMaterial, camera: Camer
     dtype = _work_dtype(buffers.irradiance.dtype)
     prep = _prepare(buffers, material.albedo, "post", dtype)
     normal = buffers.normal.astype(dtype) if buffers.normal is not None else normals_from_depth(prep.depth, camera)
-    thick_mm = jnp.maximum(_thickness_mm(buffers, thickness, camera, prep.depth.shape, dtype), 0.0)
+    thick_mm = clamp(_thickness_mm(buffers, thickness, camera, prep.depth.shape, dtype), 0.0)
     d = checked(material.d_mm.astype(dtype), "d_mm")[prep.rows]  # (H, W, 3)
     # the medium is the material's (its A and d per material id), not the albedo texture's, which only tints
-    medium_albedo = jnp.clip(material.albedo.astype(dtype), 0.0, 1.0)[prep.rows]
+    medium_albedo = clamp(material.albedo.astype(dtype), 0.0, 1.0)[prep.rows]
     t = jnp.where(jnp.isfinite(thick_mm), thick_mm, 0.0)[..., None]
     if medium is None:
         T = _TRANSMITTANCE[model](t, medium_albedo, d)
@@ -146,7 +146,7 @@ def _transmission_impl(buffers: Buffers, material: BurleyMaterial, camera: Camer
         # from a table per material row and channel (alpha and eta are the row's), interpolated per pixel
         if medium is None:
             tau, _ = slab_optical(t, medium_albedo, d)
-            alb = jnp.clip(material.albedo.astype(dtype), 0.0, 1.0).reshape(-1, 3)
+            alb = clamp(material.albedo.astype(dtype), 0.0, 1.0).reshape(-1, 3)
             table = slab_exit_table(slab_optical(jnp.ones_like(alb), alb, jnp.ones_like(alb))[1],
                                     jnp.ones(alb.shape[:1], dtype))
         else:
