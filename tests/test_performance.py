@@ -643,6 +643,11 @@ def test_pallas_separable_pass_gradient_is_the_xla_formulations():
     for a, b in zip(*grads):
         np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-12, atol=1e-14)
     assert np.abs(np.asarray(grads[0][1])).max() > 1e-3  # the reach does reach the loss
+    # forward mode too (a custom_vjp refused jvp: jacfwd, and a Levenberg-Marquardt fit of the Pallas pass, raised)
+    fwd = [jax.jacfwd(loss(f), argnums=2)(args[0], args[2], args[6])
+           for f in (gather_pass, functools.partial(separable_pass_pallas, block=16))]
+    np.testing.assert_allclose(np.asarray(fwd[1]), np.asarray(fwd[0]), rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(np.asarray(fwd[0]), np.asarray(grads[0][2]), rtol=1e-12, atol=1e-14)
 
 
 def _burley_case(h=9, w=11):
@@ -741,6 +746,8 @@ def test_burley_pallas_gradient_is_the_xla_formulations():
     g_xla, g_pallas = (np.asarray(jax.grad(loss(impl))(mat.d_mm)) for impl in ("gather", "pallas"))
     np.testing.assert_allclose(g_pallas, g_xla, rtol=1e-12, atol=1e-14)
     assert np.abs(g_xla).max() > 1e-4
+    # forward mode too (a custom_vjp refused jvp: jacfwd, and a Levenberg-Marquardt fit of the Pallas pass, raised)
+    np.testing.assert_allclose(np.asarray(jax.jacfwd(loss("pallas"))(mat.d_mm)), g_xla, rtol=1e-12, atol=1e-14)
 
 
 # the default border; under border="leaves" the three formulations meet the same NumPy loop in tests/test_oracle.py

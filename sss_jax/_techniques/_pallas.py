@@ -9,8 +9,9 @@ The per-tap and per-sample arithmetic is the XLA formulation's own (``_separable
 
 On a GPU the kernels lower through Triton (1D blocks of a power-of-two size, gathers through pointers); elsewhere
 they run with ``interpret=True`` (slow; what the tests use on CPU). ``pallas_call`` has no automatic derivative:
-each pass is a ``custom_vjp`` whose backward pass is the XLA formulation's (the same function, so the gradient is
-that of the forward result).
+each pass is a ``custom_jvp`` whose tangent is the XLA formulation's (the same function, so the derivative is that
+of the forward result), in forward mode (``jacfwd``, a Levenberg-Marquardt fit's linearisation) and, transposed, in
+reverse mode.
 """
 
 from __future__ import annotations
@@ -105,7 +106,7 @@ def _separable_forward(e, z, reach_px, scale, skip, rows, w_table, unit_offsets,
 _SEPARABLE_STATIC = (9, 10, 11, 12, 13, 14, 15)
 
 
-@functools.partial(jax.custom_vjp, nondiff_argnums=_SEPARABLE_STATIC)
+@functools.partial(jax.custom_jvp, nondiff_argnums=_SEPARABLE_STATIC)
 def _separable_pass(e, z, reach_px, scale, skip, rows, w_table, unit_offsets, cut_table, axis, follow_surface,
                     interpolation, border, origin_along, frame_length, block):
     run = lambda truncate: _separable_forward(e, z, reach_px, scale, skip, rows, w_table, unit_offsets, cut_table,
@@ -117,21 +118,15 @@ def _separable_pass(e, z, reach_px, scale, skip, rows, w_table, unit_offsets, cu
     return jax.lax.cond(wide, lambda: run(True), lambda: run(False))
 
 
-def _separable_fwd(e, z, reach_px, scale, skip, rows, w_table, unit_offsets, cut_table, axis, follow_surface,
-                   interpolation, border, origin_along, frame_length, block):
-    out = _separable_pass(e, z, reach_px, scale, skip, rows, w_table, unit_offsets, cut_table, axis, follow_surface,
-                          interpolation, border, origin_along, frame_length, block)
-    return out, (e, z, reach_px, scale, skip, rows, w_table, unit_offsets, cut_table)
-
-
-def _separable_bwd(axis, follow_surface, interpolation, border, origin_along, frame_length, block, residuals,
-                   cotangent):
+@_separable_pass.defjvp
+def _separable_jvp(axis, follow_surface, interpolation, border, origin_along, frame_length, block, primals,
+                   tangents):
+    """The pass's value from the kernel, its derivative the XLA gather formulation's (the same sums): a JVP rule,
+    so forward mode (``jacfwd``, Levenberg-Marquardt's linearisation) runs and reverse mode transposes it."""
+    out = _separable_pass(*primals, axis, follow_surface, interpolation, border, origin_along, frame_length, block)
     xla = functools.partial(gather_pass, axis=axis, follow_surface=follow_surface, interpolation=interpolation,
                             border=border, origin_along=origin_along, frame_length=frame_length)
-    return jax.vjp(xla, *residuals)[1](cotangent)
-
-
-_separable_pass.defvjp(_separable_fwd, _separable_bwd)
+    return out, jax.jvp(xla, primals, tangents)[1]
 
 
 def separable_pass_pallas(e: Array, z: Array, reach_px: Array, scale: Array, skip: Array, rows: Array,
@@ -201,32 +196,29 @@ def _burley_forward(pix, active, buffer_shape, origin, frame_shape, samples, mm_
 _BURLEY_STATIC = (2, 3, 4, 5, 7, 8, 9, 10, 11)
 
 
-@functools.partial(jax.custom_vjp, nondiff_argnums=_BURLEY_STATIC)
+@functools.partial(jax.custom_jvp, nondiff_argnums=_BURLEY_STATIC)
 def _burley_pass(pix, active, buffer_shape, origin, frame_shape, samples, mm_per_unit, interpolation,
                  weight_channels, truncate, border, block):
     return _burley_forward(pix, active, buffer_shape, origin, frame_shape, samples, mm_per_unit, interpolation,
                            weight_channels, truncate, border, block)
 
 
-def _burley_fwd(pix, active, buffer_shape, origin, frame_shape, samples, mm_per_unit, interpolation,
-                weight_channels, truncate, border, block):
+@_burley_pass.defjvp
+def _burley_jvp(buffer_shape, origin, frame_shape, samples, interpolation, weight_channels, truncate, border, block,
+                primals, tangents):
+    """The frame's value from the kernel, its derivative the gather layout's (the same sums): a JVP rule, so
+    forward mode (``jacfwd``, Levenberg-Marquardt's linearisation) runs and reverse mode transposes it."""
+    pix, active, mm_per_unit = primals
     out = _burley_forward(pix, active, buffer_shape, origin, frame_shape, samples, mm_per_unit, interpolation,
                           weight_channels, truncate, border, block)
-    return out, (pix, active, mm_per_unit)
 
-
-def _burley_bwd(buffer_shape, origin, frame_shape, samples, interpolation, weight_channels, truncate, border, block,
-                residuals, cotangent):
-    def xla(pix, active, mm_per_unit):  # the gather layout of the same frame: its gradient is the forward's
+    def xla(pix, active, mm_per_unit):  # the gather layout of the same frame
         fetch = xla_fetch(fetch_planes(pix, buffer_shape), interpolation)
         return frame_result(pix, fetch, pix["cos_phi"], pix["sin_phi"], samples=samples, truncate=truncate,
                             border=border, weight_channels=weight_channels, buffer_shape=buffer_shape, origin=origin,
                             frame_shape=frame_shape, mm_per_unit=mm_per_unit, interpolation=interpolation)
 
-    return jax.vjp(xla, *residuals)[1](cotangent)
-
-
-_burley_pass.defvjp(_burley_fwd, _burley_bwd)
+    return out, jax.jvp(xla, primals, tangents)[1]
 
 
 def burley_pallas_frame(pix: dict, active: Array, *, buffer_shape: tuple[int, int], origin: tuple[int, int],
