@@ -18,8 +18,10 @@ Objectives (each a residual vector; the loss is half its squared norm):
   CDF at r = t: HDRP's thin-object transmission) or a Monte Carlo slab transmittance.
 
 Solvers: ``"optimistix"`` (Levenberg–Marquardt on the residuals, unconstrained log/logit parameters) and ``"jaxopt"``
-(bounded L-BFGS-B on the loss in the natural parameters). Both start from the moments of the target and keep the
-best of a few starts. Every fit returns a record: solver, outcome, iterations, seconds, final error.
+(bounded L-BFGS-B on the loss in the natural parameters). The profile fits start from the moments of the target
+and keep the best of up to four starts; the image and STA fits start once (from the profile fit, and from fixed
+values scaled by d). Every fit returns a record: solver, outcome (``AT_SEARCH_BOUND`` where a parameter ended at the
+edge of its search range rather than at an optimum), iterations, seconds, final error.
 """
 
 from __future__ import annotations
@@ -130,14 +132,38 @@ def _moments_sigma(target: np.ndarray, pixel_mm: float, half: int) -> np.ndarray
     return np.sqrt(np.maximum((marginal * x[:, None] ** 2).sum(axis=0) / np.maximum(total, 1e-30), 1e-12))
 
 
+AT_SEARCH_BOUND = "at_search_bound"
+# how near a bound of the search (not of the parameter's own range) a converged value may end and still count as
+# found: relative to the bound, or to the span for a bound of 0
+_BOUND_RTOL = 1e-3
+
+
 def _solve(residual_fn: Callable, x0: np.ndarray, lower: np.ndarray, upper: np.ndarray, solver: str,
-           max_steps: int = 400, args: Any = None) -> tuple[np.ndarray, str, int]:
+           max_steps: int = 400, args: Any = None, own_lower: Any = False,
+           own_upper: Any = False) -> tuple[np.ndarray, str, int]:
     """Minimise ``0.5 ||residual(x, args)||^2`` for x in [lower, upper]; returns (x, outcome, iterations).
 
     optimistix works on z with x = lower + (upper - lower) sigmoid(z) (unconstrained); jaxopt's L-BFGS-B on x with
     the bounds directly. ``residual_fn`` should be one function object across calls (data in ``args``) so each
-    solver compiles once."""
+    solver compiles once. ``own_lower``/``own_upper`` (per coordinate, or one bool): which bounds are the
+    parameter's own range (w in [0, 1]); the others only limit the search, and a value ending at one of them is no
+    optimum found but the search's edge: the outcome is then ``AT_SEARCH_BOUND`` (d pinned at 20 d0 read as
+    "successful", or as the step limit where the solver crawled towards it)."""
     lower, upper = np.asarray(lower, np.float64), np.asarray(upper, np.float64)
+    x, outcome, it = _solve_in(residual_fn, x0, lower, upper, solver, max_steps, args)
+    if np.all(np.isfinite(x)):  # converged or stopped at max_steps (pinned: the solver crawls towards the bound)
+        tol = _BOUND_RTOL * np.where(np.isfinite(upper - lower), upper - lower, 1.0)
+        at_low = ~np.broadcast_to(np.asarray(own_lower, bool), x.shape) & (
+            x <= lower + np.maximum(_BOUND_RTOL * np.abs(lower), np.where(lower == 0, tol, 0.0)))
+        at_high = ~np.broadcast_to(np.asarray(own_upper, bool), x.shape) & (
+            x >= upper - np.maximum(_BOUND_RTOL * np.abs(upper), np.where(upper == 0, tol, 0.0)))
+        if np.any(at_low | at_high):
+            outcome = AT_SEARCH_BOUND
+    return x, outcome, it
+
+
+def _solve_in(residual_fn: Callable, x0: np.ndarray, lower: np.ndarray, upper: np.ndarray, solver: str,
+              max_steps: int, args: Any) -> tuple[np.ndarray, str, int]:
     if solver == "optimistix":
         import optimistix as optx
 
@@ -204,6 +230,11 @@ def _profile_residual(x, data):
     return ((m1[:, None] * m1[None, :] - target) * weights / norm).reshape(-1)
 
 
+# the starts of the pixel-grid fit, (w, sigma_near, sigma_far) in units of the marginal's spread: the near Gaussian
+# inside it, the far one outside
+_GRID_STARTS = ((0.5, 0.4, 1.6), (0.3, 0.2, 1.3), (0.7, 0.6, 2.5), (0.6, 0.2, 2.0))
+
+
 def fit_two_gaussian_grid(target: np.ndarray, pixel_mm: float, *, solver: str = "optimistix",
                           starts: int = 3, weighting: str = "none") -> tuple[np.ndarray, float, str, int]:
     """Fit one channel's ``(w, sigma_near, sigma_far)`` so the product ``a(x) a(y)`` matches a pixel grid of masses
@@ -211,6 +242,7 @@ def fit_two_gaussian_grid(target: np.ndarray, pixel_mm: float, *, solver: str = 
     (the rendered pixels as they are) or ``"radius"`` (each pixel times its distance to the centre, the r R(r) of
     the paper's Fig. 4)."""
     _check_solver(solver)
+    starts = check_host_count(starts, "starts", hi=len(_GRID_STARTS))  # more were taken and 4 run, in silence
     if weighting not in ("none", "radius"):
         raise ValueError(f"unknown weighting {weighting!r}; valid: none, radius")
     target = np.asarray(target, np.float64)
@@ -226,9 +258,9 @@ def fit_two_gaussian_grid(target: np.ndarray, pixel_mm: float, *, solver: str = 
     lower = np.array([0.0, 1e-3 * s0, 1e-3 * s0])
     upper = np.array([1.0, 10 * s0, 20 * s0])
     best = None
-    # starts from the moments: the near Gaussian inside, the far one outside the marginal's spread
-    for w0, fn, ff in [(0.5, 0.4, 1.6), (0.3, 0.2, 1.3), (0.7, 0.6, 2.5), (0.6, 0.2, 2.0)][:starts]:
-        x, outcome, it = _solve(_profile_residual, np.array([w0, fn * s0, ff * s0]), lower, upper, solver, args=data)
+    for w0, fn, ff in _GRID_STARTS[:starts]:
+        x, outcome, it = _solve(_profile_residual, np.array([w0, fn * s0, ff * s0]), lower, upper, solver, args=data,
+                                own_lower=[True, False, False], own_upper=[True, False, False])
         err = float(jnp.linalg.norm(_profile_residual(jnp.asarray(x), data)))
         if best is None or err < best[1]:
             best = (x, err, outcome, it)
@@ -250,7 +282,7 @@ def fit_two_gaussian_profile(profile: AbstractProfile, *, pixel_mm=None, half: i
     """
     _check_solver(solver)
     half = check_host_count(half, "half")
-    starts = check_host_count(starts, "starts")
+    starts = check_host_count(starts, "starts", hi=len(_GRID_STARTS))
     out = {"w": [], "sigma_near_mm": [], "sigma_far_mm": []}
     records = []
     t0 = time.perf_counter()
@@ -361,7 +393,10 @@ def _burley_image_residual(x, data):
 
 def fit_two_gaussian_image(target: BurleyMaterial, camera: Camera, *, taps: int = 25, init: dict | None = None,
                            solver: str = "optimistix", size: int = 32) -> dict[str, Any]:
-    """Image-space fit: separable with the two-Gaussian kernel against reference with the target (one material)."""
+    """Image-space fit: separable with the two-Gaussian kernel against reference with the target (one material),
+    both at albedo 1 (the kernel's shape is what is fitted; the target's albedo scales both alike). ``init``: the
+    start, ``w`` in [0, 1] and ``sigma_near_mm``/``sigma_far_mm`` > 0, three values each (default: the profile
+    fit)."""
     _check_solver(solver)
     _check_taps(taps)  # before the references' renders (it was found after them)
     if check_host_count(size, "size") < 8:
@@ -369,8 +404,21 @@ def fit_two_gaussian_image(target: BurleyMaterial, camera: Camera, *, taps: int 
     if init is not None and (not isinstance(init, dict) or
                              not {"w", "sigma_near_mm", "sigma_far_mm"} <= set(init)):
         raise ValueError(f"init must be a dict with w, sigma_near_mm and sigma_far_mm, got {init!r:.80}")
+    if init is not None:  # before the references' renders (a bad start failed inside the solver's loop)
+        for key, high, low_open in (("w", 1.0, False), ("sigma_near_mm", math.inf, True),
+                                    ("sigma_far_mm", math.inf, True)):
+            try:
+                v = np.asarray(init[key], np.float64)
+            except (TypeError, ValueError):
+                v = None
+            if v is None or v.shape != (3,):
+                raise ValueError(f"init[{key!r}] must be three numbers (one per channel), got {init[key]!r:.80}")
+            check_host_range(v, f"init[{key!r}]", high=high, low_open=low_open)
     patterns = image_patterns(size)
-    refs = [reference(b, target, camera) for b in patterns]
+    # the references at albedo 1, as the model renders (with the target's albedo they were darker than any kernel
+    # the fit could find: w collapsed and sigma_far ran off, reported "successful"; found by a review)
+    unit = BurleyMaterial(jnp.ones_like(jnp.asarray(target.albedo)), target.d_mm)
+    refs = [reference(b, unit, camera) for b in patterns]
     norm = float(np.sqrt(sum(np.sum(np.asarray(r) ** 2) for r in refs)))
     if init is None:
         init = fit_two_gaussian_to_burley(np.asarray(target.d_mm[0]))
@@ -382,7 +430,8 @@ def fit_two_gaussian_image(target: BurleyMaterial, camera: Camera, *, taps: int 
     lower = np.concatenate([np.zeros(3), 1e-3 * s])
     upper = np.concatenate([np.ones(3), 10 * s])
     t0 = time.perf_counter()
-    x, outcome, it = _solve(_image_residual, x0, lower, upper, solver, max_steps=100, args=data)
+    x, outcome, it = _solve(_image_residual, x0, lower, upper, solver, max_steps=100, args=data,
+                            own_lower=np.arange(9) < 3, own_upper=np.arange(9) < 3)  # w's range is its own
     err = float(jnp.linalg.norm(residual(jnp.asarray(x))))
     near, far = x[3:6], x[6:9]
     w = np.where(near <= far, x[0:3], 1 - x[0:3])
@@ -474,7 +523,8 @@ def _fit_sta(d_mm, solver: str, transmittance: Callable | None, thickness_range)
     upper = np.concatenate([[1.0, 16.0], np.full(3, 4.0), np.full(3, 2.0), d * 100])
     t0 = time.perf_counter()
     # Levenberg-Marquardt needs ~350 steps here to meet its 1e-8 tolerance (L-BFGS-B ~150); both reach one optimum
-    x, outcome, it = _solve(_sta_residual, x0, lower, upper, solver, max_steps=1000, args=data)
+    x, outcome, it = _solve(_sta_residual, x0, lower, upper, solver, max_steps=1000, args=data,
+                            own_lower=np.arange(11) < 8, own_upper=np.arange(11) < 1)  # distortion in [0, 1]
     err = float(jnp.linalg.norm(residual(jnp.asarray(x))) / jnp.linalg.norm(target))
     return {"distortion": float(x[0]), "power": float(x[1]), "scale": x[2:5].tolist(), "ambient": x[5:8].tolist(),
             "thickness_mm": x[8:11].tolist(),
