@@ -418,3 +418,28 @@ def test_a_report_of_an_overscan_frame_writes_its_images_with_the_frames_windows
     for path in images:  # the reference and the technique
         frame = sj._io.read_frame(path, channel_map={"irradiance": ["R", "G", "B"], "depth": "R"})
         assert frame.window == window and frame.depth.shape == (h, w), path
+
+
+def test_a_report_never_writes_over_its_own_inputs(tmp_path, capsys):
+    # an earlier report's image given as the truth of a report into the same folder was replaced by this report's
+    # image of that name (the inputs' files were not checked against the report's)
+    frame = _tiny_exr(tmp_path / "in.exr")
+    out = tmp_path / "rep"
+    args = ["--preset", "skin1", "--techniques", "separable", "--taps", "9", "--radius-px", "2", "--repeats", "0",
+            "--no-progress"]
+    assert main(["report", str(frame), "--out", str(out), *args]) == 0
+    earlier = sorted((out / "images" / "in").glob("*.exr"))
+    assert earlier
+    truth = earlier[0]
+    before = truth.read_bytes()
+    capsys.readouterr()
+    # refused before any work: the same name would be replaced, another removed as an earlier report's stale image
+    assert main(["report", str(frame), "--out", str(out), "--truth", str(truth), *args]) == 2
+    assert f"{truth} lies in {out / 'images'}, which this report fills and clears" in capsys.readouterr().err
+    assert truth.read_bytes() == before
+    # the report's own check, where the API writes it
+    from sss_jax._report._layout import _write
+
+    with pytest.raises(sj.SSSInputError, match="lies in"):
+        _write(out, {"inputs": [{"path": str(frame), "truth": str(truth)}]}, "", [], [])
+    assert truth.read_bytes() == before

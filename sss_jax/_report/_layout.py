@@ -356,24 +356,47 @@ def report(data: ReportData, out_dir: str | pathlib.Path, *,
     return _write(out_dir, doc, page.html(), frames, all_runs if images else [])
 
 
+def check_inputs_outside_images(out_dir: pathlib.Path, inputs: Sequence[Any]) -> None:
+    """No frame or truth of a report lies in ``out_dir/images``, the folder the report fills and clears: an earlier
+    report's image given as the truth would be replaced (same name) or removed as stale (another); refused naming
+    it, before any work where the caller checks first."""
+    from .._io import SSSInputError
+
+    images = (pathlib.Path(out_dir) / "images").resolve()
+    for path in inputs:
+        resolved = pathlib.Path(path).resolve()
+        if resolved.is_relative_to(images):
+            raise SSSInputError(f"{path} lies in {pathlib.Path(out_dir) / 'images'}, which this report fills and "
+                                "clears of earlier reports' images: copy it elsewhere, or give the report another "
+                                "folder")
+
+
 def _write(out_dir, doc: dict, page_html: str, frames: Sequence[FrameImages], runs: Sequence[TechniqueRun]):
     import os
     import shutil
     import tempfile
 
-    from .._io import write_bytes_atomic, write_exr, write_json_atomic
+    from .._io import SSSInputError, output_problems, write_bytes_atomic, write_exr, write_json_atomic
 
     out_dir = pathlib.Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise ValueError(f"{out_dir}: exists and is not a directory")
+    stems = [pathlib.Path(f.name).stem or f"frame{i}" for i, f in enumerate(frames)]
+    if len(set(stems)) < len(stems):  # frames of one name from several folders
+        stems = [f"{i}_{s}" for i, s in enumerate(stems)]
+    planned = [pathlib.Path("images", stem, run.label.replace(" ", "_") + ".exr") for stem in stems for run in runs]
+    planned = list(dict.fromkeys(planned + [pathlib.Path("report.json"), pathlib.Path("report.html")]))
+    inputs = [pathlib.Path(v) for i in doc.get("inputs", []) for k, v in i.items()
+              if k in ("path", "truth") and isinstance(v, str)]
+    check_inputs_outside_images(out_dir, inputs)
+    problems = output_problems([("the report", out_dir / rel) for rel in planned], inputs)
+    if problems:
+        raise SSSInputError("report not written: " + "; ".join(problems))
     parent = out_dir.parent
     parent.mkdir(parents=True, exist_ok=True)
     staging = pathlib.Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.staging-", dir=parent))
     try:
         files = []
-        stems = [pathlib.Path(f.name).stem or f"frame{i}" for i, f in enumerate(frames)]
-        if len(set(stems)) < len(stems):  # frames of one name from several folders
-            stems = [f"{i}_{s}" for i, s in enumerate(stems)]
         for fi, stem in enumerate(stems):
             for run in runs:
                 rel = pathlib.Path("images", stem, run.label.replace(" ", "_") + ".exr")

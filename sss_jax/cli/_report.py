@@ -242,6 +242,10 @@ def run(args) -> int:
             if v is not None and not (0 < v < float("inf")):
                 raise ValueError(f"--{name.replace('_', '-')} must be a finite positive number, got {v}")
         check_report_out(args.out)
+        from .._batch import expand_inputs
+        from .._report._layout import check_inputs_outside_images
+
+        check_inputs_outside_images(args.out, [*expand_inputs(args.inputs), *(args.truth or [])])
         mat, sep, sta, info = materials(args)
         shown = WarningPrinter("sss-jax report")
         notes = []
