@@ -10,12 +10,11 @@ mean (NVIDIA's flip-evaluator; each frame's exposure range from the target's SSS
 
 from __future__ import annotations
 
-from numbers import Real
-
 import html
 import json
 import pathlib
 from collections.abc import Sequence
+from numbers import Real
 from typing import Any
 
 import numpy as np
@@ -376,7 +375,13 @@ def _write(out_dir, doc: dict, page_html: str, frames: Sequence[FrameImages], ru
     import shutil
     import tempfile
 
-    from .._io import SSSInputError, output_problems, write_bytes_atomic, write_exr, write_json_atomic
+    from .._io import (
+        SSSInputError,
+        output_problems,
+        write_bytes_atomic,
+        write_exr,
+        write_json_atomic,
+    )
 
     out_dir = pathlib.Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
