@@ -591,8 +591,11 @@ def to_tabulated_profile(results: MCResult | list[MCResult], mfp_mm: float | lis
         raise ValueError(f"mfp_mm must be one length or one per result ({len(results)}), got {mfp_mm!r}")
     mfps = np.broadcast_to(np.asarray(mfp_mm, np.float64), (len(results),))
     # one radius grid, the union of every channel's bin centres (so a channel with a short mean free path keeps its
-    # own resolution), every channel's R (1/mm^2) interpolated onto it and 0 beyond its own range
-    r0 = np.unique(np.concatenate([res.r_mfp * m for res, m in zip(results, mfps)]))
+    # own resolution), every channel's R (1/mm^2) interpolated onto it and 0 beyond its own range. The radii are
+    # made distinct in the dtype the table is stored in (JAX's float): centres one float64 ulp apart (0.5 x 0.15 and
+    # 0.3 x 0.25 mm) collapsed in float32 and the table was refused
+    stored = np.dtype(jnp.result_type(float))
+    r0 = np.unique(np.concatenate([res.r_mfp * m for res, m in zip(results, mfps)]).astype(stored)).astype(np.float64)
     cols = np.stack([np.interp(r0, res.r_mfp * m, res.R / (m * m), right=0.0) for res, m in zip(results, mfps)], -1)
     held = np.asarray([np.sum(res.R * np.pi * np.diff(res.bin_edges_mfp**2)) for res in results])  # (mfp-free)
     raw = np.asarray(TabulatedProfile(r0, cols).albedo, np.float64)
