@@ -98,10 +98,21 @@ def _prepare(buffers: Buffers, material_albedo: Array, albedo_mode: str, dtype) 
     return _Prepared(irradiance=e, depth=depth, valid=valid, rows=rows, albedo_out=albedo)
 
 
+def as_output(out: Array, dtype) -> Array:
+    """``out`` (the work dtype) as the buffers' dtype: held to that dtype's finite range where it is narrower (half
+    holds at most 65504; light a translucency adds to 60000 turned to inf, as the CLI's half writer clamps it), a
+    plain cast where it is not (no operation in the program)."""
+    dtype = jnp.dtype(dtype)
+    if jnp.issubdtype(dtype, jnp.floating) and jnp.finfo(dtype).max < jnp.finfo(out.dtype).max:
+        big = jnp.finfo(dtype).max
+        out = jnp.clip(out, -big, big)
+    return out.astype(dtype)
+
+
 def _finish(buffers: Buffers, prep: _Prepared, scattered: Array) -> Array:
     out = prep.albedo_out * scattered
     out = jnp.where(prep.valid[..., None], out, buffers.irradiance.astype(out.dtype))
-    return out.astype(buffers.irradiance.dtype)
+    return as_output(out, buffers.irradiance.dtype)
 
 
 def _corners(flat: Array, height: int, width: int, y: Array, x: Array, *, interpolation: str):

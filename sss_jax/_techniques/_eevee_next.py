@@ -46,6 +46,7 @@ from ._common import (
     _safe_sqrt,
     _work_dtype,
     check_seed,
+    weighted_mean,
 )
 from ._engine_frame import (
     computed_pixels,
@@ -193,7 +194,8 @@ def _eevee_next_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera,
 
         zero = jnp.zeros(irradiance.shape, dtype)
         acc_e, acc_w = jax.lax.fori_loop(0, EEVEE_SAMPLE_LEN, sample, (zero, zero))
-        scattered = jnp.where(acc_w > 0, acc_e / jnp.where(acc_w > 0, acc_w, 1.0), 0.0)  # safe_rcp
+        # safe_rcp; the quotient's derivative without the square of the weight total (as hdrp's, burley's)
+        scattered = jnp.where(acc_w > 0, weighted_mean(acc_e, jnp.where(acc_w > 0, acc_w, 1.0)), 0.0)
         return acc + jnp.where(active[..., None], scattered, irradiance)
 
     total = jax.lax.fori_loop(0, frames, one_frame, jnp.zeros(irradiance.shape, dtype))

@@ -57,6 +57,7 @@ from ._common import (
     _sss_mask,
     _work_dtype,
     check_seed,
+    weighted_mean,
 )
 from ._engine_frame import (
     computed_pixels,
@@ -145,7 +146,9 @@ def _hdrp_impl(buffers: Buffers, material: BurleyMaterial, camera: Camera, budge
 
         zero = jnp.zeros(irradiance.shape, dtype)
         total_e, total_w = jax.lax.fori_loop(0, budget, sample, (zero, zero))
-        scattered = jnp.where(total_w > 0, total_e / jnp.where(total_w > 0, total_w, 1.0), 0.0)
+        # the quotient's derivative without the square of the weight total (it underflowed float32 where a pixel's
+        # only samples in the frame lie across a depth step: NaN gradients in d; found by a review)
+        scattered = jnp.where(total_w > 0, weighted_mean(total_e, jnp.where(total_w > 0, total_w, 1.0)), 0.0)
         local = ~active[..., None] | ~has_d
         return acc + jnp.where(local, irradiance, scattered)
 

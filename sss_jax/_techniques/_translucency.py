@@ -14,10 +14,10 @@ from jaxtyping import Array, Float
 from .._checks import check_host_range, checked, clamp, is_bool
 from .._custom_types import ParamLike
 from .._materials import BurleyMaterial, DirectionalLight, STAParams
-from .._profiles import burley_cdf
+from .._profiles import burley_ccdf
 from .._scene import Buffers, Camera, normals_from_depth, view_directions
 from .._slab import MediumMaterial, slab_diffuse_transmittance, slab_exit_lookup, slab_exit_table, slab_optical
-from ._common import _is_concrete, _prepare, _work_dtype, check_one_image
+from ._common import _is_concrete, _prepare, _work_dtype, as_output, check_one_image
 
 
 def _safe_pow(x: Array, p: Array) -> Array:
@@ -85,7 +85,7 @@ def _translucency_impl(buffers: Buffers, params: STAParams, camera: Camera, ligh
     added = sta_term(normal, view, light, params, thick_mm)
     out = prep.albedo_out * (prep.irradiance + added)
     out = jnp.where(prep.valid[..., None], out, buffers.irradiance.astype(dtype))
-    return out.astype(buffers.irradiance.dtype)
+    return as_output(out, buffers.irradiance.dtype)
 
 
 def thin_transmittance(thickness_mm: ParamLike, d_mm: ParamLike) -> Array:
@@ -103,7 +103,7 @@ def thin_transmittance(thickness_mm: ParamLike, d_mm: ParamLike) -> Array:
     """
     check_host_range(thickness_mm, "thickness_mm", finite=False)  # (NaN read as t = 0, T = 1; t < 0 as T = 1)
     check_host_range(d_mm, "d_mm")
-    return 1.0 - burley_cdf(thickness_mm, d_mm)
+    return burley_ccdf(thickness_mm, d_mm)
 
 
 def _thin_model(thickness_mm: Array, albedo: Array, d_mm: Array) -> Array:
@@ -156,7 +156,7 @@ def _transmission_impl(buffers: Buffers, material: BurleyMaterial, camera: Camer
     added = light.colour.astype(dtype).reshape(1, 1, 3) * transmitted * back_cos[..., None]
     out = prep.albedo_out * (prep.irradiance + (added if model == "thin" else 0.0)) + (added if model == "slab" else 0.0)
     out = jnp.where(prep.valid[..., None], out, buffers.irradiance.astype(dtype))
-    return out.astype(buffers.irradiance.dtype)
+    return as_output(out, buffers.irradiance.dtype)
 
 
 TRANSLUCENCY_MODELS = ("sta", "thin", "slab")
