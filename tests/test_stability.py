@@ -245,7 +245,7 @@ def test_engine_gradients_are_finite_in_float32_where_a_pixels_only_samples_cros
         b, cam = sj.Buffers(e, z), sj.Camera(jnp.float32(5e4), jnp.float32(1000.0))
         d0 = jnp.asarray([3.0, 1.4, 0.8], jnp.float32)
         for tech in (sj.hdrp, sj.eevee_next):
-            g = np.asarray(jax.grad(lambda d: jnp.sum(tech(b, sj.BurleyMaterial((0.8, 0.55, 0.45), d), cam)))(d0))
+            g = np.asarray(jax.grad(lambda d, t=tech: jnp.sum(t(b, sj.BurleyMaterial((0.8, 0.55, 0.45), d), cam)))(d0))
             assert np.all(np.isfinite(g)), (tech.__name__, g)
 
 
