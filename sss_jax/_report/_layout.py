@@ -389,8 +389,10 @@ def _write(out_dir, doc: dict, page_html: str, frames: Sequence[FrameImages], ru
     stems = [pathlib.Path(f.name).stem or f"frame{i}" for i, f in enumerate(frames)]
     if len(set(stems)) < len(stems):  # frames of one name from several folders
         stems = [f"{i}_{s}" for i, s in enumerate(stems)]
-    planned = [pathlib.Path("images", stem, run.label.replace(" ", "_") + ".exr") for stem in stems for run in runs]
-    planned = list(dict.fromkeys(planned + [pathlib.Path("report.json"), pathlib.Path("report.html")]))
+    images = [(fi, run, pathlib.Path("images", stem, run.label.replace(" ", "_") + ".exr"))
+              for fi, stem in enumerate(stems) for run in runs]
+    pages = [pathlib.Path("report.json"), pathlib.Path("report.html")]
+    planned = list(dict.fromkeys([rel for _, _, rel in images] + pages))
     inputs = [pathlib.Path(v) for i in doc.get("inputs", []) for k, v in i.items()
               if k in ("path", "truth") and isinstance(v, str)]
     check_inputs_outside_images(out_dir, inputs)
@@ -401,18 +403,14 @@ def _write(out_dir, doc: dict, page_html: str, frames: Sequence[FrameImages], ru
     parent.mkdir(parents=True, exist_ok=True)
     staging = pathlib.Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.staging-", dir=parent))
     try:
-        files = []
-        for fi, stem in enumerate(stems):
-            for run in runs:
-                rel = pathlib.Path("images", stem, run.label.replace(" ", "_") + ".exr")
-                (staging / rel).parent.mkdir(parents=True, exist_ok=True)
-                write_exr(staging / rel, np.asarray(run.images[fi], np.float32),
-                          attributes={"sss_jax:technique": run.technique, "sss_jax:count": run.count or 0},
-                          window=frames[fi].window, like=frames[fi].header)
-                files.append(rel)
+        for fi, run, rel in images:
+            (staging / rel).parent.mkdir(parents=True, exist_ok=True)
+            write_exr(staging / rel, np.asarray(run.images[fi], np.float32),
+                      attributes={"sss_jax:technique": run.technique, "sss_jax:count": run.count or 0},
+                      window=frames[fi].window, like=frames[fi].header)
         write_json_atomic(staging / "report.json", doc)
         write_bytes_atomic(staging / "report.html", page_html.encode())
-        files += [pathlib.Path("report.json"), pathlib.Path("report.html")]
+        files = [rel for _, _, rel in images] + pages
         out_dir.mkdir(parents=True, exist_ok=True)
         for rel in files:
             (out_dir / rel).parent.mkdir(parents=True, exist_ok=True)
